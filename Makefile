@@ -1,0 +1,41 @@
+# Two commands for a newcomer: `make demo` and `make test`. Both bootstrap a fresh machine.
+SHELL := /bin/bash
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.bootstrap-$(shell cat pyproject.toml Makefile | sha256sum | cut -c1-12)
+PYTEST_ARGS ?=
+
+.PHONY: demo test test-all bootstrap system-deps lint clean
+
+demo: $(STAMP)
+	$(VENV)/bin/cellctl demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q $(PYTEST_ARGS)
+
+test-all: $(STAMP)
+	$(PY) -m pytest -q -m "" $(PYTEST_ARGS)
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check cellctl tests
+
+bootstrap: $(STAMP)
+
+# open3d's wheel links libusb at import time; Debian does not ship it by default.
+system-deps:
+	@if ! ldconfig -p | grep -q libusb-1.0.so.0; then \
+	  echo "installing libusb-1.0-0 (needed by open3d)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0; \
+	fi
+
+$(STAMP): pyproject.toml Makefile | system-deps
+	@test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# The local CPU wheel first, so nothing pulls a multi-GB CUDA build.
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e '.[dev]'
+	@rm -f $(VENV)/.bootstrap-*
+	@touch $@
+
+clean:
+	rm -rf $(VENV) build *.egg-info

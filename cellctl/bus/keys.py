@@ -1,0 +1,133 @@
+"""Every Zenoh key expression cellctl uses, built by functions (wire contract v1).
+
+Nothing else in the code spells a key. Layout: ``cell/<cell_id>/...``.
+"""
+
+from __future__ import annotations
+
+import re
+
+from cellctl.errors import ConfigError
+
+__all__ = [
+    "ROLES",
+    "alive",
+    "alive_all",
+    "camera_capture",
+    "check_cell_id",
+    "classifier_classify",
+    "cmd",
+    "cmd_ack",
+    "events",
+    "planner_job_progress",
+    "planner_jobs",
+    "prefix",
+    "result",
+    "role_from_alive_key",
+    "robot_joints",
+    "robot_op",
+    "status",
+    "worker_op",
+]
+
+ROLES = ("robot", "camera", "classifier", "planner")
+"""Worker roles; the supervisor's own liveliness role is ``supervisor``."""
+
+_CELL_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9-]{0,63}$")
+_OP = re.compile(r"^[a-z][a-z0-9_-]{0,63}$")
+
+
+def check_cell_id(cell_id: str) -> str:
+    """Return ``cell_id`` if it is a valid single key chunk, else raise ConfigError."""
+    if not isinstance(cell_id, str) or not _CELL_ID.match(cell_id):
+        raise ConfigError(
+            f"cell id {cell_id!r} is invalid: expected 1-64 letters, digits or '-', starting with a letter or digit"
+        )
+    return cell_id
+
+
+def prefix(cell_id: str) -> str:
+    return f"cell/{check_cell_id(cell_id)}"
+
+
+def cmd(cell_id: str) -> str:
+    """PackML commands: subscriber and queryable on the supervisor."""
+    return f"{prefix(cell_id)}/cmd"
+
+
+def cmd_ack(cell_id: str) -> str:
+    return f"{prefix(cell_id)}/cmd/ack"
+
+
+def status(cell_id: str) -> str:
+    return f"{prefix(cell_id)}/status"
+
+
+def result(cell_id: str) -> str:
+    return f"{prefix(cell_id)}/result"
+
+
+def events(cell_id: str) -> str:
+    return f"{prefix(cell_id)}/events"
+
+
+def worker_op(cell_id: str, role: str, op: str) -> str:
+    """Queryable key of one operation of a worker role, e.g. ``cell/cell1/robot/move``."""
+    if role not in ROLES:
+        raise ConfigError(f"worker role {role!r} is unknown; expected one of {list(ROLES)}")
+    if not _OP.match(op):
+        raise ConfigError(f"worker op {op!r} is invalid: expected lower-case letters, digits, '_' or '-'")
+    return f"{prefix(cell_id)}/{role}/{op}"
+
+
+def robot_op(cell_id: str, op: str) -> str:
+    return worker_op(cell_id, "robot", op)
+
+
+def robot_joints(cell_id: str) -> str:
+    return f"{prefix(cell_id)}/robot/joints"
+
+
+def camera_capture(cell_id: str) -> str:
+    return worker_op(cell_id, "camera", "capture")
+
+
+def classifier_classify(cell_id: str) -> str:
+    return worker_op(cell_id, "classifier", "classify")
+
+
+def planner_jobs(cell_id: str) -> str:
+    return f"{prefix(cell_id)}/planner/jobs"
+
+
+def planner_job_progress(cell_id: str, job_id: str = "*") -> str:
+    return f"{prefix(cell_id)}/planner/jobs/{job_id}/progress"
+
+
+def alive(cell_id: str, role: str, instance: str | None = None) -> str:
+    """Liveliness token of one live worker (or ``supervisor``).
+
+    Roles that may run several instances (planners) append an instance chunk so that one
+    instance leaving does not hide the others: ``cell/<id>/alive/planner/<instance>``.
+    """
+    if role not in ROLES and role != "supervisor":
+        raise ConfigError(f"liveliness role {role!r} is unknown; expected one of {[*ROLES, 'supervisor']}")
+    key = f"{prefix(cell_id)}/alive/{role}"
+    if instance is not None:
+        if not _OP.match(instance):
+            raise ConfigError(f"instance name {instance!r} is invalid: expected lower-case letters, digits, '_' or '-'")
+        key += f"/{instance}"
+    return key
+
+
+def alive_all(cell_id: str) -> str:
+    return f"{prefix(cell_id)}/alive/**"
+
+
+def role_from_alive_key(cell_id: str, key: str) -> str | None:
+    """The role named by a liveliness key of this cell, or None if the key is not one."""
+    head = f"{prefix(cell_id)}/alive/"
+    if not key.startswith(head):
+        return None
+    role = key[len(head):].split("/", 1)[0]
+    return role if role in ROLES or role == "supervisor" else None

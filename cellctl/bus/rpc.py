@@ -1,0 +1,103 @@
+"""Request/reply over Zenoh queries with explicit timeouts.
+
+Three failures are told apart, because an operator acts differently on each:
+
+* no reply at all, immediately → :class:`WorkerUnavailable` (nobody serves the key);
+* a ``Timeout`` error reply after ``timeout`` → :class:`WorkerTimeout` (worker hung);
+* an error reply from the worker → :class:`WorkerFailed` with the worker's reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TypeVar
+
+import zenoh
+
+from cellctl.bus.codec import decode, decode_as, encode
+from cellctl.errors import ProtocolError, WorkerFailed, WorkerTimeout, WorkerUnavailable
+from cellctl.messages import ErrorReply, WireMessage
+
+__all__ = ["Reply", "request"]
+
+M = TypeVar("M", bound=WireMessage)
+
+MAX_REPLY_META_BYTES = 4 * 1024 * 1024
+
+
+@dataclass(frozen=True)
+class Reply:
+    """A decoded reply: the message and, for image replies, the raw payload bytes."""
+
+    message: WireMessage
+    payload: bytes | None = None
+
+
+def _err_text(err: zenoh.ReplyError) -> str:
+    try:
+        return err.payload.to_bytes().decode("utf-8", "replace")
+    except Exception:  # a reply error without a readable payload
+        return "<unreadable error payload>"
+
+
+def request(
+    session: zenoh.Session,
+    key: str,
+    msg: WireMessage,
+    expect: type[M],
+    *,
+    timeout: float,
+    payload: bytes | None = None,
+    role: str | None = None,
+) -> tuple[M, bytes | None]:
+    """Send ``msg`` to the one worker serving ``key`` and return its typed reply.
+
+    When ``payload`` is given (an encoded image), it is the query payload and ``msg`` travels
+    as the attachment; replies may do the same (image replies), in which case the raw
+    payload is returned beside the message.
+
+    Blocks up to ``timeout`` seconds.
+
+    Raises:
+        WorkerUnavailable: no worker serves ``key``.
+        WorkerTimeout: the worker did not answer within ``timeout``.
+        WorkerFailed: the worker replied with an error (its reason is in the message).
+        ProtocolError: the reply is not the expected message type.
+    """
+    op = key.rsplit("/", 1)[-1]
+    body = encode(msg)
+    kwargs: dict[str, object] = {"timeout": timeout, "target": zenoh.QueryTarget.BEST_MATCHING}
+    if payload is None:
+        kwargs["payload"] = body
+    else:
+        kwargs["payload"] = payload
+        kwargs["attachment"] = body
+    replies = list(session.get(key, **kwargs))
+    if not replies:
+        raise WorkerUnavailable(f"no {role or 'worker'} serves {key!r} (0 replies)", role=role, op=op)
+    rep = replies[0]
+    if rep.ok is None:
+        text = _err_text(rep.err)
+        if text.strip().lower() == "timeout":
+            raise WorkerTimeout(
+                f"{role or 'worker'} did not answer {key!r} within {timeout:g} s (hung?)", role=role, op=op
+            )
+        try:
+            err = decode_as(ErrorReply, text)
+            raise WorkerFailed(f"{role or 'worker'} refused {op}: {err.reason}", role=role, op=op)
+        except ProtocolError:
+            raise WorkerFailed(f"{role or 'worker'} failed {op}: {text[:300]}", role=role, op=op) from None
+    sample = rep.ok
+    data = sample.payload.to_bytes()
+    att = sample.attachment.to_bytes() if sample.attachment is not None else None
+    if att is not None:
+        meta = decode(att, MAX_REPLY_META_BYTES)
+        raw: bytes | None = data
+    else:
+        meta = decode(data, MAX_REPLY_META_BYTES)
+        raw = None
+    if not isinstance(meta, expect):
+        raise ProtocolError(
+            f"{role or 'worker'} answered {op} with {meta.type}, expected {expect.model_fields['type'].default}"
+        )
+    return meta, raw

@@ -1,0 +1,292 @@
+"""The cell configuration: YAML parsed into typed models that reject unknown keys.
+
+``config/cell.yaml`` is the default simulated cell. Relative paths in a config file are
+resolved against the project root, the folder that holds the config file's ``config/``
+folder (or the config file's own folder when it is not in a ``config/`` folder), so the
+daemon may be started from any working directory.
+"""
+
+from __future__ import annotations
+
+import typing
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from cellctl.bus.keys import ROLES, check_cell_id
+from cellctl.errors import ConfigError
+
+__all__ = [
+    "BusConfig",
+    "CameraConfig",
+    "CellConfig",
+    "ClassifierConfig",
+    "PlannerConfig",
+    "RecordingConfig",
+    "RobotConfig",
+    "SimConfig",
+    "SupervisorConfig",
+    "default_config_path",
+    "load_config",
+    "project_root",
+    "safe_yaml_load",
+]
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+
+
+def project_root() -> Path:
+    """The repository root of this checkout (holds ``config/``, ``states/``, ``models/``)."""
+    return PROJECT_ROOT
+
+
+def default_config_path() -> Path:
+    return PROJECT_ROOT / "config" / "cell.yaml"
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class BusConfig(_Model):
+    """Zenoh endpoints. The daemon is a router listening on ``listen``; others are clients."""
+
+    listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    lease_ms: int = Field(default=2000, ge=500, le=60000, description="link lease; bounds hang detection")
+    zenoh_config: Path | None = Field(default=None, description="extra Zenoh json5 (auth, ACL, TLS)")
+    multicast_scouting: bool = False
+
+
+class Timeouts(_Model):
+    """Seconds to wait for each worker op before declaring the worker hung."""
+
+    default: float = Field(default=5.0, gt=0)
+    approach: float = Field(default=60.0, gt=0)
+    move: float = Field(default=60.0, gt=0)
+    capture: float = Field(default=10.0, gt=0)
+    classify: float = Field(default=10.0, gt=0)
+    plan_submit: float = Field(default=5.0, gt=0)
+    plan_wait: float = Field(default=600.0, gt=0)
+    stop: float = Field(default=2.0, gt=0)
+
+
+class SupervisorConfig(_Model):
+    status_period_s: float = Field(default=1.0, gt=0, le=60)
+    timeouts: Timeouts = Field(default_factory=Timeouts)
+    required_workers: list[str] = Field(default_factory=lambda: ["robot", "camera", "classifier"])
+    on_worker_lost: Literal["abort", "hold"] = "abort"
+    identify_attempts: int = Field(default=3, ge=1, le=10)
+    wait_for_plan: bool = Field(default=False, description="wait for the planner job instead of replan_required")
+    auto_reset: bool = Field(default=False, description="Complete → Resetting → Idle without a PLC Reset")
+    max_command_bytes: int = Field(default=64 * 1024, ge=256)
+
+    @field_validator("required_workers")
+    @classmethod
+    def _roles(cls, v: list[str]) -> list[str]:
+        bad = [r for r in v if r not in ROLES]
+        if bad:
+            raise ValueError(f"unknown worker roles {bad}; expected some of {list(ROLES)}")
+        return v
+
+
+class RecordingConfig(_Model):
+    dir: Path = Path("logs")
+    index: Path = Path("logs/cells.db")
+
+
+class RobotConfig(_Model):
+    backend: Literal["sim"] = "sim"
+    speed_scale: float = Field(default=1.0, gt=0, le=1000, description="sim: >1 runs motions faster")
+    settle_s: float = Field(default=0.2, ge=0, le=10)
+    joint_state_hz: float = Field(default=10.0, gt=0, le=500)
+
+
+class CameraConfig(_Model):
+    backend: Literal["sim", "opencv", "folder"] = "sim"
+    device: str = Field(default="0", description="opencv: device index or stream URL")
+    folder: Path | None = Field(default=None, description="folder: directory of images to replay")
+    width: int = Field(default=1280, gt=0)
+    height: int = Field(default=720, gt=0)
+    format: Literal["png", "jpeg"] = "png"
+
+
+class ClassifierConfig(_Model):
+    backend: Literal["torch"] = "torch"
+    models_dir: Path = Path("models/classifier")
+    imagenet_weights: Path | None = Field(default=None, description="optional local torchvision ResNet18 state_dict")
+
+
+class PoseTolerance(_Model):
+    translation_mm: float = Field(default=20.0, gt=0)
+    rotation_deg: float = Field(default=2.0, gt=0)
+
+
+class PlannerConfig(_Model):
+    plans_dir: Path = Path("models/plans")
+    tolerance: PoseTolerance = Field(default_factory=PoseTolerance)
+    surface: Literal["external", "internal"] = "external"
+    seed_pct: float = Field(default=10.0, gt=0, le=100)
+    mode: Literal["fast", "paper"] = "fast"
+    seed: int = 0
+
+
+class SimConfig(_Model):
+    """The pybullet twin's scenario (used by sim backends only)."""
+
+    bin_type: str = "case_study"
+    bin_pose_xyz_yaw: tuple[float, float, float, float] = Field(
+        default=(0.0, 0.0, 0.0, 0.0), description="bin pose in the world: x, y, z (m), yaw (deg)"
+    )
+    dirty: bool = False
+    powder_amount: float = Field(default=0.5, ge=0, le=1)
+    seed: int = 0
+    approach_error_m: float = Field(default=0.03, ge=0, le=0.5)
+    approach_error_deg: float = Field(default=2.0, ge=0, le=30)
+
+
+class CellSection(_Model):
+    id: str = "cell1"
+
+    @field_validator("id")
+    @classmethod
+    def _id(cls, v: str) -> str:
+        try:
+            return check_cell_id(v)
+        except ConfigError as err:
+            raise ValueError(str(err)) from None
+
+
+class CellConfig(_Model):
+    """The whole configuration of one cell."""
+
+    cell: CellSection = Field(default_factory=CellSection)
+    bus: BusConfig = Field(default_factory=BusConfig)
+    supervisor: SupervisorConfig = Field(default_factory=SupervisorConfig)
+    recording: RecordingConfig = Field(default_factory=RecordingConfig)
+    catalog: Path = Path("config/bins.yaml")
+    robot: RobotConfig = Field(default_factory=RobotConfig)
+    camera: CameraConfig = Field(default_factory=CameraConfig)
+    classifier: ClassifierConfig = Field(default_factory=ClassifierConfig)
+    planner: PlannerConfig = Field(default_factory=PlannerConfig)
+    sim: SimConfig = Field(default_factory=SimConfig)
+
+    root: Path = Field(default=PROJECT_ROOT, exclude=True, description="base of relative paths")
+
+    @property
+    def cell_id(self) -> str:
+        return self.cell.id
+
+    def path(self, p: Path | str) -> Path:
+        """Resolve a config path against the project root."""
+        q = Path(p)
+        return q if q.is_absolute() else self.root / q
+
+
+class _Loader(yaml.SafeLoader):
+    """safe_load, but only true/false are booleans (``on``/``off``/``yes``/``no`` stay strings)."""
+
+
+_Loader.yaml_implicit_resolvers = {
+    k: [(tag, rx) for tag, rx in v if tag != "tag:yaml.org,2002:bool"]
+    for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+for _first in "tTfF":
+    _Loader.add_implicit_resolver(
+        "tag:yaml.org,2002:bool",
+        __import__("re").compile(r"^(?:true|True|TRUE|false|False|FALSE)$"),
+        list(_first),
+    )
+
+
+def safe_yaml_load(text: str, source: str = "<string>") -> Any:
+    """Parse YAML safely; raise ConfigError with the location on syntax errors."""
+    try:
+        return yaml.load(text, Loader=_Loader)  # noqa: S506 - _Loader derives from SafeLoader
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{source}: not valid YAML: {err}") from err
+
+
+def _allowed_keys(model: type[BaseModel], loc: tuple[Any, ...]) -> list[str] | None:
+    """Field names of the model that holds the key at ``loc`` (for 'unknown key' messages)."""
+    current: Any = model
+    for part in loc[:-1]:
+        if not (isinstance(current, type) and issubclass(current, BaseModel)):
+            return None
+        field = current.model_fields.get(str(part))
+        if field is None:
+            return None
+        current = field.annotation
+        for arg in typing.get_args(current) or ():
+            if isinstance(arg, type) and issubclass(arg, BaseModel):
+                current = arg
+    if isinstance(current, type) and issubclass(current, BaseModel):
+        return sorted(k for k in current.model_fields if k != "root")
+    return None
+
+
+def explain_validation(err: ValidationError, model: type[BaseModel], source: str) -> str:
+    """One line per problem: key path, what is wrong, the value given, what is allowed."""
+    lines = []
+    for e in err.errors():
+        loc = tuple(e["loc"])
+        key = ".".join(str(x) for x in loc) or "(top level)"
+        if e["type"] == "extra_forbidden":
+            allowed = _allowed_keys(model, loc)
+            lines.append(f"{source}: unknown key {key!r}; allowed keys here: {allowed}")
+        else:
+            given = e.get("input")
+            shown = repr(given)
+            if len(shown) > 80:
+                shown = shown[:77] + "..."
+            lines.append(f"{source}: key {key!r}: {e['msg']} (got {shown})")
+    return "\n".join(lines)
+
+
+def _set_dotted(data: dict[str, Any], dotted: str, raw_value: str) -> None:
+    if "=" in dotted and raw_value == "":
+        dotted, raw_value = dotted.split("=", 1)
+    parts = dotted.split(".")
+    node = data
+    for p in parts[:-1]:
+        nxt = node.setdefault(p, {})
+        if not isinstance(nxt, dict):
+            raise ConfigError(f"--set {dotted}: {p!r} is not a section")
+        node = nxt
+    node[parts[-1]] = safe_yaml_load(raw_value, f"--set {dotted}")
+
+
+def load_config(path: Path | str | None = None, overrides: list[str] | None = None) -> CellConfig:
+    """Load and validate a cell config.
+
+    Args:
+        path: YAML file; ``None`` means the default ``config/cell.yaml``.
+        overrides: ``key.path=value`` strings applied after the file (``--set``).
+
+    Raises:
+        ConfigError: the file is missing, not YAML, or does not validate; the message names
+            every offending key, its value and what is allowed.
+    """
+    p = Path(path) if path is not None else default_config_path()
+    if not p.is_file():
+        raise ConfigError(f"config file {str(p)!r} does not exist")
+    data = safe_yaml_load(p.read_text(), str(p))
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: top level must be a mapping of sections, got {type(data).__name__}")
+    for ov in overrides or []:
+        if "=" not in ov:
+            raise ConfigError(f"--set {ov!r}: expected KEY.PATH=VALUE")
+        k, v = ov.split("=", 1)
+        _set_dotted(data, k.strip(), v)
+    root = p.resolve().parent
+    if root.name == "config":
+        root = root.parent
+    try:
+        cfg = CellConfig.model_validate({**data, "root": root})
+    except ValidationError as err:
+        raise ConfigError(explain_validation(err, CellConfig, str(p))) from err
+    return cfg

@@ -1,0 +1,446 @@
+"""Every wire message of cellctl as a typed, versioned model (wire contract v1).
+
+Control payloads are JSON objects with ``"type"`` (``"cellctl/<Name>"``) and ``"v"``.
+Images travel as encoded bytes (PNG/JPEG) in the payload, with their message (e.g.
+:class:`CaptureReply`) as a JSON attachment. ``cellctl schema`` prints the JSON Schemas.
+
+Add a message: subclass :class:`WireMessage`, give it ``type: Literal["cellctl/Name"]`` and
+``v: Literal[1]``, list it in :data:`MESSAGE_TYPES`. Changing a field of an existing message
+is a contract change: bump ``v`` and keep decoding the old version.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import enum
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+__all__ = [
+    "MESSAGE_TYPES",
+    "Ack",
+    "ApproachReply",
+    "ApproachRequest",
+    "BinInfo",
+    "CaptureReply",
+    "CaptureRequest",
+    "ClassifyReply",
+    "ClassifyRequest",
+    "Command",
+    "CycleOutcome",
+    "CycleResult",
+    "ErrorReply",
+    "Event",
+    "EventLevel",
+    "Intrinsics",
+    "JointState",
+    "MoveReply",
+    "MoveRequest",
+    "PackMLCommand",
+    "PlanJobProgress",
+    "PlanJobReply",
+    "PlanJobRequest",
+    "PoseMsg",
+    "RobotState",
+    "RobotStateRequest",
+    "Status",
+    "StopRequest",
+    "ViewpointResult",
+    "WireMessage",
+    "now_iso",
+]
+
+WIRE_VERSION = 1
+
+
+def now_iso() -> str:
+    """UTC time as ISO-8601 with milliseconds, the stamp format of every message."""
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
+
+
+class WireMessage(BaseModel):
+    """Base of every wire message: frozen, strict about unknown fields."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    type: str
+    v: int
+
+
+class PoseMsg(BaseModel):
+    """A pose: position in metres, orientation as a unit quaternion ``xyzw``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    position: tuple[float, float, float]
+    orientation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    frame_id: str = "base"
+
+    @classmethod
+    def from_matrix(cls, T: Any, frame_id: str = "base") -> PoseMsg:
+        from cellctl.geometry.transforms import pose_from_transform
+
+        p, q = pose_from_transform(np.asarray(T))
+        return cls(position=p, orientation=q, frame_id=frame_id)
+
+    def matrix(self) -> np.ndarray:
+        from cellctl.geometry.transforms import transform_from_pose
+
+        return transform_from_pose((self.position, self.orientation))
+
+
+# --- PackML command topic -------------------------------------------------------------------
+
+
+class PackMLCommand(enum.IntEnum):
+    """PackML commands with their PackTags ``CntrlCmd`` codes."""
+
+    reset = 1
+    start = 2
+    stop = 3
+    hold = 4
+    unhold = 5
+    suspend = 6
+    unsuspend = 7
+    abort = 8
+    clear = 9
+    complete = 10
+
+
+class Command(WireMessage):
+    """A PackML command from a PLC or operator on ``cell/<id>/cmd``.
+
+    Exactly one of ``command`` (lower-case name) or ``cntrl_cmd`` (PackTags code) is given.
+    """
+
+    type: Literal["cellctl/Command"] = "cellctl/Command"
+    v: Literal[1] = 1
+    command: Literal[
+        "reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"
+    ] | None = None
+    cntrl_cmd: int | None = Field(default=None, description="PackTags CntrlCmd code 1..10")
+    request_id: str | None = Field(default=None, max_length=128)
+    params: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _one_command(self) -> Command:
+        if (self.command is None) == (self.cntrl_cmd is None):
+            raise ValueError("give exactly one of 'command' (a PackML command name) or 'cntrl_cmd' (1..10)")
+        if self.cntrl_cmd is not None and self.cntrl_cmd not in {c.value for c in PackMLCommand}:
+            raise ValueError(
+                f"cntrl_cmd {self.cntrl_cmd!r} is unknown; expected one of "
+                + ", ".join(f"{c.value} {c.name}" for c in PackMLCommand)
+            )
+        return self
+
+    @property
+    def name(self) -> str:
+        """The command's lower-case PackML name, whichever way it was given."""
+        if self.command is not None:
+            return self.command
+        return PackMLCommand(self.cntrl_cmd).name
+
+
+class Ack(WireMessage):
+    """Reply to every command: accepted or not, with the reason and the state after it."""
+
+    type: Literal["cellctl/Ack"] = "cellctl/Ack"
+    v: Literal[1] = 1
+    request_id: str | None
+    command: str | None = None
+    accepted: bool
+    reason: str | None = None
+    state: str
+
+
+class Status(WireMessage):
+    """The cell's PackML status, published on every change and at 1 Hz."""
+
+    type: Literal["cellctl/Status"] = "cellctl/Status"
+    v: Literal[1] = 1
+    cell: str
+    state: str
+    state_code: int
+    step: str | None = None
+    cycle_id: str | None = None
+    available_commands: list[str]
+    unit_mode: str = "production"
+    last_error: str | None = None
+    workers: dict[str, bool] = Field(default_factory=dict, description="liveliness of each worker role")
+    stamp: str = Field(default_factory=now_iso)
+
+
+class EventLevel(enum.IntEnum):
+    """Levels as foxglove.Log uses them."""
+
+    debug = 1
+    info = 2
+    warning = 3
+    error = 4
+    fatal = 5
+
+
+class Event(WireMessage):
+    type: Literal["cellctl/Event"] = "cellctl/Event"
+    v: Literal[1] = 1
+    level: Literal["debug", "info", "warning", "error", "fatal"] = "info"
+    text: str
+    cycle_id: str | None = None
+    stamp: str = Field(default_factory=now_iso)
+
+
+class CycleOutcome(enum.StrEnum):
+    completed = "completed"
+    replan_required = "replan_required"
+    aborted = "aborted"
+    failed = "failed"
+
+
+class BinInfo(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    type: str | None = None
+    pose: PoseMsg | None = None
+
+
+class ViewpointResult(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    index: int
+    camera_pose: PoseMsg | None = None
+    label: Literal["clean", "dirty"] | None = None
+    p_dirty: float | None = None
+    uncertain: bool = False
+    error: str | None = None
+
+
+class CycleResult(WireMessage):
+    type: Literal["cellctl/CycleResult"] = "cellctl/CycleResult"
+    v: Literal[1] = 1
+    cycle_id: str
+    outcome: CycleOutcome
+    reason: str | None = None
+    bin: BinInfo = Field(default_factory=BinInfo)
+    plan_id: str | None = None
+    planner_job_id: str | None = None
+    verdict: Literal["clean", "dirty"] | None = None
+    viewpoints: list[ViewpointResult] = Field(default_factory=list)
+    coverage: float | None = None
+    dirt_map: dict[str, Any] | None = None
+    log: str | None = None
+    started: str | None = None
+    finished: str = Field(default_factory=now_iso)
+
+
+# --- worker replies -------------------------------------------------------------------------
+
+
+class ErrorReply(WireMessage):
+    """What a worker sends with ``reply_err``: a kind and a human-readable reason."""
+
+    type: Literal["cellctl/ErrorReply"] = "cellctl/ErrorReply"
+    v: Literal[1] = 1
+    kind: str = Field(description="exception class name, e.g. RobotError, ProtocolError")
+    reason: str
+
+
+# --- robot ----------------------------------------------------------------------------------
+
+
+class JointState(WireMessage):
+    type: Literal["cellctl/JointState"] = "cellctl/JointState"
+    v: Literal[1] = 1
+    names: list[str]
+    position: list[float]
+    stamp: str = Field(default_factory=now_iso)
+
+
+class ApproachRequest(WireMessage):
+    """Park the base beside the bin and move the arm to an observation pose."""
+
+    type: Literal["cellctl/ApproachRequest"] = "cellctl/ApproachRequest"
+    v: Literal[1] = 1
+    observation_index: int = Field(default=0, ge=0, description="which observation pose (retries use the next)")
+    park: bool = Field(default=True, description="False: only move the arm to the observation pose")
+
+
+class ApproachReply(WireMessage):
+    type: Literal["cellctl/ApproachReply"] = "cellctl/ApproachReply"
+    v: Literal[1] = 1
+    joints: list[float]
+    flange_pose: PoseMsg
+    camera_pose: PoseMsg
+    observation_index: int = 0
+
+
+class MoveRequest(WireMessage):
+    """Move to joint positions or to a camera pose (in the robot base frame)."""
+
+    type: Literal["cellctl/MoveRequest"] = "cellctl/MoveRequest"
+    v: Literal[1] = 1
+    joints: list[float] | None = None
+    camera_pose: PoseMsg | None = None
+    settle_s: float | None = Field(default=None, ge=0.0, le=60.0)
+
+    @model_validator(mode="after")
+    def _one_target(self) -> MoveRequest:
+        if (self.joints is None) == (self.camera_pose is None):
+            raise ValueError("give exactly one of 'joints' or 'camera_pose'")
+        return self
+
+
+class MoveReply(WireMessage):
+    type: Literal["cellctl/MoveReply"] = "cellctl/MoveReply"
+    v: Literal[1] = 1
+    joints: list[float]
+    camera_pose: PoseMsg
+    path_length_rad: float = 0.0
+    duration_s: float = 0.0
+
+
+class RobotStateRequest(WireMessage):
+    type: Literal["cellctl/RobotStateRequest"] = "cellctl/RobotStateRequest"
+    v: Literal[1] = 1
+
+
+class RobotState(WireMessage):
+    type: Literal["cellctl/RobotState"] = "cellctl/RobotState"
+    v: Literal[1] = 1
+    joints: list[float]
+    flange_pose: PoseMsg
+    camera_pose: PoseMsg
+    moving: bool = False
+    stamp: str = Field(default_factory=now_iso)
+
+
+class StopRequest(WireMessage):
+    """Stop any motion now (sent on Stop/Abort/Hold)."""
+
+    type: Literal["cellctl/StopRequest"] = "cellctl/StopRequest"
+    v: Literal[1] = 1
+    reason: str = ""
+
+
+# --- camera ---------------------------------------------------------------------------------
+
+
+class Intrinsics(BaseModel):
+    """Pinhole intrinsics in pixels, OpenCV distortion coefficients."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    width: int = Field(gt=0)
+    height: int = Field(gt=0)
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+    dist: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0])
+
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+
+class CaptureRequest(WireMessage):
+    type: Literal["cellctl/CaptureRequest"] = "cellctl/CaptureRequest"
+    v: Literal[1] = 1
+    format: Literal["png", "jpeg"] = "png"
+
+
+class CaptureReply(WireMessage):
+    """Metadata of a captured image; the encoded image is the reply payload."""
+
+    type: Literal["cellctl/CaptureReply"] = "cellctl/CaptureReply"
+    v: Literal[1] = 1
+    format: Literal["png", "jpeg"]
+    intrinsics: Intrinsics
+    camera_pose: PoseMsg | None = None
+    stamp: str = Field(default_factory=now_iso)
+
+
+# --- classifier -----------------------------------------------------------------------------
+
+
+class ClassifyRequest(WireMessage):
+    """Metadata of a classify request; the encoded image is the query payload."""
+
+    type: Literal["cellctl/ClassifyRequest"] = "cellctl/ClassifyRequest"
+    v: Literal[1] = 1
+    surface: Literal["external", "internal"]
+    format: Literal["png", "jpeg"] = "png"
+
+
+class ClassifyReply(WireMessage):
+    type: Literal["cellctl/ClassifyReply"] = "cellctl/ClassifyReply"
+    v: Literal[1] = 1
+    label: Literal["clean", "dirty"]
+    p_dirty: float = Field(ge=0.0, le=1.0)
+    uncertain: bool = False
+    model_id: str
+
+
+# --- planner --------------------------------------------------------------------------------
+
+
+class PlanJobRequest(WireMessage):
+    """Submit an offline planning job for a bin type at a measured bin pose."""
+
+    type: Literal["cellctl/PlanJobRequest"] = "cellctl/PlanJobRequest"
+    v: Literal[1] = 1
+    bin_type: str
+    bin_pose: PoseMsg = Field(description="bin pose in the robot base frame")
+    surface: Literal["external", "internal"] = "external"
+    seed_pct: float = Field(default=10.0, gt=0.0, le=100.0)
+    mode: Literal["fast", "paper"] = "fast"
+    seed: int = 0
+
+
+class PlanJobReply(WireMessage):
+    type: Literal["cellctl/PlanJobReply"] = "cellctl/PlanJobReply"
+    v: Literal[1] = 1
+    job_id: str
+    state: Literal["queued", "running", "done", "failed"] = "queued"
+    plan_id: str | None = None
+    reason: str | None = None
+
+
+class PlanJobProgress(WireMessage):
+    type: Literal["cellctl/PlanJobProgress"] = "cellctl/PlanJobProgress"
+    v: Literal[1] = 1
+    job_id: str
+    stage: str
+    fraction: float = Field(ge=0.0, le=1.0)
+    state: Literal["queued", "running", "done", "failed"] = "running"
+    message: str | None = None
+    plan_id: str | None = None
+
+
+MESSAGE_TYPES: dict[str, type[WireMessage]] = {
+    m.model_fields["type"].default: m
+    for m in (
+        Command,
+        Ack,
+        Status,
+        Event,
+        CycleResult,
+        ErrorReply,
+        JointState,
+        ApproachRequest,
+        ApproachReply,
+        MoveRequest,
+        MoveReply,
+        RobotStateRequest,
+        RobotState,
+        StopRequest,
+        CaptureRequest,
+        CaptureReply,
+        ClassifyRequest,
+        ClassifyReply,
+        PlanJobRequest,
+        PlanJobReply,
+        PlanJobProgress,
+    )
+}
+"""Registry used by the codec: ``"cellctl/<Name>"`` → model class."""
