@@ -1,0 +1,63 @@
+"""The ``cellctl`` command line: one module per verb group, each with ``register(subparsers)``.
+
+A module's ``register`` adds its sub-commands and sets ``func(args) -> int`` on each parser.
+Heavy libraries are imported inside the functions, so ``cellctl status`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+from cellctl.errors import CellError
+
+__all__ = ["main"]
+
+# Verb modules, in the order they appear in --help. Add yours here.
+VERB_MODULES = (
+    "cellctl.cli.daemon",
+    "cellctl.cli.operator",
+    "cellctl.cli.info",
+    "cellctl.cli.worker",
+    "cellctl.cli.bench",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="cellctl", description="Autonomous bin-inspection cell controller.")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    sub = parser.add_subparsers(dest="verb", metavar="COMMAND", required=True)
+    for name in VERB_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def add_config_arguments(p: argparse.ArgumentParser) -> None:
+    """``--config FILE`` and repeatable ``--set KEY.PATH=VALUE`` (shared by every verb)."""
+    p.add_argument("--config", "-c", default=None, help="cell config YAML (default: config/cell.yaml)")
+    p.add_argument(
+        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+        help="override a config key, e.g. --set supervisor.auto_reset=true (repeatable)",
+    )
+
+
+def config_from_args(args: argparse.Namespace):  # noqa: ANN201 - CellConfig, imported lazily
+    from cellctl.config import load_config
+
+    return load_config(args.config, args.overrides)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    try:
+        return int(args.func(args) or 0)
+    except CellError as err:
+        print(f"cellctl {args.verb}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130

@@ -1,0 +1,40 @@
+"""``cellctl bench <what>``: measurements that print one JSON object on stdout.
+
+Each bench is ``module:function`` taking ``(args) -> dict``; progress goes to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+
+from cellctl.cli import add_config_arguments
+
+# name -> (module:function, help). Add yours here.
+BENCHES: dict[str, tuple[str, str]] = {
+    "bus": ("cellctl.bus.bench:bench_bus", "command→ack and status latency on loopback"),
+}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="measure and print JSON")
+    p.add_argument("what", choices=sorted(BENCHES), help="; ".join(f"{k}: {v[1]}" for k, v in BENCHES.items()))
+    p.add_argument("--n", type=int, default=None, help="sample count (bench-specific default)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=None, help="also write the JSON to this file")
+    add_config_arguments(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    mod, fn = BENCHES[args.what][0].split(":")
+    result = getattr(importlib.import_module(mod), fn)(args)
+    text = json.dumps(result, indent=2)
+    print(text)
+    if args.out:
+        with open(args.out, "w") as f:
+            f.write(text + "\n")
+    sys.stdout.flush()
+    return 0

@@ -1,0 +1,1 @@
+"""Worker roles: one interface per role, backends chosen by config in the role's factory."""
