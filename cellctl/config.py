@@ -82,8 +82,12 @@ class SupervisorConfig(_Model):
     wait_for_plan: bool = Field(default=False, description="wait for the planner job instead of replan_required")
     auto_reset: bool = Field(default=False, description="Complete → Resetting → Idle without a PLC Reset")
     max_command_bytes: int = Field(default=64 * 1024, ge=256)
+    spawn_workers: list[str] = Field(
+        default_factory=lambda: ["robot", "camera", "classifier", "planner"],
+        description="roles started as child processes by `cellctl run --with-workers` and `cellctl demo`",
+    )
 
-    @field_validator("required_workers")
+    @field_validator("required_workers", "spawn_workers")
     @classmethod
     def _roles(cls, v: list[str]) -> list[str]:
         bad = [r for r in v if r not in ROLES]

@@ -40,6 +40,10 @@ __all__ = [
     "MoveRequest",
     "PackMLCommand",
     "PlanJobProgress",
+    "PlanJobQuery",
+    "PlanLookupReply",
+    "PlanLookupRequest",
+    "PlannedViewpoint",
     "PlanJobReply",
     "PlanJobRequest",
     "PoseMsg",
@@ -417,6 +421,49 @@ class PlanJobProgress(WireMessage):
     plan_id: str | None = None
 
 
+class PlanJobQuery(WireMessage):
+    """Ask for the state of a planning job (answered with PlanJobReply)."""
+
+    type: Literal["cellctl/PlanJobQuery"] = "cellctl/PlanJobQuery"
+    v: Literal[1] = 1
+    job_id: str
+
+
+class PlannedViewpoint(BaseModel):
+    """One viewpoint of a plan, in visiting order, expressed for the measured bin pose."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    index: int
+    camera_pose: PoseMsg
+    joints: list[float]
+    faces: list[int] = Field(default_factory=list, description="mesh face ids visible from here")
+
+
+class PlanLookupRequest(WireMessage):
+    """Cache lookup + tolerance check + adjustment, done by a planner worker."""
+
+    type: Literal["cellctl/PlanLookupRequest"] = "cellctl/PlanLookupRequest"
+    v: Literal[1] = 1
+    bin_type: str
+    bin_pose: PoseMsg = Field(description="measured bin pose in the robot base frame")
+    surface: Literal["external", "internal"] = "external"
+
+
+class PlanLookupReply(WireMessage):
+    type: Literal["cellctl/PlanLookupReply"] = "cellctl/PlanLookupReply"
+    v: Literal[1] = 1
+    hit: bool
+    reason: str | None = None
+    plan_id: str | None = None
+    viewpoints: list[PlannedViewpoint] = Field(default_factory=list)
+    coverage: float | None = None
+    adjusted: bool = False
+    translation_mm: float | None = None
+    rotation_deg: float | None = None
+    mesh_faces: int | None = None
+
+
 MESSAGE_TYPES: dict[str, type[WireMessage]] = {
     m.model_fields["type"].default: m
     for m in (
@@ -441,6 +488,9 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
         PlanJobRequest,
         PlanJobReply,
         PlanJobProgress,
+        PlanJobQuery,
+        PlanLookupRequest,
+        PlanLookupReply,
     )
 }
 """Registry used by the codec: ``"cellctl/<Name>"`` → model class."""

@@ -1,0 +1,139 @@
+"""The composition root: builds a cell (session, index, supervisor, child workers) from config.
+
+Nothing else constructs these; there are no module-level sessions or singletons.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+from typing import Any
+
+from cellctl.bus.session import open_session
+from cellctl.config import CellConfig
+from cellctl.errors import ConfigError
+from cellctl.recording.index import CycleIndex
+from cellctl.supervisor.supervisor import Supervisor
+
+__all__ = ["Cell", "WorkerProcesses", "build_cell", "load_identification"]
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+
+def load_identification(cfg: CellConfig) -> tuple[Any, Any]:
+    """The bin catalog and the identification function the identify step uses."""
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.vision import identify
+
+    return identify, load_catalog(cfg.path(cfg.catalog))
+
+
+class WorkerProcesses:
+    """Child worker processes (``cellctl worker <role>``), stopped with SIGTERM then SIGKILL."""
+
+    def __init__(self, cfg: CellConfig, config_file: str | None, overrides: list[str], roles: list[str]) -> None:
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.cfg = cfg
+        base = [sys.executable, "-m", "cellctl", "worker"]
+        extra: list[str] = []
+        if config_file:
+            extra += ["--config", str(config_file)]
+        for ov in overrides:
+            extra += ["--set", ov]
+        self._cmds = {role: [*base, role, *extra] for role in roles}
+
+    def start(self) -> None:
+        for role, cmd in self._cmds.items():
+            self.start_one(role, cmd)
+
+    def start_one(self, role: str, cmd: list[str] | None = None) -> None:
+        cmd = cmd or self._cmds[role]
+        self.procs[role] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, start_new_session=True)
+        log.info("started %s worker pid %d", role, self.procs[role].pid)
+
+    def stop(self, timeout: float = 10.0) -> None:
+        for p in self.procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + timeout
+        for role, p in self.procs.items():
+            try:
+                p.wait(max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                log.warning("%s worker did not stop in %.0f s; killing", role, timeout)
+                p.kill()
+                p.wait()
+        self.procs.clear()
+
+
+class Cell:
+    """A running cell: the daemon's router session, its supervisor and optional child workers."""
+
+    def __init__(self, cfg: CellConfig, supervisor: Supervisor, session: Any, index: CycleIndex,
+                 workers: WorkerProcesses | None) -> None:
+        self.cfg = cfg
+        self.supervisor = supervisor
+        self.session = session
+        self.index = index
+        self.workers = workers
+
+    def run(self, stop: threading.Event) -> None:
+        """Serve until ``stop`` is set (SIGTERM/SIGINT in the daemon)."""
+        while not stop.wait(0.5):
+            pass
+
+    def close(self) -> None:
+        try:
+            self.supervisor.stop()
+        finally:
+            if self.workers is not None:
+                self.workers.stop()
+            self.index.close()
+            self.session.close()
+
+    def __enter__(self) -> Cell:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def build_cell(
+    cfg: CellConfig,
+    *,
+    with_workers: bool = False,
+    config_file: str | None = None,
+    overrides: list[str] | None = None,
+) -> Cell:
+    """Open the router session, the cycle index and the supervisor; optionally start workers.
+
+    Raises:
+        ConfigError: the endpoints cannot be bound, or the state machines do not validate.
+    """
+    try:
+        identify, catalog = load_identification(cfg)
+    except ImportError as err:
+        log.warning("bin identification unavailable (%s); the identify step will fail with that reason", err)
+        identify, catalog = None, None
+    index = CycleIndex(cfg.path(cfg.recording.index))
+    session = open_session(cfg, "router")
+    try:
+        sup = Supervisor(cfg, session, index, identify=identify, catalog=catalog)
+        sup.start()
+    except Exception:
+        session.close()
+        index.close()
+        raise
+    workers = None
+    if with_workers:
+        workers = WorkerProcesses(cfg, config_file, overrides or [], cfg.supervisor.spawn_workers)
+        workers.start()
+    return Cell(cfg, sup, session, index, workers)
+
+

@@ -1,0 +1,64 @@
+"""``cellctl schema``, ``cellctl states``, ``cellctl validate``: the contracts, printed."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from cellctl.cli import add_config_arguments
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("schema", help="print the JSON Schemas of every wire message")
+    p.add_argument("type", nargs="?", default=None, help="one message type, e.g. cellctl/Command")
+    p.set_defaults(func=run_schema)
+
+    s = sub.add_parser("states", help="print the PackML and cycle state machines")
+    s.add_argument("--mermaid", action="store_true", help="as a Mermaid stateDiagram-v2")
+    s.set_defaults(func=run_states)
+
+    v = sub.add_parser("validate", help="validate a cell config file (and the state machines)")
+    v.add_argument("file", nargs="?", default=None)
+    v.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    v.set_defaults(func=run_validate)
+    _ = add_config_arguments
+
+
+def run_schema(args: argparse.Namespace) -> int:
+    from cellctl.bus.codec import json_schemas
+    from cellctl.errors import ProtocolError
+
+    schemas = json_schemas()
+    if args.type:
+        if args.type not in schemas:
+            raise ProtocolError(f"message type {args.type!r} is unknown; expected one of {sorted(schemas)}")
+        schemas = {args.type: schemas[args.type]}
+    print(json.dumps(schemas, indent=2))
+    return 0
+
+
+def run_states(args: argparse.Namespace) -> int:
+    from cellctl.supervisor.definition import mermaid
+    from cellctl.supervisor.supervisor import load_definitions
+
+    packml, cycle = load_definitions()
+    if args.mermaid:
+        print(mermaid(packml, cycle), end="")
+        return 0
+    for name, spec in packml.states.items():
+        print(f"{spec.code:2d} {name:13} {'acting' if spec.acting else 'wait':6} commands: {packml.allowed_commands(name)}")
+    print(f"Execute ⊃ cycle (initial {cycle.initial}):")
+    for st in cycle.states.values():
+        print(f"   {st.name:15} step={st.step:15} " + ", ".join(f"{o}→{d}" for o, d in st.on.items()))
+    return 0
+
+
+def run_validate(args: argparse.Namespace) -> int:
+    from cellctl.config import load_config
+    from cellctl.supervisor.supervisor import load_definitions
+
+    cfg = load_config(Path(args.file) if args.file else None, args.overrides)
+    load_definitions(cfg.root)
+    print(f"ok: {args.file or 'config/cell.yaml'} (cell {cfg.cell_id!r}) and states/*.yaml are valid")
+    return 0

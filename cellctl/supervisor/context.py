@@ -1,0 +1,137 @@
+"""What a cycle knows (:class:`CycleContext`, the blackboard) and how a step talks to workers
+(:class:`StepRun`: every call has a timeout, is recorded, and stops at cancellation)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from cellctl.bus import keys
+from cellctl.bus.rpc import request
+from cellctl.config import CellConfig
+from cellctl.errors import CellError, WorkerError
+from cellctl.messages import (
+    ApproachReply,
+    CycleOutcome,
+    ErrorReply,
+    EventLevel,
+    ViewpointResult,
+    WireMessage,
+)
+from cellctl.recording.cycle_log import CycleLog
+
+__all__ = ["Cancelled", "CycleContext", "StepRun"]
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+M = TypeVar("M", bound=WireMessage)
+
+
+class Cancelled(CellError):
+    """The step was cancelled (Stop, Abort, Hold, Suspend, worker lost); its result is void."""
+
+
+@dataclass
+class CycleContext:
+    """The blackboard of one inspection cycle; steps read and write it, one at a time."""
+
+    cycle_id: str
+    cfg: CellConfig
+    session: Any
+    log: CycleLog
+    mode: str = "evaluate"
+    params: dict[str, Any] = field(default_factory=dict)
+    started: str = ""
+    post_event: Callable[[str, str], None] = lambda level, text: None
+    identify: Callable[..., Any] | None = None
+    catalog: Any = None
+
+    observation_index: int = 0
+    identify_attempts: int = 0
+    approach: ApproachReply | None = None
+    identification: Any = None
+    bin_type: str | None = None
+    T_base_bin: Any = None
+    plan: Any = None
+    planner_job_id: str | None = None
+    next_viewpoint: int = 0
+    viewpoints: list[ViewpointResult] = field(default_factory=list)
+    classifications: dict[int, Future] = field(default_factory=dict)
+    verdict: str | None = None
+    coverage: float | None = None
+    dirt_map: dict[str, Any] | None = None
+    outcome: CycleOutcome | None = None
+    reason: str | None = None
+    saved_step: str | None = None
+    finished: bool = False
+    _pool: ThreadPoolExecutor | None = None
+
+    @property
+    def pool(self) -> ThreadPoolExecutor:
+        """One background thread for work that overlaps robot motion (classification)."""
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"cycle-{self.cycle_id[-6:]}")
+        return self._pool
+
+    def shutdown(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
+
+class StepRun:
+    """One activation of a step or behaviour: its cancellation flag and its bus calls."""
+
+    def __init__(self, ctx: CycleContext, token: int, name: str) -> None:
+        self.ctx = ctx
+        self.token = token
+        self.name = name
+        self.cancelled = threading.Event()
+
+    def checkpoint(self) -> None:
+        """Raise :class:`Cancelled` if this activation was cancelled."""
+        if self.cancelled.is_set():
+            raise Cancelled(f"{self.name} cancelled")
+
+    def event(self, level: str, text: str) -> None:
+        self.ctx.post_event(level, text)
+
+    def call(
+        self,
+        role: str,
+        op: str,
+        msg: WireMessage,
+        expect: type[M],
+        *,
+        payload: bytes | None = None,
+        timeout: float | None = None,
+        key: str | None = None,
+    ) -> tuple[M, bytes | None]:
+        """Request ``op`` from the ``role`` worker, recorded in the cycle log.
+
+        Raises:
+            Cancelled: before sending, or when the reply arrives after cancellation.
+            WorkerUnavailable / WorkerTimeout / WorkerFailed: see :mod:`cellctl.bus.rpc`.
+        """
+        self.checkpoint()
+        k = key or keys.worker_op(self.ctx.cfg.cell_id, role, op)
+        t = timeout if timeout is not None else getattr(self.ctx.cfg.supervisor.timeouts, op, None)
+        t = t if t is not None else self.ctx.cfg.supervisor.timeouts.default
+        self.ctx.log.write_message(f"{k}/request", msg)
+        t0 = time.perf_counter()
+        try:
+            reply, raw = request(self.ctx.session, k, msg, expect, timeout=t, payload=payload, role=role)
+        except WorkerError as err:
+            self.ctx.log.write_message(f"{k}/reply", ErrorReply(kind=type(err).__name__, reason=str(err)))
+            self.ctx.log.event(int(EventLevel.error), f"{role}/{op}: {err}")
+            raise
+        log.debug("%s/%s in %.1f ms", role, op, (time.perf_counter() - t0) * 1e3)
+        self.ctx.log.write_message(f"{k}/reply", reply)
+        self.checkpoint()
+        return reply, raw

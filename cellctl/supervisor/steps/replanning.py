@@ -1,0 +1,47 @@
+"""replanning: abort-to-offline — submit a planning job; the next cycle finds the plan."""
+
+from __future__ import annotations
+
+import time
+
+from cellctl.bus import keys
+from cellctl.errors import PlanningError
+from cellctl.messages import CycleOutcome, PlanJobQuery, PlanJobReply, PlanJobRequest, PoseMsg
+from cellctl.supervisor.context import StepRun
+from cellctl.supervisor.steps._base import Step
+
+
+class Replanning(Step):
+    NAME = "replanning"
+    OUTCOMES = ("submitted", "plan_ready", "failed")
+    DESCRIPTION = "submit an offline planning job; end with replan_required (or wait, by config)"
+
+    def execute(self, run: StepRun) -> str:
+        ctx = run.ctx
+        pc = ctx.cfg.planner
+        req = PlanJobRequest(
+            bin_type=ctx.bin_type or "",
+            bin_pose=PoseMsg.from_matrix(ctx.T_base_bin),
+            surface=ctx.params.get("surface", pc.surface),
+            seed_pct=pc.seed_pct,
+            mode=pc.mode,
+            seed=pc.seed,
+        )
+        key = keys.planner_jobs(ctx.cfg.cell_id)
+        reply, _ = run.call("planner", "jobs", req, PlanJobReply, key=key, timeout=ctx.cfg.supervisor.timeouts.plan_submit)
+        ctx.planner_job_id = reply.job_id
+        run.event("info", f"planning job {reply.job_id} submitted for bin {ctx.bin_type!r}")
+        if not ctx.cfg.supervisor.wait_for_plan:
+            ctx.outcome = CycleOutcome.replan_required
+            ctx.reason = f"no plan within tolerance for bin {ctx.bin_type!r}; planning job {reply.job_id} submitted"
+            return "submitted"
+        deadline = time.monotonic() + ctx.cfg.supervisor.timeouts.plan_wait
+        while time.monotonic() < deadline:
+            run.checkpoint()
+            status, _ = run.call("planner", "jobs", PlanJobQuery(job_id=reply.job_id), PlanJobReply, key=key)
+            if status.state == "done":
+                return "plan_ready"
+            if status.state == "failed":
+                raise PlanningError(f"planning job {reply.job_id} failed: {status.reason}")
+            run.cancelled.wait(1.0)
+        raise PlanningError(f"planning job {reply.job_id} not done within {ctx.cfg.supervisor.timeouts.plan_wait:g} s")

@@ -1,0 +1,45 @@
+"""reporting: coverage actually seen and the dirt map (faces seen clean / seen dirty / unseen)."""
+
+from __future__ import annotations
+
+from cellctl.messages import CycleOutcome
+from cellctl.supervisor.context import StepRun
+from cellctl.supervisor.steps._base import Step
+
+
+def dirt_map(plan, viewpoints) -> tuple[dict, float | None]:  # noqa: ANN001
+    """Project each viewpoint's label onto the faces visible from it.
+
+    A face seen dirty from any viewpoint is dirty; a face seen only clean is clean; a face no
+    successful viewpoint saw is unseen. Coverage = seen faces / mesh faces.
+    """
+    faces_by_index = {vp.index: set(vp.faces) for vp in plan.viewpoints}
+    dirty: set[int] = set()
+    seen: set[int] = set()
+    for v in viewpoints:
+        if v.error is not None or v.label is None:
+            continue
+        f = faces_by_index.get(v.index, set())
+        seen |= f
+        if v.label == "dirty":
+            dirty |= f
+    total = plan.mesh_faces
+    coverage = len(seen) / total if total else None
+    return {
+        "faces_total": total,
+        "seen_dirty": sorted(dirty),
+        "seen_clean": sorted(seen - dirty),
+        "unseen_count": (total - len(seen)) if total else None,
+    }, coverage
+
+
+class Reporting(Step):
+    NAME = "reporting"
+    OUTCOMES = ("succeeded", "failed")
+    DESCRIPTION = "coverage + dirt map for the CycleResult"
+
+    def execute(self, run: StepRun) -> str:
+        ctx = run.ctx
+        ctx.dirt_map, ctx.coverage = dirt_map(ctx.plan, ctx.viewpoints)
+        ctx.outcome = CycleOutcome.completed
+        return "succeeded"

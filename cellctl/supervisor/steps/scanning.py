@@ -1,0 +1,69 @@
+"""scanning: visit the planned viewpoints in order; at each, move, settle, capture, and hand
+the image to the classifier in the background while the robot moves on (pipelining)."""
+
+from __future__ import annotations
+
+from cellctl.errors import WorkerFailed
+from cellctl.messages import (
+    CaptureReply,
+    CaptureRequest,
+    ClassifyReply,
+    ClassifyRequest,
+    MoveReply,
+    MoveRequest,
+    ViewpointResult,
+)
+from cellctl.recording import foxglove
+from cellctl.supervisor.context import StepRun
+from cellctl.supervisor.steps._base import Step
+
+
+def classify_image(run: StepRun, index: int, image: bytes, fmt: str, surface: str) -> ClassifyReply:
+    reply, _ = run.call(
+        "classifier", "classify", ClassifyRequest(surface=surface, format=fmt), ClassifyReply, payload=image  # type: ignore[arg-type]
+    )
+    return reply
+
+
+class Scanning(Step):
+    NAME = "scanning"
+    OUTCOMES = ("succeeded", "failed")
+    DESCRIPTION = "move → settle → capture per viewpoint; classification overlaps the next move"
+
+    def execute(self, run: StepRun) -> str:
+        ctx = run.ctx
+        plan = ctx.plan
+        surface = ctx.params.get("surface", ctx.cfg.planner.surface)
+        collect = ctx.mode == "collect"
+        settle = ctx.cfg.robot.settle_s
+        for k in range(ctx.next_viewpoint, len(plan.viewpoints)):
+            vp = plan.viewpoints[k]
+            try:
+                moved, _ = run.call("robot", "move", MoveRequest(joints=vp.joints, settle_s=settle), MoveReply)
+            except WorkerFailed as err:
+                # One refused viewpoint (e.g. newly in collision after adjustment) costs coverage,
+                # not the cycle; hangs and missing workers still abort.
+                ctx.viewpoints.append(ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err)))
+                ctx.next_viewpoint = k + 1
+                continue
+            cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
+            data = image or b""
+            ctx.log.image("/camera/image", data, cap.format, "camera")
+            ctx.log.write_json(
+                "/camera/pose", "foxglove.PoseInFrame", foxglove.pose_in_frame("base", moved.camera_pose.matrix())
+            )
+            result = ViewpointResult(index=vp.index, camera_pose=moved.camera_pose)
+            if collect:
+                from cellctl.classify.collect import store_image
+
+                store_image(ctx.cfg, ctx.params, surface, ctx.cycle_id, vp.index, data)
+                result = result.model_copy(update={"label": ctx.params.get("label")})
+            else:
+                ctx.classifications[len(ctx.viewpoints)] = ctx.pool.submit(
+                    classify_image, run, vp.index, data, cap.format, surface
+                )
+            ctx.viewpoints.append(result)
+            ctx.next_viewpoint = k + 1
+        if not any(v.error is None for v in ctx.viewpoints):
+            raise WorkerFailed(f"robot reached none of the {len(plan.viewpoints)} planned viewpoints", role="robot")
+        return "succeeded"
