@@ -1,0 +1,11 @@
+"""Clean/dirty classifier: models, data, training, evaluation, inference, data collection.
+
+This ``__init__`` is light (no torch) so that the supervisor may import
+:mod:`cellctl.classify.collect`; the torch modules are imported explicitly:
+:mod:`~cellctl.classify.nets`, :mod:`~cellctl.classify.data`, :mod:`~cellctl.classify.train`,
+:mod:`~cellctl.classify.evaluate`, :mod:`~cellctl.classify.infer`, :mod:`~cellctl.classify.synth`.
+"""
+
+from cellctl.classify.collect import LABELS, SURFACES, capture_path, check_label, check_surface, store_capture
+
+__all__ = ["LABELS", "SURFACES", "capture_path", "check_label", "check_surface", "store_capture"]

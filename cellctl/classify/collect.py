@@ -1,0 +1,106 @@
+"""Data collection for the classifier (light: numpy/OpenCV only, safe to import in the daemon).
+
+In the cycle's ``collect`` mode (start params ``mode=collect, label=clean|dirty``) the
+supervisor stores every captured image under ``<dataset>/<surface>/<label>/<cycle>_<k>.png``
+with :func:`store_capture`, building exactly the ImageFolder layout that ``cellctl train``
+reads.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from pathlib import Path
+
+from cellctl.errors import ClassifierError
+
+__all__ = ["LABELS", "SURFACES", "capture_path", "check_label", "check_surface", "store_capture"]
+
+SURFACES = ("external", "internal")
+"""Bin surfaces, one network each (external matt/brushed, internal glossy/polished)."""
+LABELS = ("clean", "dirty")
+"""Class names in index order: 0 = clean, 1 = dirty."""
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+_JPEG_MAGIC = b"\xff\xd8\xff"
+
+
+def check_surface(surface: str) -> str:
+    """Return ``surface`` if known, else raise ClassifierError listing the allowed ones."""
+    if surface not in SURFACES:
+        raise ClassifierError(f"surface {surface!r} is unknown; expected one of {list(SURFACES)}")
+    return surface
+
+
+def check_label(label: str) -> str:
+    """Return ``label`` if it is ``clean`` or ``dirty``, else raise ClassifierError."""
+    if label not in LABELS:
+        raise ClassifierError(f"label {label!r} is unknown; expected one of {list(LABELS)}")
+    return label
+
+
+def capture_path(dataset: Path | str, surface: str, label: str, cycle_id: str, k: int) -> Path:
+    """Where image ``k`` of cycle ``cycle_id`` goes: ``<dataset>/<surface>/<label>/<cycle>_<k>.png``."""
+    check_surface(surface)
+    check_label(label)
+    if not _NAME.match(cycle_id or ""):
+        raise ClassifierError(f"cycle id {cycle_id!r} is not usable in a file name; expected letters, digits, _.-")
+    if not isinstance(k, int) or k < 0:
+        raise ClassifierError(f"viewpoint index {k!r} must be a non-negative integer")
+    return Path(dataset) / surface / label / f"{cycle_id}_{k:03d}.png"
+
+
+def store_capture(
+    dataset: Path | str, surface: str, label: str, cycle_id: str, k: int, image: bytes
+) -> Path:
+    """Store one captured image for training; PNG bytes are written as is, JPEG is re-encoded to PNG.
+
+    The write is atomic (temporary file + rename), so a crash never leaves a truncated PNG
+    that would later break training.
+
+    Args:
+        dataset: dataset root (the ``DATA`` of ``DATA/<surface>/<label>/``).
+        surface: ``external`` or ``internal``.
+        label: ``clean`` or ``dirty`` (given by the operator at Start).
+        cycle_id: the cycle's id (file-name safe).
+        k: viewpoint index in the cycle.
+        image: encoded PNG or JPEG bytes from the camera worker.
+
+    Returns:
+        The path written.
+
+    Raises:
+        ClassifierError: bad surface/label/id, empty or non-image bytes.
+    """
+    path = capture_path(dataset, surface, label, cycle_id, k)
+    if not image:
+        raise ClassifierError(f"image for {path.name} is empty (0 bytes); expected PNG or JPEG bytes")
+    if image.startswith(_PNG_MAGIC):
+        data = bytes(image)
+    elif image.startswith(_JPEG_MAGIC):
+        import cv2
+        import numpy as np
+
+        arr = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_COLOR)
+        if arr is None:
+            raise ClassifierError(f"image for {path.name} is a corrupt JPEG ({len(image)} bytes)")
+        ok, enc = cv2.imencode(".png", arr)
+        if not ok:
+            raise ClassifierError(f"image for {path.name} cannot be re-encoded as PNG")
+        data = enc.tobytes()
+    else:
+        raise ClassifierError(
+            f"image for {path.name} starts {bytes(image[:8])!r}; expected PNG or JPEG bytes"
+        )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".png")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except OSError as err:
+        Path(tmp).unlink(missing_ok=True)
+        raise ClassifierError(f"cannot write {str(path)!r}: {err}") from err
+    return path
