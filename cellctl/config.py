@@ -121,6 +121,12 @@ class ClassifierConfig(_Model):
     backend: Literal["torch"] = "torch"
     models_dir: Path = Path("models/classifier")
     imagenet_weights: Path | None = Field(default=None, description="optional local torchvision ResNet18 state_dict")
+    variant: Literal["fp32", "fused"] = Field(
+        default="fused", description="fused: batch norm folded + frozen graph (same outputs, faster)"
+    )
+    max_batch: int = Field(default=16, ge=1, le=256, description="queued classify requests run as one batch")
+    threads: int | None = Field(default=None, ge=1, le=256, description="torch CPU threads (default: all cores)")
+    dataset_dir: Path = Field(default=Path("data/collected"), description="collect mode: where images are stored")
 
 
 class PoseTolerance(_Model):
