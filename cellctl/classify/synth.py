@@ -168,8 +168,14 @@ def synth_dataset(
         if f.tell() == 0:
             w.writeheader()
         w.writerows(rows)
-    return {
+    summary = {
         "out": str(base), "surface": surface, "source": source, "shifted": shifted, "seed": seed, "size": size,
         "counts": counts, "discarded_ambiguous": discarded, "seconds": round(time.perf_counter() - t0, 1),
         "min_visible_fraction": MIN_VISIBLE_FRACTION,
     }
+    # Provenance read by `cellctl train` into the model card (and by the bench to draw a
+    # fresh test set from the same source). Appending runs keep a list.
+    prov_path = base / "synth.json"
+    runs = json.loads(prov_path.read_text()) if prov_path.is_file() else []
+    prov_path.write_text(json.dumps([*runs, summary], indent=1) + "\n")
+    return summary

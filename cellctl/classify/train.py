@@ -202,6 +202,15 @@ def _plot(rows: list[dict[str, Any]], path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def _provenance(folder: Path) -> list[dict[str, Any]] | None:
+    """The ``synth.json`` runs that made a dataset folder (None for collected data)."""
+    p = folder / "synth.json"
+    try:
+        return json.loads(p.read_text()) if p.is_file() else None
+    except json.JSONDecodeError:
+        return None
+
+
 def train(
     data: Path | str,
     surface: str,
@@ -409,6 +418,7 @@ def train(
         "cache_views": ps.cache_views,
         "backbone": {"source": backbone_src, "sha256": backbone_sha, **describe(model)},
         "data": {"root": str(Path(data).resolve()), "split_seed": seed, "counts": split.counts(),
+                 "synth": _provenance(Path(data) / surface),
                  "augmentation": "reflect pad-crop 1/16, h/v flip, brightness/contrast x0.8-1.2, noise sigma 0-4"},
         "seed": seed,
         "best_epoch": {"global_epoch": best["epoch"], "phase": best["phase"], "val_loss": best["val_loss"]},

@@ -22,6 +22,7 @@ VERB_MODULES = (
     "cellctl.cli.info",
     "cellctl.cli.worker",
     "cellctl.cli.bench",
+    "cellctl.cli.classify",
 )
 
 

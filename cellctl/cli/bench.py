@@ -15,6 +15,7 @@ from cellctl.cli import add_config_arguments
 # name -> (module:function, help). Add yours here.
 BENCHES: dict[str, tuple[str, str]] = {
     "bus": ("cellctl.bus.bench:bench_bus", "command→ack and status latency on loopback"),
+    "classify": ("cellctl.classify.bench:bench_classify", "classifier latency/throughput/accuracy per variant"),
 }
 
 

@@ -1,0 +1,126 @@
+"""``cellctl bench classify``: latency, throughput and accuracy of each shipped variant.
+
+For each variant (``fp32`` eager; ``fused`` = BN folded + frozen graph; ``int8`` = FX static
+int8, measured for reference, not shipped because it is slower on this backbone) of the
+external model: batch-1 latency p50/p95 over ``--n`` single-image calls (preprocessing
+included: decode-free RGB → resize → normalise → forward → softmax), images/s at batch 16,
+and accuracy on a fresh held-out set drawn from the same source as the training data
+(seed 10000 + ``--seed``, never used for training).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["bench_classify"]
+
+
+def _timings(fn, images: list[np.ndarray], n: int) -> tuple[float, float]:
+    for im in images[:5]:
+        fn([im])
+    ts = []
+    for i in range(n):
+        t = time.perf_counter()
+        fn([images[i % len(images)]])
+        ts.append(time.perf_counter() - t)
+    ts_ms = np.array(ts) * 1000
+    return float(np.percentile(ts_ms, 50)), float(np.percentile(ts_ms, 95))
+
+
+def _throughput(fn, images: list[np.ndarray], batch: int = 16, rounds: int = 8) -> float:
+    b = (images * (batch // max(len(images), 1) + 1))[:batch]
+    fn(b)
+    t = time.perf_counter()
+    for _ in range(rounds):
+        fn(b)
+    return batch * rounds / (time.perf_counter() - t)
+
+
+def _int8(model: Any, calib: list[np.ndarray]) -> Any:
+    import torch
+    from torch.ao.quantization import get_default_qconfig_mapping
+    from torch.ao.quantization.quantize_fx import convert_fx, prepare_fx
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        x = model.tensor(calib[:1])
+        prepared = prepare_fx(model.net, get_default_qconfig_mapping("x86"), (x,))
+        with torch.inference_mode():
+            for s in range(0, len(calib), 16):
+                prepared(model.tensor(calib[s : s + 16]))
+        return convert_fx(prepared)
+
+
+def bench_classify(args: argparse.Namespace) -> dict[str, Any]:
+    """Measure every variant; returns ``{"fp32": {...}, "fused": {...}, "int8": {...}, "setup": {...}}``."""
+    import torch
+
+    from cellctl.classify.data import load_image, split_dataset
+    from cellctl.classify.evaluate import metrics
+    from cellctl.classify.infer import SurfaceModel
+    from cellctl.classify.synth import synth_dataset
+    from cellctl.config import load_config
+
+    cfg = load_config(args.config, args.overrides)
+    threads = cfg.classifier.threads or os.cpu_count() or 1
+    torch.set_num_threads(threads)
+    n = args.n or 200
+    surface = "external"
+    path = cfg.path(cfg.classifier.models_dir) / f"{surface}.pt"
+    base = SurfaceModel.load(path, surface=surface, variant="fp32")
+    runs = (base.card or {}).get("data", {}).get("synth") or [{"source": "procedural", "size": 160}]
+    source, size = runs[0].get("source", "procedural"), int(runs[0].get("size", 160))
+    n_acc = max(40, min(n, 400))
+    with tempfile.TemporaryDirectory(prefix="cellctl-bench-") as tmp:
+        print(f"bench: drawing {n_acc} held-out {source} images", file=sys.stderr)
+        synth_dataset(tmp, surface, n_acc, seed=10_000 + args.seed, source=source, size=size, config=cfg)
+        items = split_dataset(tmp, surface, fractions=(0.0, 0.0, 1.0)).test
+        images = [load_image(p) for p, _ in items]
+        y = np.array([lab for _, lab in items])
+    out: dict[str, Any] = {}
+    models: dict[str, Any] = {"fp32": base, "fused": SurfaceModel.load(path, surface=surface, variant="fused")}
+    for name, model in models.items():
+        print(f"bench: {name}", file=sys.stderr)
+        p50, p95 = _timings(model.predict_proba, images, n)
+        p = model.predict_proba(images)
+        out[name] = {
+            "ms_p50": round(p50, 2), "ms_p95": round(p95, 2),
+            "images_per_s_b16": round(_throughput(model.predict_proba, images), 1),
+            "accuracy": metrics(p, y, model.threshold, model.band)["accuracy"],
+            "model_id": model.model_id,
+        }
+    print("bench: int8 (reference)", file=sys.stderr)
+    try:
+        q = _int8(base, images[:64])
+
+        def q_proba(ims: list[np.ndarray]) -> np.ndarray:
+            with torch.inference_mode():
+                return torch.softmax(q(base.tensor(ims)), 1)[:, 1].double().numpy()
+
+        p50, p95 = _timings(q_proba, images, max(10, n // 5))
+        p = np.concatenate([q_proba(images[s : s + 32]) for s in range(0, len(images), 32)])
+        out["int8"] = {
+            "ms_p50": round(p50, 2), "ms_p95": round(p95, 2),
+            "images_per_s_b16": round(_throughput(q_proba, images, rounds=2), 1),
+            "accuracy": metrics(p, y, base.threshold, base.band)["accuracy"],
+            "shipped": False, "note": "FX static int8 (x86); slower than fp32 for depthwise-conv Lite0",
+        }
+    except Exception as err:  # a quantization backend problem must not hide the other figures
+        out["int8"] = {"error": f"{type(err).__name__}: {err}"}
+    load = os.getloadavg()
+    out["setup"] = {
+        "surface": surface, "model": str(Path(path)), "input_px": base.input_size, "threads": threads,
+        "cpu_count": os.cpu_count(), "loadavg_1m": round(load[0], 2), "n_latency": n, "n_accuracy": len(y),
+        "accuracy_source": source, "torch": torch.__version__,
+        "note": "batch-1 times include resize+normalise; CPU shared with other processes (see loadavg)",
+    }
+    return out

@@ -1,0 +1,152 @@
+"""Classifier verbs: ``dataset``, ``train``, ``eval``, ``classify`` (torch imported lazily).
+
+Examples::
+
+    cellctl dataset synth --surface external --n 1200 --out data/synth
+    cellctl dataset synth --surface external --n 400 --out data/shifted --shifted --seed 7
+    cellctl train --surface external --data data/synth --out models/classifier/external.pt
+    cellctl eval --surface external --data data/shifted --json
+    cellctl classify img1.png img2.png --surface internal --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from cellctl.cli import add_config_arguments, config_from_args
+
+SURFACE_CHOICES = ("external", "internal")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("dataset", help="make classifier datasets")
+    dsub = p.add_subparsers(dest="dataset_verb", metavar="ACTION", required=True)
+    s = dsub.add_parser("synth", help="render a labelled synthetic clean/dirty set")
+    s.add_argument("--surface", required=True, choices=SURFACE_CHOICES)
+    s.add_argument("--n", type=int, required=True, help="number of images (half clean, half dirty)")
+    s.add_argument("--out", required=True, help="dataset root; images go to OUT/<surface>/<clean|dirty>/")
+    s.add_argument("--shifted", action="store_true", help="other lighting / powder colour / camera noise")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--source", choices=("twin", "procedural"), default="twin",
+                   help="twin: the pybullet twin's camera (default); procedural: numpy textures")
+    s.add_argument("--size", type=int, default=160, help="stored image side in px (default 160)")
+    add_config_arguments(s)
+    s.set_defaults(func=run_synth)
+
+    t = sub.add_parser("train", help="train a surface's clean/dirty classifier")
+    t.add_argument("--surface", required=True, choices=SURFACE_CHOICES)
+    t.add_argument("--data", required=True, help="dataset root (DATA/<surface>/<clean|dirty>/*.png)")
+    t.add_argument("--out", required=True, help="weights file, e.g. models/classifier/external.pt")
+    t.add_argument("--preset", choices=("default", "paper"), default="default")
+    t.add_argument("--arch", choices=("lite0", "resnet18"), default=None, help="backbone (default: lite0)")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--input-size", type=int, default=None, help="model input side in px (default 128)")
+    t.add_argument("--target-false-clean", type=float, default=0.01, help="threshold target on val (default 0.01)")
+    t.add_argument("--max-epochs", type=int, nargs=2, default=None, metavar=("HEAD", "FINETUNE"))
+    t.add_argument("--threads", type=int, default=None)
+    add_config_arguments(t)
+    t.set_defaults(func=run_train)
+
+    e = sub.add_parser("eval", help="evaluate a surface model on a dataset")
+    e.add_argument("--surface", required=True, choices=SURFACE_CHOICES)
+    e.add_argument("--data", required=True)
+    e.add_argument("--model", default=None, help="weights (default: <classifier.models_dir>/<surface>.pt)")
+    e.add_argument("--split", choices=("auto", "test", "all"), default="auto",
+                   help="test: held-out part of the training split; all: every image; auto: test if DATA is the "
+                        "training folder")
+    e.add_argument("--variant", choices=("fp32", "fused"), default="fp32")
+    e.add_argument("--target-false-clean", type=float, default=0.01)
+    e.add_argument("--png", default=None, help="write a ROC + score histogram PNG here")
+    e.add_argument("--json", action="store_true", help="print JSON only")
+    e.add_argument("--out", default=None, help="also write the JSON report here")
+    add_config_arguments(e)
+    e.set_defaults(func=run_eval)
+
+    c = sub.add_parser("classify", help="classify image files")
+    c.add_argument("images", nargs="+")
+    c.add_argument("--surface", required=True, choices=SURFACE_CHOICES)
+    c.add_argument("--model", default=None)
+    c.add_argument("--variant", choices=("fp32", "fused"), default="fp32")
+    c.add_argument("--json", action="store_true", help="one JSON object per line")
+    add_config_arguments(c)
+    c.set_defaults(func=run_classify)
+
+
+def _model_path(args: argparse.Namespace) -> Path:
+    if args.model:
+        return Path(args.model)
+    cfg = config_from_args(args)
+    return cfg.path(cfg.classifier.models_dir) / f"{args.surface}.pt"
+
+
+def run_synth(args: argparse.Namespace) -> int:
+    from cellctl.classify.synth import synth_dataset
+
+    cfg = config_from_args(args)
+    summary = synth_dataset(args.out, args.surface, args.n, seed=args.seed, shifted=args.shifted,
+                            source=args.source, size=args.size, config=cfg)
+    print(json.dumps(summary))
+    return 0
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from cellctl.classify.train import train
+
+    cfg = config_from_args(args)
+    card = train(
+        args.data, args.surface, args.out, preset=args.preset, arch=args.arch, seed=args.seed,
+        input_size=args.input_size, target_false_clean=args.target_false_clean,
+        imagenet_weights=cfg.path(cfg.classifier.imagenet_weights) if cfg.classifier.imagenet_weights else None,
+        max_epochs=tuple(args.max_epochs) if args.max_epochs else (None, None), threads=args.threads,
+    )
+    t = card["metrics"]["test"]
+    print(json.dumps({"model_id": card["model_id"], "out": args.out, "test": t, "train_seconds": card["train_seconds"]}))
+    return 0
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    from cellctl.classify.evaluate import evaluate_folder
+
+    report = evaluate_folder(_model_path(args), args.data, args.surface, split=args.split,
+                             target_false_clean=args.target_false_clean, variant=args.variant, png=args.png)
+    text = json.dumps(report, indent=None if args.json else 2)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
+    if not args.json:
+        c = report["confusion"]
+        print(
+            f"accuracy {report['accuracy']:.4f}  false-clean {report['false_clean_rate']}  "
+            f"AUC {report['roc_auc']}  uncertain {report['uncertain_fraction']:.3f}  "
+            f"[clean→clean {c['clean_as_clean']}, clean→dirty {c['clean_as_dirty']}, "
+            f"dirty→clean {c['dirty_as_clean']}, dirty→dirty {c['dirty_as_dirty']}]",
+            file=sys.stderr,
+        )
+    return 0
+
+
+def run_classify(args: argparse.Namespace) -> int:
+    from cellctl.classify.data import load_image
+    from cellctl.classify.infer import SurfaceModel
+    from cellctl.errors import CellError
+
+    model = SurfaceModel.load(_model_path(args), surface=args.surface, variant=args.variant)
+    rc = 0
+    for path in args.images:
+        try:
+            pred = model.predict([load_image(path)])[0]
+            out = {"image": path, **pred.as_dict()}
+        except CellError as err:
+            out = {"image": path, "error": str(err)}
+            rc = 2
+        if args.json:
+            print(json.dumps(out))
+        elif "error" in out:
+            print(f"{path}: error: {out['error']}")
+        else:
+            flag = " (uncertain)" if out["uncertain"] else ""
+            print(f"{path}: {out['label']}{flag} p_dirty={out['p_dirty']:.4f} [{out['model_id']}]")
+    return rc

@@ -1,0 +1,190 @@
+"""Classifier worker: serves ``cell/<id>/classifier/classify`` (image + surface → label).
+
+Request: :class:`~cellctl.messages.ClassifyRequest` as the query attachment, the encoded
+PNG/JPEG image as the payload. Reply: :class:`~cellctl.messages.ClassifyReply` (label,
+``p_dirty``, ``uncertain``, ``model_id``). Both surface models are loaded once at start.
+Queries that are already queued when the worker picks one up are answered as one batch (up
+to ``classifier.max_batch``), one forward pass per surface. A bad image, an unknown surface or
+a surface whose weights are missing gets a :class:`~cellctl.errors.ClassifierError` error
+reply for that query only; the worker keeps serving.
+
+Backends: ``torch`` (the only one; torch is imported here, never by the supervisor).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from cellctl.bus import keys
+from cellctl.bus.codec import MAX_PAYLOAD_BYTES, decode_as, encode
+from cellctl.config import CellConfig
+from cellctl.errors import CellError, ClassifierError, ConfigError, ProtocolError
+from cellctl.messages import ClassifyReply, ClassifyRequest, ErrorReply
+
+__all__ = ["BACKENDS", "BatchingClassifyServer", "ClassifierService", "run_worker"]
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+BACKENDS = ("torch",)
+MAX_IMAGE_BYTES = 32 * 1024 * 1024
+
+
+class ClassifierService:
+    """Both surface models, loaded once; classifies batches of decoded requests.
+
+    Args:
+        models_dir: folder holding ``external.pt`` and ``internal.pt``.
+        variant: ``fp32`` or ``fused``.
+        threads: torch CPU threads (None: all cores).
+    """
+
+    def __init__(self, models_dir: Path, variant: str = "fused", threads: int | None = None) -> None:
+        import os
+
+        import torch
+
+        from cellctl.classify.infer import load_surface_models
+
+        torch.set_num_threads(threads or os.cpu_count() or 1)
+        self.models, self.problems = load_surface_models(models_dir, variant)
+        for s, why in self.problems.items():
+            log.warning("classifier: no model for surface %s: %s", s, why)
+        self._lock = threading.Lock()
+
+    def classify(self, items: list[tuple[ClassifyRequest, bytes]]) -> list[ClassifyReply | CellError]:
+        """Classify a batch; each item gets a reply or the error that refuses it."""
+        from cellctl.classify.collect import SURFACES
+        from cellctl.classify.data import decode_image
+
+        out: list[ClassifyReply | CellError | None] = [None] * len(items)
+        groups: dict[str, list[tuple[int, Any]]] = {}
+        for i, (req, data) in enumerate(items):
+            try:
+                if req.surface not in SURFACES:
+                    raise ClassifierError(f"surface {req.surface!r} is unknown; expected one of {list(SURFACES)}")
+                if req.surface not in self.models:
+                    raise ClassifierError(f"no model for surface {req.surface!r}: {self.problems.get(req.surface)}")
+                if len(data) > MAX_IMAGE_BYTES:
+                    raise ClassifierError(f"image of {len(data)} bytes exceeds the limit of {MAX_IMAGE_BYTES} bytes")
+                img = decode_image(data, f"({req.format}, {len(data)} bytes)")
+                groups.setdefault(req.surface, []).append((i, img))
+            except CellError as err:
+                out[i] = err
+        with self._lock:
+            for surface, entries in groups.items():
+                preds = self.models[surface].predict([img for _, img in entries])
+                for (i, _), pr in zip(entries, preds, strict=True):
+                    out[i] = ClassifyReply(label=pr.label, p_dirty=pr.p_dirty, uncertain=pr.uncertain, model_id=pr.model_id)
+        return [o if o is not None else ClassifierError("internal: item left unanswered") for o in out]
+
+
+class BatchingClassifyServer:
+    """The classify queryable: drains every queued query into one batch.
+
+    Zenoh callbacks only enqueue (FIFO channel); one thread answers.
+    """
+
+    def __init__(self, session: zenoh.Session, cell_id: str, service: ClassifierService, max_batch: int = 16) -> None:
+        self.service = service
+        self.max_batch = max_batch
+        self.key = keys.classifier_classify(cell_id)
+        self.batches: list[int] = []  # sizes of the batches run (for tests and stats)
+        self._closed = threading.Event()
+        self._queryable = session.declare_queryable(self.key, zenoh.handlers.FifoChannel(256), complete=True)
+        self._thread = threading.Thread(target=self._drain, name="classifier-classify", daemon=True)
+        self._thread.start()
+
+    def _drain(self) -> None:
+        while not self._closed.is_set():
+            try:
+                first = self._queryable.recv()
+            except Exception:  # the channel closes when the queryable is undeclared
+                return
+            batch = [first]
+            while len(batch) < self.max_batch:
+                try:
+                    q = self._queryable.try_recv()
+                except Exception:  # closed while draining: answer what we have
+                    break
+                if q is None:
+                    break
+                batch.append(q)
+            try:
+                self._answer(batch)
+            finally:
+                for q in batch:
+                    q.drop()
+
+    def _answer(self, batch: list[Any]) -> None:
+        parsed: list[tuple[Any, ClassifyRequest, bytes]] = []
+        for q in batch:
+            try:
+                if q.attachment is None:
+                    raise ProtocolError(
+                        "classify needs the ClassifyRequest as the attachment and the image bytes as the payload"
+                    )
+                req = decode_as(ClassifyRequest, q.attachment.to_bytes(), MAX_PAYLOAD_BYTES)
+                data = q.payload.to_bytes() if q.payload is not None else b""
+                parsed.append((q, req, data))
+            except CellError as err:
+                self._reply_err(q, err)
+        if not parsed:
+            return
+        self.batches.append(len(parsed))
+        try:
+            results = self.service.classify([(r, d) for _, r, d in parsed])
+        except Exception as err:  # a bug must not kill the worker: every query gets an answer
+            log.exception("classify batch crashed")
+            for q, _, _ in parsed:
+                q.reply_err(encode(ErrorReply(kind="InternalError", reason=f"{type(err).__name__}: {err}")))
+            return
+        for (q, _, _), res in zip(parsed, results, strict=True):
+            if isinstance(res, CellError):
+                self._reply_err(q, res)
+            else:
+                q.reply(q.key_expr, encode(res))
+
+    @staticmethod
+    def _reply_err(q: Any, err: CellError) -> None:
+        log.warning("classify refused: %s", err)
+        q.reply_err(encode(ErrorReply(kind=type(err).__name__, reason=str(err))))
+
+    def close(self) -> None:
+        self._closed.set()
+        self._queryable.undeclare()
+        self._thread.join(timeout=5.0)
+
+
+def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event) -> None:
+    """Serve classify until ``stop_event`` is set (blocking).
+
+    Raises:
+        ConfigError: unknown backend or no Zenoh router reachable.
+    """
+    from cellctl.bus.session import open_session
+    from cellctl.workers._server import WorkerServer
+
+    name = backend or cfg.classifier.backend
+    if name not in BACKENDS:
+        raise ConfigError(f"classifier backend {name!r} is unknown; expected one of {list(BACKENDS)}")
+    c = cfg.classifier
+    service = ClassifierService(cfg.path(c.models_dir), c.variant, c.threads)
+    session = open_session(cfg, "client")
+    try:
+        server = BatchingClassifyServer(session, cfg.cell_id, service, c.max_batch)
+        alive = WorkerServer(session, cfg.cell_id, "classifier")
+        alive.announce()
+        log.info("classifier serving %s with %s", server.key, {s: m.model_id for s, m in service.models.items()})
+        try:
+            stop_event.wait()
+        finally:
+            alive.close()
+            server.close()
+    finally:
+        session.close()
