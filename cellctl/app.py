@@ -110,14 +110,19 @@ def build_cell(
     with_workers: bool = False,
     config_file: str | None = None,
     overrides: list[str] | None = None,
+    identification: tuple[Any, Any] | None = None,
 ) -> Cell:
     """Open the router session, the cycle index and the supervisor; optionally start workers.
+
+    Args:
+        identification: ``(identify, catalog)`` to use instead of the vision module and the
+            configured catalog (tests inject doubles here).
 
     Raises:
         ConfigError: the endpoints cannot be bound, or the state machines do not validate.
     """
     try:
-        identify, catalog = load_identification(cfg)
+        identify, catalog = identification or load_identification(cfg)
     except ImportError as err:
         log.warning("bin identification unavailable (%s); the identify step will fail with that reason", err)
         identify, catalog = None, None

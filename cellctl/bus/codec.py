@@ -35,8 +35,12 @@ def _explain(err: ValidationError) -> str:
     return "; ".join(parts)
 
 
-def decode(data: bytes | bytearray | memoryview | str, max_bytes: int = MAX_PAYLOAD_BYTES) -> WireMessage:
-    """Decode any registered message; raise ProtocolError naming what is wrong."""
+def decode(
+    data: bytes | bytearray | memoryview | str,
+    max_bytes: int = MAX_PAYLOAD_BYTES,
+    expected: str | None = None,
+) -> WireMessage:
+    """Decode any registered message (or only ``expected``); raise ProtocolError naming what is wrong."""
     raw = bytes(data, "utf-8") if isinstance(data, str) else bytes(data)
     if len(raw) > max_bytes:
         raise ProtocolError(f"payload of {len(raw)} bytes exceeds the limit of {max_bytes} bytes")
@@ -48,6 +52,8 @@ def decode(data: bytes | bytearray | memoryview | str, max_bytes: int = MAX_PAYL
     if not isinstance(obj, dict):
         raise ProtocolError(f"payload must be a JSON object, got {type(obj).__name__}")
     kind = obj.get("type")
+    if expected is not None and kind != expected:
+        raise ProtocolError(f"expected a {expected} message, got type {kind!r}")
     model = MESSAGE_TYPES.get(kind) if isinstance(kind, str) else None
     if model is None:
         raise ProtocolError(f"message type {kind!r} is unknown; expected one of {sorted(MESSAGE_TYPES)}")
@@ -65,10 +71,8 @@ def decode(data: bytes | bytearray | memoryview | str, max_bytes: int = MAX_PAYL
 
 def decode_as(model: type[M], data: bytes | bytearray | memoryview | str, max_bytes: int = MAX_PAYLOAD_BYTES) -> M:
     """Decode and require a specific message type."""
-    msg = decode(data, max_bytes)
-    if not isinstance(msg, model):
-        expected = model.model_fields["type"].default
-        raise ProtocolError(f"expected a {expected} message, got {msg.type}")
+    msg = decode(data, max_bytes, expected=model.model_fields["type"].default)
+    assert isinstance(msg, model)
     return msg
 
 

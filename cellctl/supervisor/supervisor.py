@@ -370,6 +370,8 @@ class Supervisor:
         self._active_token = next(self._token)
         top, step = self.top_state, self.step
         spec = self.packml.states[top]
+        if top == "Starting":
+            self._create_cycle()
         if step is not None:
             self._launch(step, self._run_step)
         elif spec.behaviour is not None:
@@ -468,6 +470,13 @@ class Supervisor:
         self._ctx = None
 
     def _b_open_cycle(self, run: StepRun) -> None:
+        missing = [r for r in self.cfg.supervisor.required_workers if self._alive.get(r, 0) == 0]
+        if missing:
+            raise WorkerUnavailable(f"no {', '.join(missing)} worker alive (liveliness); start the workers and retry")
+
+    def _create_cycle(self) -> None:  # noqa: D401
+        """Open the cycle's MCAP and index row (dispatcher thread, on entering Starting), so the
+        Start command and its Ack are the first things the cycle log holds."""
         now = _dt.datetime.now(_dt.UTC)
         cycle_id = f"{now:%Y%m%dT%H%M%S}-{now.microsecond // 1000:03d}-{next(self._cycle_seq)}"
         rel = Path(self.cfg.recording.dir) / f"{now:%Y-%m-%d}" / f"{cycle_id}.mcap"
@@ -482,11 +491,7 @@ class Supervisor:
         )
         ctx.log_rel = str(rel)  # type: ignore[attr-defined]
         self._ctx = ctx
-        run.ctx = ctx
         self._event("info", f"cycle {cycle_id} started ({ctx.mode})")
-        missing = [r for r in self.cfg.supervisor.required_workers if self._alive.get(r, 0) == 0]
-        if missing:
-            raise WorkerUnavailable(f"no {', '.join(missing)} worker alive (liveliness); start the workers and retry")
 
     def _b_resume_check(self, run: StepRun) -> None:
         missing = [r for r in self.cfg.supervisor.required_workers if self._alive.get(r, 0) == 0]

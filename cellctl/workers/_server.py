@@ -1,13 +1,14 @@
 """The runtime every worker process shares: ops served as Zenoh queryables, a liveliness
 token, clean shutdown.
 
-Zenoh callbacks never run worker code: each op's queryable feeds a FIFO channel drained by
+Zenoh callbacks never run worker code: each op's queryable feeds a FIFO queue drained by
 its own thread, so a long ``move`` does not block ``state`` or ``stop``.
 """
 
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -16,8 +17,8 @@ from typing import Any
 import zenoh
 
 from cellctl.bus import keys
-from cellctl.bus.codec import MAX_PAYLOAD_BYTES, decode_as, encode
-from cellctl.errors import CellError
+from cellctl.bus.codec import MAX_PAYLOAD_BYTES, decode, decode_as, encode
+from cellctl.errors import CellError, ProtocolError
 from cellctl.messages import ErrorReply, WireMessage
 
 __all__ = ["Handler", "WorkerServer"]
@@ -34,10 +35,20 @@ MAX_IMAGE_BYTES = 32 * 1024 * 1024
 @dataclass
 class _Op:
     key: str
-    request_type: type[WireMessage]
+    request_type: type[WireMessage] | tuple[type[WireMessage], ...]
     handler: Handler
     queryable: Any
     thread: threading.Thread
+
+
+def _decode_any(types: type[WireMessage] | tuple[type[WireMessage], ...], data: bytes) -> WireMessage:
+    if not isinstance(types, tuple):
+        return decode_as(types, data, MAX_PAYLOAD_BYTES)
+    msg = decode(data, MAX_PAYLOAD_BYTES)
+    if not isinstance(msg, types):
+        names = [t.model_fields["type"].default for t in types]
+        raise ProtocolError(f"expected one of {names}, got {msg.type}")
+    return msg
 
 
 class WorkerServer:
@@ -59,12 +70,24 @@ class WorkerServer:
         self._token: Any = None
         self._closed = threading.Event()
 
-    def serve(self, op: str, request_type: type[WireMessage], handler: Handler, *, key: str | None = None) -> None:
-        """Serve ``op`` (key ``cell/<id>/<role>/<op>`` unless ``key`` is given)."""
+    def serve(
+        self,
+        op: str,
+        request_type: type[WireMessage] | tuple[type[WireMessage], ...],
+        handler: Handler,
+        *,
+        key: str | None = None,
+    ) -> None:
+        """Serve ``op`` (key ``cell/<id>/<role>/<op>`` unless ``key`` is given).
+
+        ``request_type`` may be a tuple when one key accepts several messages (planner jobs:
+        submit and status query); the handler then dispatches on the decoded type.
+        """
         k = key or keys.worker_op(self.cell_id, self.role, op)
-        channel = zenoh.handlers.FifoChannel(64)
-        queryable = self.session.declare_queryable(k, channel, complete=True)
-        thread = threading.Thread(target=self._drain, args=(op, queryable), name=f"{self.role}-{op}", daemon=True)
+        inbox: queue.Queue[Any] = queue.Queue()
+        # The callback only enqueues: Zenoh threads never run worker code.
+        queryable = self.session.declare_queryable(k, inbox.put, complete=True)
+        thread = threading.Thread(target=self._drain, args=(op, inbox), name=f"{self.role}-{op}", daemon=True)
         self._ops[op] = _Op(k, request_type, handler, queryable, thread)
         thread.start()
 
@@ -72,14 +95,16 @@ class WorkerServer:
         """Declare the liveliness token: from now on the supervisor sees this worker alive."""
         self._token = self.session.liveliness().declare_token(keys.alive(self.cell_id, self.role, self.instance))
 
-    def _drain(self, op: str, queryable: Any) -> None:
+    def _drain(self, op: str, inbox: queue.Queue[Any]) -> None:
         while not self._closed.is_set():
             try:
-                query = queryable.recv()
-            except Exception:  # the channel closes when the queryable is undeclared
-                return
-            with query:
+                query = inbox.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
                 self._answer(op, query)
+            finally:
+                query.drop()
 
     def _answer(self, op: str, query: Any) -> None:
         spec = self._ops[op]
@@ -89,10 +114,10 @@ class WorkerServer:
             if attachment is not None:
                 if len(payload) > MAX_IMAGE_BYTES:
                     raise CellError(f"image payload of {len(payload)} bytes exceeds {MAX_IMAGE_BYTES}")
-                request = decode_as(spec.request_type, attachment, MAX_PAYLOAD_BYTES)
+                request = _decode_any(spec.request_type, attachment)
                 raw: bytes | None = payload
             else:
-                request = decode_as(spec.request_type, payload, MAX_PAYLOAD_BYTES)
+                request = _decode_any(spec.request_type, payload)
                 raw = None
             out = spec.handler(request, raw)
             if isinstance(out, tuple):

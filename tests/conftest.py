@@ -1,0 +1,50 @@
+"""Shared fixtures: unique loopback ports, a config whose outputs go to a temp dir."""
+
+from __future__ import annotations
+
+import itertools
+import os
+from pathlib import Path
+
+import pytest
+
+from cellctl.config import CellConfig, load_config
+
+_ports = itertools.count(20000 + (os.getpid() % 200) * 50)
+
+
+def free_port() -> int:
+    """A loopback port unique within this test session (Zenoh binds it for real)."""
+    import socket
+
+    while True:
+        port = next(_ports)
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+                return port
+            except OSError:
+                continue
+
+
+@pytest.fixture
+def port() -> int:
+    return free_port()
+
+
+@pytest.fixture
+def cfg(tmp_path: Path, port: int) -> CellConfig:
+    """The default cell config on a private port, logging under tmp_path, fast timeouts."""
+    ep = f'["tcp/127.0.0.1:{port}"]'
+    return load_config(
+        None,
+        [
+            f"bus.listen={ep}",
+            f"bus.connect={ep}",
+            f"recording.dir={tmp_path / 'logs'}",
+            f"recording.index={tmp_path / 'logs' / 'cells.db'}",
+            f"planner.plans_dir={tmp_path / 'plans'}",
+            "supervisor.status_period_s=0.2",
+            "robot.settle_s=0",
+        ],
+    )

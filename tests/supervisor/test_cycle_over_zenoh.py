@@ -1,0 +1,219 @@
+"""The daemon over real Zenoh on loopback, driven like a PLC, with worker doubles."""
+
+from __future__ import annotations
+
+import json
+import queue
+import time
+
+import pytest
+from mcap.reader import make_reader
+
+from cellctl.app import build_cell
+from cellctl.bus import keys
+from cellctl.bus.codec import decode_as, encode
+from cellctl.bus.session import open_session
+from cellctl.messages import Ack, Command, CycleResult, Status
+from tests.fakes.workers import FakeCell, fake_identify
+
+
+class Plc:
+    """A client that sends commands by query and watches Status and CycleResult."""
+
+    def __init__(self, cfg) -> None:  # noqa: ANN001
+        self.cfg = cfg
+        self.s = open_session(cfg, "client")
+        self.status: queue.Queue[Status] = queue.Queue()
+        self.results: queue.Queue[CycleResult] = queue.Queue()
+        self.s.declare_subscriber(keys.status(cfg.cell_id), lambda x: self.status.put(decode_as(Status, x.payload.to_bytes())))
+        self.s.declare_subscriber(keys.result(cfg.cell_id), lambda x: self.results.put(decode_as(CycleResult, x.payload.to_bytes())))
+        time.sleep(0.2)
+
+    def cmd(self, command: str, **params) -> Ack:  # noqa: ANN003
+        msg = Command(command=command, request_id=f"t-{command}", params=params)
+        (reply,) = list(self.s.get(keys.cmd(self.cfg.cell_id), payload=encode(msg), timeout=5))
+        return decode_as(Ack, reply.ok.payload.to_bytes())
+
+    def wait_state(self, state: str, timeout: float = 10.0) -> Status:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                st = self.status.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            if st.state == state:
+                return st
+        raise AssertionError(f"state {state!r} not reached in {timeout} s")
+
+    def close(self) -> None:
+        self.s.close()
+
+
+@pytest.fixture
+def cell(cfg):  # noqa: ANN001, ANN201
+    c = build_cell(cfg, identification=(fake_identify, None))
+    yield c
+    c.close()
+
+
+@pytest.fixture
+def plc(cfg, cell):  # noqa: ANN001, ANN201
+    p = Plc(cfg)
+    yield p
+    p.close()
+
+
+def test_daemon_starts_in_stopped_and_runs_a_full_cycle(cfg, cell, plc) -> None:
+    assert cell.supervisor.top_state == "Stopped"
+    with FakeCell(cfg, dirty_viewpoints={1}) as fake:
+        assert plc.cmd("reset").accepted
+        plc.wait_state("Idle")
+        ack = plc.cmd("start")
+        assert ack.accepted and ack.state == "Starting"
+        plc.wait_state("Complete")
+        res = plc.results.get(timeout=5)
+    assert res.outcome == "completed"
+    assert res.verdict == "dirty"
+    assert [v.label for v in res.viewpoints] == ["clean", "dirty", "clean"]
+    assert res.bin.type == "case_study"
+    assert res.dirt_map["seen_dirty"] == [2, 3]
+    assert res.coverage == pytest.approx(0.6)
+    assert fake.calls.count("move") == 3
+    # the cycle's MCAP reads back with the independent reader and holds the whole story
+    path = cfg.path(res.log)
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        topics = [ch.topic for _, ch, _ in reader.iter_messages()]
+        schemas = {sc.name for sc, _, _ in reader.iter_messages()}
+    assert keys.cmd(cfg.cell_id) in topics and keys.cmd_ack(cfg.cell_id) in topics
+    assert f"{keys.robot_op(cfg.cell_id, 'move')}/request" in topics
+    assert keys.result(cfg.cell_id) in topics
+    assert {"foxglove.Log", "foxglove.CompressedImage", "cellctl/Status"} <= schemas
+    row = cell.index.get(res.cycle_id)
+    assert row is not None and row.outcome == "completed" and row.log_sha256
+
+
+def test_plan_miss_ends_with_replan_required(cfg, cell, plc) -> None:
+    with FakeCell(cfg, plan_hit=False) as fake:
+        plc.cmd("reset")
+        plc.wait_state("Idle")
+        plc.cmd("start")
+        plc.wait_state("Complete")
+        res = plc.results.get(timeout=5)
+    assert res.outcome == "replan_required"
+    assert res.planner_job_id == "job-1"
+    assert "move" not in fake.calls
+
+
+def test_no_workers_aborts_with_reason_then_clear_reset_recover(cfg, cell, plc) -> None:
+    plc.cmd("reset")
+    plc.wait_state("Idle")
+    plc.cmd("start")
+    st = plc.wait_state("Aborted")
+    assert "no robot" in st.last_error
+    res = plc.results.get(timeout=5)
+    assert res.outcome == "failed" and "no robot" in res.reason
+    assert plc.cmd("clear").accepted
+    plc.wait_state("Stopped")
+    assert plc.cmd("reset").accepted
+    st = plc.wait_state("Idle")
+    assert st.last_error is None
+
+
+def test_worker_error_aborts_the_cycle(cfg, cell, plc) -> None:
+    with FakeCell(cfg, fail={"approach": "base cannot park: obstacle at 0.3 m"}):
+        plc.cmd("reset")
+        plc.wait_state("Idle")
+        plc.cmd("start")
+        st = plc.wait_state("Aborted")
+    assert "obstacle at 0.3 m" in st.last_error
+
+
+def test_hung_worker_times_out_and_aborts(cfg, cell, plc) -> None:
+    cell.cfg.supervisor.timeouts.approach = 0.5
+    with FakeCell(cfg, hang={"approach"}):
+        plc.cmd("reset")
+        plc.wait_state("Idle")
+        plc.cmd("start")
+        st = plc.wait_state("Aborted")
+    assert "did not answer" in st.last_error
+
+
+def test_lost_worker_during_execute_aborts_and_stops_robot(cfg, cell, plc) -> None:
+    with FakeCell(cfg, n_viewpoints=20, move_delay_s=0.2) as fake:
+        plc.cmd("reset")
+        plc.wait_state("Idle")
+        plc.cmd("start")
+        deadline = time.monotonic() + 10
+        while "move" not in fake.calls and time.monotonic() < deadline:
+            time.sleep(0.05)
+        t0 = time.monotonic()
+        fake.kill("camera")
+        st = plc.wait_state("Aborted")
+        detect = time.monotonic() - t0
+        moves_at_abort = fake.calls.count("move")
+        time.sleep(0.5)
+        assert fake.calls.count("move") <= moves_at_abort + 1  # at most the in-flight move
+        assert fake.stops >= 1
+    assert "camera worker lost" in st.last_error
+    assert detect < 2.0
+
+
+def test_hold_and_unhold_resume_the_saved_step(cfg, cell, plc) -> None:
+    with FakeCell(cfg, n_viewpoints=6, move_delay_s=0.15) as fake:
+        plc.cmd("reset")
+        plc.wait_state("Idle")
+        plc.cmd("start")
+        deadline = time.monotonic() + 10
+        while fake.calls.count("move") < 2 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert plc.cmd("hold").accepted
+        plc.wait_state("Held")
+        assert plc.cmd("unhold").accepted
+        plc.wait_state("Complete")
+        res = plc.results.get(timeout=5)
+    assert res.outcome == "completed"
+    assert sorted(v.index for v in res.viewpoints) == list(range(6))
+
+
+@pytest.mark.parametrize(
+    "payload, reason",
+    [
+        (b"{not json", "not valid JSON"),
+        (b"[1, 2]", "must be a JSON object"),
+        (json.dumps({"type": "cellctl/Command", "v": 1, "command": "jump"}).encode(), "command"),
+        (json.dumps({"type": "cellctl/Command", "v": 1, "cntrl_cmd": 42}).encode(), "cntrl_cmd 42 is unknown"),
+        (json.dumps({"type": "cellctl/Command", "v": 2, "command": "reset"}).encode(), "version 2"),
+        (json.dumps({"type": "cellctl/Status", "v": 1}).encode(), "expected a cellctl/Command"),
+        (b"x" * 70000, "exceeds the limit"),
+        (json.dumps({"type": "cellctl/Command", "v": 1, "command": "hold"}).encode(), "not allowed in state 'Stopped'"),
+    ],
+)
+def test_bad_commands_get_a_rejecting_ack_and_change_nothing(cfg, cell, plc, payload, reason) -> None:
+    (reply,) = list(plc.s.get(keys.cmd(cfg.cell_id), payload=payload, timeout=5))
+    ack = decode_as(Ack, reply.ok.payload.to_bytes())
+    assert not ack.accepted
+    assert reason in ack.reason
+    assert ack.state == "Stopped" and cell.supervisor.state == "Stopped"
+
+
+def test_put_commands_are_acked_on_the_ack_key(cfg, cell, plc) -> None:
+    acks: queue.Queue[Ack] = queue.Queue()
+    plc.s.declare_subscriber(keys.cmd_ack(cfg.cell_id), lambda x: acks.put(decode_as(Ack, x.payload.to_bytes())))
+    time.sleep(0.2)
+    plc.s.put(keys.cmd(cfg.cell_id), json.dumps({"type": "cellctl/Command", "v": 1, "cntrl_cmd": 1, "request_id": "p1"}))
+    ack = acks.get(timeout=5)
+    assert ack.accepted and ack.request_id == "p1" and ack.command == "reset"
+    plc.s.put(keys.cmd(cfg.cell_id), b"garbage")
+    ack = acks.get(timeout=5)
+    assert not ack.accepted and ack.request_id is None
+
+
+def test_start_params_are_validated(cfg, cell, plc) -> None:
+    plc.cmd("reset")
+    plc.wait_state("Idle")
+    ack = plc.cmd("start", mode="collect")
+    assert not ack.accepted and "label" in ack.reason
+    ack = plc.cmd("start", speed=3)
+    assert not ack.accepted and "speed" in ack.reason
+    assert cell.supervisor.state == "Idle"
