@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, field_validator
 
 from cellctl.bus.keys import ROLES, check_cell_id
 from cellctl.errors import ConfigError
@@ -47,6 +47,8 @@ def default_config_path() -> Path:
 
 
 class _Model(BaseModel):
+    # Flags are StrictBool: pydantic would otherwise read "on"/"yes" as True behind the
+    # operator's back; YAML parsing keeps them strings so they are reported instead.
     model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
 
@@ -57,7 +59,7 @@ class BusConfig(_Model):
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     lease_ms: int = Field(default=2000, ge=500, le=60000, description="link lease; bounds hang detection")
     zenoh_config: Path | None = Field(default=None, description="extra Zenoh json5 (auth, ACL, TLS)")
-    multicast_scouting: bool = False
+    multicast_scouting: StrictBool = False
 
 
 class Timeouts(_Model):
@@ -79,8 +81,8 @@ class SupervisorConfig(_Model):
     required_workers: list[str] = Field(default_factory=lambda: ["robot", "camera", "classifier"])
     on_worker_lost: Literal["abort", "hold"] = "abort"
     identify_attempts: int = Field(default=3, ge=1, le=10)
-    wait_for_plan: bool = Field(default=False, description="wait for the planner job instead of replan_required")
-    auto_reset: bool = Field(default=False, description="Complete → Resetting → Idle without a PLC Reset")
+    wait_for_plan: StrictBool = Field(default=False, description="wait for the planner job instead of replan_required")
+    auto_reset: StrictBool = Field(default=False, description="Complete → Resetting → Idle without a PLC Reset")
     max_command_bytes: int = Field(default=64 * 1024, ge=256)
     spawn_workers: list[str] = Field(
         default_factory=lambda: ["robot", "camera", "classifier", "planner"],
@@ -150,7 +152,7 @@ class SimConfig(_Model):
     bin_pose_xyz_yaw: tuple[float, float, float, float] = Field(
         default=(0.0, 0.0, 0.0, 0.0), description="bin pose in the world: x, y, z (m), yaw (deg)"
     )
-    dirty: bool = False
+    dirty: StrictBool = False
     powder_amount: float = Field(default=0.5, ge=0, le=1)
     seed: int = 0
     approach_error_m: float = Field(default=0.03, ge=0, le=0.5)

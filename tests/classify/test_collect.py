@@ -1,0 +1,50 @@
+"""Collect mode storage (light module, no torch)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cellctl.classify.collect import capture_path, store_capture
+from cellctl.errors import ClassifierError
+
+
+def test_store_png_and_jpeg(tmp_path: Path) -> None:
+    img = np.random.default_rng(0).integers(0, 255, (24, 24, 3), dtype=np.uint8)
+    png = cv2.imencode(".png", img)[1].tobytes()
+    jpg = cv2.imencode(".jpg", img)[1].tobytes()
+    p1 = store_capture(tmp_path, "external", "dirty", "c-001", 0, png)
+    p2 = store_capture(tmp_path, "internal", "clean", "c-001", 7, jpg)
+    assert p1 == tmp_path / "external" / "dirty" / "c-001_000.png"
+    assert p1.read_bytes() == png
+    assert p2 == capture_path(tmp_path, "internal", "clean", "c-001", 7)
+    assert cv2.imread(str(p2)).shape == (24, 24, 3)
+    assert not list(tmp_path.rglob(".tmp-*"))
+
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (("external", "greasy", "c1", 0, b"\x89PNG\r\n\x1a\n"), "label 'greasy' is unknown"),
+        (("top", "clean", "c1", 0, b"\x89PNG\r\n\x1a\n"), "surface 'top' is unknown"),
+        (("external", "clean", "../x", 0, b"\x89PNG\r\n\x1a\n"), "not usable in a file name"),
+        (("external", "clean", "c1", -1, b"\x89PNG\r\n\x1a\n"), "non-negative"),
+        (("external", "clean", "c1", 0, b""), "empty"),
+        (("external", "clean", "c1", 0, b"GIF89a...."), "expected PNG or JPEG"),
+    ],
+)
+def test_bad_collect_input(tmp_path: Path, args: tuple, match: str) -> None:
+    with pytest.raises(ClassifierError, match=match):
+        store_capture(tmp_path, *args)
+
+
+def test_collect_module_does_not_import_torch() -> None:
+    """The supervisor may import cellctl.classify.collect: it must stay light."""
+    code = "import sys, cellctl.classify.collect; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -1,0 +1,106 @@
+"""Synthetic data, training outputs, evaluation and inference on a tiny model."""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cellctl.classify.data import load_image
+from cellctl.classify.evaluate import evaluate_folder
+from cellctl.classify.infer import SurfaceModel
+from cellctl.classify.synth import MIN_VISIBLE_FRACTION, label_from_mask, synth_dataset
+from cellctl.errors import ClassifierError
+
+
+def test_label_rule() -> None:
+    m = np.zeros((100, 100), np.float32)
+    assert label_from_mask(m) == "clean"
+    m[:5, :5] = 1.0  # 0.25 % < 0.3 %: ambiguous
+    assert label_from_mask(m) is None
+    m[:6, :6] = 1.0  # 0.36 %
+    assert label_from_mask(m) == "dirty"
+    m2 = np.full((100, 100), 0.4, np.float32)  # faint haze below the opacity rule
+    assert label_from_mask(m2) == "clean"
+    assert MIN_VISIBLE_FRACTION == 0.003
+
+
+def test_synth_is_balanced_reproducible_and_labelled(tmp_path: Path) -> None:
+    a = synth_dataset(tmp_path / "a", "internal", 12, seed=4, source="procedural", size=48)
+    b = synth_dataset(tmp_path / "b", "internal", 12, seed=4, source="procedural", size=48)
+    assert a["counts"] == {"clean": 6, "dirty": 6}
+    fa = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*.png"))
+    fb = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*.png"))
+    assert fa == fb
+    assert (tmp_path / "a" / fa[0]).read_bytes() == (tmp_path / "b" / fb[0]).read_bytes()
+    rows = list(csv.DictReader(open(tmp_path / "a" / "internal" / "labels.csv")))
+    assert len(rows) == 12
+    for r in rows:
+        frac = float(r["visible_fraction"])
+        assert (r["label"] == "dirty") == (frac >= MIN_VISIBLE_FRACTION)
+    with pytest.raises(ClassifierError, match="source 'paint' is unknown"):
+        synth_dataset(tmp_path, "internal", 8, source="paint")
+
+
+def test_training_writes_weights_card_csv_png(tiny_models: Path) -> None:
+    pt = tiny_models / "external.pt"
+    card = json.loads(pt.with_suffix(".json").read_text())
+    assert card["sha256"] == hashlib.sha256(pt.read_bytes()).hexdigest()
+    assert card["surface"] == "external" and card["arch"] == "lite0" and card["input_size"] == 64
+    assert 0 < card["threshold"] <= 0.5
+    assert card["data"]["synth"][0]["source"] == "procedural"
+    assert card["backbone"]["sha256"]  # the packaged ImageNet checkpoint, recorded
+    rows = list(csv.DictReader(open(pt.with_suffix(".csv"))))
+    assert {r["phase"] for r in rows} == {"head", "finetune"}
+    assert pt.with_suffix(".png").stat().st_size > 1000
+    assert set(card["metrics"]["test"]) >= {"accuracy", "confusion", "false_clean_rate", "roc_auc"}
+
+
+def test_eval_and_predict(tiny_data: Path, tiny_models: Path, tmp_path: Path) -> None:
+    rep = evaluate_folder(tiny_models / "internal.pt", tiny_data, "internal", png=tmp_path / "roc.png")
+    assert rep["split"] == "test" and rep["n"] > 0
+    assert (tmp_path / "roc.png").is_file()
+    rep_all = evaluate_folder(tiny_models / "internal.pt", tiny_data, "internal", split="all")
+    assert rep_all["n"] == 48
+    m32 = SurfaceModel.load(tiny_models / "internal.pt", surface="internal")
+    mf = SurfaceModel.load(tiny_models / "internal.pt", surface="internal", variant="fused")
+    imgs = [load_image(p) for p in sorted((tiny_data / "internal").rglob("*.png"))[:6]]
+    p1, p2 = m32.predict_proba(imgs), mf.predict_proba(imgs)
+    assert np.allclose(p1, p2, atol=1e-4)
+    preds = m32.predict(imgs)
+    assert all(pr.label in ("clean", "dirty") and 0 <= pr.p_dirty <= 1 for pr in preds)
+    assert preds[0].model_id.startswith("internal-lite0-")
+
+
+def test_load_refuses_wrong_surface_missing_and_foreign_files(tiny_models: Path, tmp_path: Path) -> None:
+    with pytest.raises(ClassifierError, match="surface 'external', expected 'internal'"):
+        SurfaceModel.load(tiny_models / "external.pt", surface="internal")
+    with pytest.raises(ClassifierError, match="do not exist; train them"):
+        SurfaceModel.load(tmp_path / "internal.pt", surface="internal")
+    import torch
+
+    torch.save({"a": torch.zeros(1)}, tmp_path / "x.pt")
+    with pytest.raises(ClassifierError, match="not a cellctl classifier file"):
+        SurfaceModel.load(tmp_path / "x.pt")
+    # a card that belongs to other weights
+    (tmp_path / "m.pt").write_bytes((tiny_models / "external.pt").read_bytes())
+    card = json.loads((tiny_models / "external.json").read_text())
+    card["sha256"] = "0" * 64
+    (tmp_path / "m.json").write_text(json.dumps(card))
+    with pytest.raises(ClassifierError, match="do not belong together"):
+        SurfaceModel.load(tmp_path / "m.pt")
+
+
+def test_train_refuses_bad_arguments(tiny_data: Path, tmp_path: Path) -> None:
+    from cellctl.classify.train import train
+
+    with pytest.raises(ClassifierError, match="preset 'fast' is unknown"):
+        train(tiny_data, "external", tmp_path / "m.pt", preset="fast")
+    with pytest.raises(ClassifierError, match="must end in .pt"):
+        train(tiny_data, "external", tmp_path / "m.bin")
+    with pytest.raises(ClassifierError, match="multiple of 32"):
+        train(tiny_data, "external", tmp_path / "m.pt", input_size=100)
