@@ -16,6 +16,7 @@ from cellctl.cli import add_config_arguments
 BENCHES: dict[str, tuple[str, str]] = {
     "bus": ("cellctl.bus.bench:bench_bus", "command→ack and status latency on loopback"),
     "classify": ("cellctl.classify.bench:bench_classify", "classifier latency/throughput/accuracy per variant"),
+    "pose": ("cellctl.vision.bench:bench_pose", "ChArUco bin-pose accuracy vs ground truth at 0.5-2 m"),
 }
 
 
