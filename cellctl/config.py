@@ -108,6 +108,8 @@ class RobotConfig(_Model):
     speed_scale: float = Field(default=1.0, gt=0, le=1000, description="sim: >1 runs motions faster")
     settle_s: float = Field(default=0.2, ge=0, le=10)
     joint_state_hz: float = Field(default=10.0, gt=0, le=500)
+    plan_timeout_s: float = Field(default=3.0, gt=0, le=60, description="sim: RRTConnect budget per move")
+    collision_margin_m: float = Field(default=0.005, ge=0, le=0.1, description="sim: clearance around the arm")
 
 
 class CameraConfig(_Model):
@@ -117,6 +119,11 @@ class CameraConfig(_Model):
     width: int = Field(default=1280, gt=0)
     height: int = Field(default=720, gt=0)
     format: Literal["png", "jpeg"] = "png"
+    fx: float | None = Field(default=None, gt=0, description="px; None: D435 colour defaults scaled to width")
+    fy: float | None = Field(default=None, gt=0, description="px; None: same as fx")
+    cx: float | None = Field(default=None, description="px; None: image centre")
+    cy: float | None = Field(default=None, description="px; None: image centre")
+    noise_sigma: float = Field(default=2.0, ge=0, le=50, description="sim: sensor noise, 8-bit grey levels")
 
 
 class ClassifierConfig(_Model):

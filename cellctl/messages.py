@@ -49,6 +49,9 @@ __all__ = [
     "PoseMsg",
     "RobotState",
     "RobotStateRequest",
+    "SimScenarioRequest",
+    "SimState",
+    "SimStateRequest",
     "Status",
     "StopRequest",
     "ViewpointResult",
@@ -327,6 +330,49 @@ class StopRequest(WireMessage):
     reason: str = ""
 
 
+# --- sim (twin only: the scenario and its ground truth; the supervisor must not use them) ---
+
+
+class SimStateRequest(WireMessage):
+    """Ask the sim robot worker for the current sim state (``keys.sim_state``)."""
+
+    type: Literal["cellctl/SimStateRequest"] = "cellctl/SimStateRequest"
+    v: Literal[1] = 1
+
+
+class SimScenarioRequest(WireMessage):
+    """Change the sim scenario at run time (op ``robot/scenario``); None leaves a field as is."""
+
+    type: Literal["cellctl/SimScenarioRequest"] = "cellctl/SimScenarioRequest"
+    v: Literal[1] = 1
+    bin_type: str | None = None
+    bin_xyz_yaw: tuple[float, float, float, float] | None = Field(
+        default=None, description="bin footprint x, y (m), lift z (m), yaw (rad) in the world frame"
+    )
+    dirty: bool | None = None
+    powder_amount: float | None = Field(default=None, ge=0.0, le=1.0)
+    seed: int | None = None
+    repark: bool = Field(default=False, description="park the base again now (arm goes home first)")
+
+
+class SimState(WireMessage):
+    """The sim world now: scenario, true poses (ground truth) and the arm's joints."""
+
+    type: Literal["cellctl/SimState"] = "cellctl/SimState"
+    v: Literal[1] = 1
+    bin_type: str
+    bin_xyz_yaw: tuple[float, float, float, float]
+    dirty: bool
+    powder_amount: float
+    seed: int
+    world_T_bin: PoseMsg
+    world_T_base: PoseMsg
+    parked: bool
+    joints: list[float]
+    moving: bool = False
+    stamp: str = Field(default_factory=now_iso)
+
+
 # --- camera ---------------------------------------------------------------------------------
 
 
@@ -481,6 +527,9 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
         RobotStateRequest,
         RobotState,
         StopRequest,
+        SimStateRequest,
+        SimScenarioRequest,
+        SimState,
         CaptureRequest,
         CaptureReply,
         ClassifyRequest,

@@ -26,6 +26,7 @@ __all__ = [
     "role_from_alive_key",
     "robot_joints",
     "robot_op",
+    "sim_state",
     "status",
     "worker_op",
 ]
@@ -90,6 +91,11 @@ def robot_joints(cell_id: str) -> str:
 
 def camera_capture(cell_id: str) -> str:
     return worker_op(cell_id, "camera", "capture")
+
+
+def sim_state(cell_id: str) -> str:
+    """Sim only: the twin's scenario + joints; queryable and publisher on the sim robot worker."""
+    return f"{prefix(cell_id)}/sim/state"
 
 
 def classifier_classify(cell_id: str) -> str:

@@ -104,8 +104,12 @@ class BinDesign:
         sx, sy = self.squares
         w, h = sx * self.square_m, sy * self.square_m
         proto = BoardSpec(
-            squares_x=sx, squares_y=sy, square_m=self.square_m, marker_m=self.marker_m,
-            first_id=self.board_first_id, T_bin_board=np.eye(4).tolist(),
+            squares_x=sx,
+            squares_y=sy,
+            square_m=self.square_m,
+            marker_m=self.marker_m,
+            first_id=self.board_first_id,
+            T_bin_board=np.eye(4).tolist(),
         )
         if self.tag_T_bin is not None:
             tag_T_bin = np.asarray(self.tag_T_bin, dtype=np.float64)
@@ -267,8 +271,13 @@ def build_mesh(d: BinDesign) -> tuple[NDArray[np.float64], NDArray[np.int64], ND
     for lx, ly in d.legs:
         s = d.leg_size / 2
         z0, z1 = -d.height, d.leg_top_z
-        corners = np.array([[lx + dx * s, ly + dy * s, z] for z in (z0, z1) for dx, dy in
-                            ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        corners = np.array(
+            [
+                [lx + dx * s, ly + dy * s, z]
+                for z in (z0, z1)
+                for dx, dy in ((-1, -1), (1, -1), (1, 1), (-1, 1))
+            ]
+        )
         quads = [(0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7), (4, 5, 6, 7), (0, 3, 2, 1)]
         F = np.array([tri for a, b_, c, e in quads for tri in ((a, b_, c), (a, c, e))], dtype=np.int64)
         centre = np.array([lx, ly, (z0 + z1) / 2])
@@ -281,13 +290,20 @@ def _case_study() -> BinDesign:
     return BinDesign(
         name="case_study",
         description="paper case study: 880x740 mm body, circular top hole, hopper, four legs, 1030 mm high",
-        outline="rect", half_x=hx, half_y=hy,
+        outline="rect",
+        half_x=hx,
+        half_y=hy,
         sections=((0.0, 1.0, 1.0), (-0.45, 1.0, 1.0), (-0.78, 0.125 / hx, 0.125 / hy)),
         hole=("circle", 0.25),
         legs=tuple((sx * (hx - 0.035), sy * (hy - 0.035)) for sx in (-1, 1) for sy in (-1, 1)),
-        leg_size=0.05, leg_top_z=-0.45, height=1.03,
-        board_first_id=0, tag_T_bin=tuple(map(tuple, paper_tag_T_bin().tolist())),
-        n_perimeter=64, row_spacing=0.08, top_rings=5,
+        leg_size=0.05,
+        leg_top_z=-0.45,
+        height=1.03,
+        board_first_id=0,
+        tag_T_bin=tuple(map(tuple, paper_tag_T_bin().tolist())),
+        n_perimeter=64,
+        row_spacing=0.08,
+        top_rings=5,
     )
 
 
@@ -295,11 +311,18 @@ def _drum() -> BinDesign:
     return BinDesign(
         name="drum",
         description="cylindrical drum, 600 mm diameter, 850 mm high, wide lidless top with a 40 mm lip",
-        outline="circle", half_x=0.30, half_y=0.30,
+        outline="circle",
+        half_x=0.30,
+        half_y=0.30,
         sections=((0.0, 1.0, 1.0), (-0.85, 1.0, 1.0)),
-        hole=("circle", 0.26), height=0.85,
-        board_first_id=17, board_centre=(0.0, -0.22), board_standoff=0.02,
-        n_perimeter=72, row_spacing=0.08, top_rings=3,
+        hole=("circle", 0.26),
+        height=0.85,
+        board_first_id=17,
+        board_centre=(0.0, -0.22),
+        board_standoff=0.02,
+        n_perimeter=72,
+        row_spacing=0.08,
+        top_rings=3,
     )
 
 
@@ -308,13 +331,21 @@ def _tote() -> BinDesign:
     return BinDesign(
         name="tote",
         description="low wide tote, 1200x800 mm, tapered walls, open top with a 40 mm rim, on four feet",
-        outline="rect", half_x=hx, half_y=hy,
+        outline="rect",
+        half_x=hx,
+        half_y=hy,
         sections=((0.0, 1.0, 1.0), (-0.55, 0.92, 0.9)),
         hole=("inset", 0.04),
         legs=tuple((sx * 0.45, sy * 0.27) for sx in (-1, 1) for sy in (-1, 1)),
-        leg_size=0.08, leg_top_z=-0.55, height=0.63,
-        board_first_id=34, board_centre=(0.15, -0.16), board_standoff=0.03,
-        n_perimeter=80, row_spacing=0.07, top_rings=3,
+        leg_size=0.08,
+        leg_top_z=-0.55,
+        height=0.63,
+        board_first_id=34,
+        board_centre=(0.15, -0.16),
+        board_standoff=0.03,
+        n_perimeter=80,
+        row_spacing=0.07,
+        top_rings=3,
     )
 
 
@@ -322,8 +353,12 @@ DESIGNS: dict[str, BinDesign] = {d.name: d for d in (_case_study(), _drum(), _to
 """The generated catalog: name → design."""
 
 
-def generate_catalog(root: Path, mesh_dir: str = "models/bins", catalog: str = "config/bins.yaml",
-                     designs: dict[str, BinDesign] | None = None) -> Path:
+def generate_catalog(
+    root: Path,
+    mesh_dir: str = "models/bins",
+    catalog: str = "config/bins.yaml",
+    designs: dict[str, BinDesign] | None = None,
+) -> Path:
     """Write every design's PLY mesh and board PNG, then the catalog YAML with sha256 values.
 
     Returns:

@@ -226,8 +226,9 @@ def file_sha256(path: Path | str) -> str:
 # --- PLY ------------------------------------------------------------------------------------
 
 
-def write_ply(path: Path | str, vertices: NDArray[np.floating], faces: NDArray[np.integer],
-              surface: NDArray[np.integer]) -> None:
+def write_ply(
+    path: Path | str, vertices: NDArray[np.floating], faces: NDArray[np.integer], surface: NDArray[np.integer]
+) -> None:
     """Write an ASCII PLY with a per-face ``uchar surface`` property (deterministic bytes)."""
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
@@ -283,12 +284,15 @@ def read_ply(path: Path | str) -> BinMesh:
         raise ConfigError(f"mesh {str(p)!r} is truncated: {len(rows)} data lines, expected {n_v + n_f}")
     try:
         V = np.array([r.split()[:3] for r in rows[:n_v]], dtype=np.float64)
-        frows = [r.split() for r in rows[n_v:n_v + n_f]]
+        frows = [r.split() for r in rows[n_v : n_v + n_f]]
         if any(r[0] != "3" for r in frows):
             raise ConfigError(f"mesh {str(p)!r}: only triangle faces are supported")
         F = np.array([r[1:4] for r in frows], dtype=np.int64)
-        S = (np.array([r[4] for r in frows], dtype=np.uint8) if "surface" in face_props
-             else np.zeros(n_f, dtype=np.uint8))
+        S = (
+            np.array([r[4] for r in frows], dtype=np.uint8)
+            if "surface" in face_props
+            else np.zeros(n_f, dtype=np.uint8)
+        )
     except (ValueError, IndexError) as err:
         raise ConfigError(f"mesh {str(p)!r} has malformed data lines: {err}") from err
     if V.shape != (n_v, 3) or not np.all(np.isfinite(V)):

@@ -23,6 +23,11 @@ box :data:`CAMERA_BOX_SIZE` approximated by a capsule; the mobile base is a box 
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,7 +81,7 @@ T_FLANGE_CAM = transform_from(np.eye(3), [0.118, 0.058, -0.035])
 """Camera optical frame in the flange frame (paper Table 1 ``opt_H_cam``)."""
 
 CAMERA_BOX_SIZE = (0.10, 0.07, 0.06)
-"""Camera body (x, y, z) in metres, centred 3 cm behind the optical origin along -z_cam."""
+"""Camera body (x, y, z) in metres; front face 5 mm behind the optical origin (centre z_cam -0.035 m)."""
 
 BASE_HEIGHT_M = 0.70
 """Height of the robot base (mounting plate) above the floor, on top of the mobile base."""
@@ -107,14 +112,21 @@ CAPSULES: tuple[Capsule, ...] = (
     Capsule("wrist_2", 4, (0.0, 0.0, -0.05), (0.0, 0.0, 0.12), 0.046),
     Capsule("wrist_3", 5, (0.0, 0.0, -0.04), (0.0, 0.0, 0.12), 0.046),
     # camera body: box CAMERA_BOX_SIZE behind the optical origin, as a capsule along flange x
-    Capsule("camera", 6, (0.118 - 0.035, 0.058, -0.065), (0.118 + 0.035, 0.058, -0.065), 0.04),
+    Capsule("camera", 6, (0.118 - 0.035, 0.058, -0.075), (0.118 + 0.035, 0.058, -0.075), 0.035),
 )
 """Collision capsules of the arm and the camera."""
 
 SELF_PAIRS: tuple[tuple[str, str], ...] = (
-    ("camera", "upper_arm"), ("camera", "forearm"), ("camera", "shoulder"), ("camera", "base"),
-    ("wrist_2", "upper_arm"), ("wrist_3", "upper_arm"), ("wrist_2", "shoulder"), ("wrist_3", "shoulder"),
-    ("wrist_3", "base"), ("forearm", "base"),
+    ("camera", "upper_arm"),
+    ("camera", "forearm"),
+    ("camera", "shoulder"),
+    ("camera", "base"),
+    ("wrist_2", "upper_arm"),
+    ("wrist_3", "upper_arm"),
+    ("wrist_2", "shoulder"),
+    ("wrist_3", "shoulder"),
+    ("wrist_3", "base"),
+    ("forearm", "base"),
 )
 """Non-adjacent capsule pairs checked for self-collision."""
 
@@ -190,6 +202,30 @@ def wrap_near(q: NDArray[np.float64], q_ref: NDArray[np.float64]) -> NDArray[np.
     return out
 
 
+_STDOUT_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """Silence fd 1 while ur-analytic-ik runs: its C++ code prints warnings about filtered
+    near-singular solutions on stdout, which would corrupt JSON output of benches."""
+    with _STDOUT_LOCK:
+        try:
+            sys.stdout.flush()
+            saved = os.dup(1)
+        except (OSError, ValueError):  # no real fd 1 (embedded interpreters): just run
+            yield
+            return
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, 1)
+            yield
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+            os.close(devnull)
+
+
 def ik(T_base_flange: ArrayLike, q_near: ArrayLike | None = None) -> NDArray[np.float64]:
     """All analytic IK solutions (≤ 8) for a flange pose, within joint limits.
 
@@ -203,7 +239,9 @@ def ik(T_base_flange: ArrayLike, q_near: ArrayLike | None = None) -> NDArray[np.
 
     T = np.asarray(T_base_flange, dtype=np.float64)
     ref = np.zeros(6) if q_near is None else np.asarray(q_near, dtype=np.float64)
-    sols = [np.asarray(s, dtype=np.float64) for s in ur10e.inverse_kinematics(T)]
+    with _quiet_stdout():
+        raw = ur10e.inverse_kinematics(T)
+    sols = [np.asarray(s, dtype=np.float64) for s in raw]
     out = []
     for s in sols:
         if not np.all(np.isfinite(s)):

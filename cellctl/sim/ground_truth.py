@@ -1,0 +1,147 @@
+"""Sim-only ground truth: the true bin pose and the true powder contamination.
+
+Nothing outside the sim and the measurement code (benches, tests, dataset labels) may use
+this module: the cell itself only knows what it measures.
+
+Powder model: ``n = round(4 + 60 * amount)`` clumps, centred at area-weighted random points
+of the bin surface (internal faces facing up are 3× as likely: powder settles), each with a
+log-normal radius (median 3 cm, 1–8 cm) and a ragged edge (3-D value noise), plus loose
+grains in a halo around each clump. A clump only covers faces of its own surface
+(external/internal), so powder inside does not show through the 4 mm wall.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.geometry.catalog import EXTERNAL, INTERNAL, BinMesh, BinType
+from cellctl.geometry.transforms import invert
+
+__all__ = ["PowderField", "true_T_base_bin", "value_noise3"]
+
+
+def value_noise3(p: NDArray[np.float64], seed: int) -> NDArray[np.float64]:
+    """Smooth 3-D value noise in [0, 1] at points (M, 3) (lattice spacing 1)."""
+    p = np.asarray(p, dtype=np.float64)
+    i0 = np.floor(p).astype(np.int64)
+    f = p - i0
+    f = f * f * (3 - 2 * f)
+
+    def h(ix: NDArray[np.int64], iy: NDArray[np.int64], iz: NDArray[np.int64]) -> NDArray[np.float64]:
+        v = (ix * 73856093) ^ (iy * 19349663) ^ (iz * 83492791) ^ (seed * 2654435761 + 1013904223)
+        v = (v ^ (v >> 13)) * 1274126177
+        v = v ^ (v >> 16)
+        return (v & 0xFFFFFF).astype(np.float64) / float(0xFFFFFF)
+
+    x, y, z = i0[:, 0], i0[:, 1], i0[:, 2]
+    fx, fy, fz = f[:, 0], f[:, 1], f[:, 2]
+    c000, c100, c010, c110 = h(x, y, z), h(x + 1, y, z), h(x, y + 1, z), h(x + 1, y + 1, z)
+    c001, c101, c011, c111 = h(x, y, z + 1), h(x + 1, y, z + 1), h(x, y + 1, z + 1), h(x + 1, y + 1, z + 1)
+    c00 = c000 + fx * (c100 - c000)
+    c10 = c010 + fx * (c110 - c010)
+    c01 = c001 + fx * (c101 - c001)
+    c11 = c011 + fx * (c111 - c011)
+    c0 = c00 + fy * (c10 - c00)
+    c1 = c01 + fy * (c11 - c01)
+    return c0 + fz * (c1 - c0)
+
+
+@dataclass
+class PowderField:
+    """Powder clumps on a bin (bin frame) and the per-point powder opacity they give.
+
+    Attributes:
+        centres: (n, 3) clump centres on the surface (m, bin frame).
+        radii: (n,) clump radii (m).
+        surface: (n,) surface tag of each clump.
+        normals: (n, 3) surface normal at each centre.
+    """
+
+    centres: NDArray[np.float64]
+    radii: NDArray[np.float64]
+    surface: NDArray[np.uint8]
+    normals: NDArray[np.float64]
+    seed: int
+
+    @classmethod
+    def sample(cls, mesh: BinMesh, amount: float, seed: int) -> PowderField:
+        """Seeded clumps for ``amount`` in [0, 1] (0 = none)."""
+        rng = np.random.default_rng([seed, 4242])
+        n = 0 if amount <= 0 else int(round(4 + 60 * float(amount)))
+        normals = mesh.face_normals()
+        w = mesh.face_areas() * np.where((mesh.surface == INTERNAL) & (normals[:, 2] > 0.3), 3.0, 1.0)
+        faces = rng.choice(mesh.n_faces, size=n, p=w / w.sum()) if n else np.zeros(0, dtype=np.int64)
+        tri = mesh.vertices[mesh.faces[faces]]
+        u, v = rng.uniform(size=(2, n))
+        flip = u + v > 1
+        u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
+        centres = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
+        radii = np.clip(rng.lognormal(np.log(0.03), 0.45, size=n), 0.01, 0.08)
+        return cls(
+            centres.reshape(-1, 3),
+            radii,
+            mesh.surface[faces].astype(np.uint8),
+            normals[faces].reshape(-1, 3),
+            int(seed),
+        )
+
+    def alpha(
+        self,
+        pts: NDArray[np.float64],
+        surface: NDArray[np.integer],
+        normals: NDArray[np.float64] | None = None,
+    ) -> NDArray[np.float64]:
+        """Powder opacity in [0, 1] at surface points (M, 3) of the given surface tags (M,)."""
+        out = np.zeros(len(pts))
+        if len(self.radii) == 0 or len(pts) == 0:
+            return out
+        from scipy.spatial import cKDTree
+
+        ragged = value_noise3(pts / 0.012, self.seed)  # clump edge wobble, ~1 cm features
+        grain = value_noise3(pts / 0.0015, self.seed + 17)  # ~1.5 mm grains
+        for tag in (EXTERNAL, INTERNAL):
+            sel = np.flatnonzero(surface == tag)
+            mine = np.flatnonzero(self.surface == tag)
+            if len(sel) == 0 or len(mine) == 0:
+                continue
+            tree = cKDTree(self.centres[mine])
+            k = min(4, len(mine))
+            d, j = tree.query(pts[sel], k=k, distance_upper_bound=float(self.radii.max() * 1.8))
+            d = np.atleast_2d(d.T).T if k == 1 else d
+            j = np.atleast_2d(j.T).T if k == 1 else j
+            valid = np.isfinite(d)
+            jj = np.where(valid, j, 0)
+            r = self.radii[mine][jj]
+            if normals is not None:  # do not wrap around sharp edges onto other faces
+                agree = np.einsum("mkj,mj->mk", self.normals[mine][jj], normals[sel]) > 0.2
+                valid &= agree
+            edge = r * (0.7 + 0.6 * ragged[sel, None])
+            core = np.clip((edge - d) / 0.006, 0, 1)
+            halo = ((d < 1.6 * r) & (grain[sel, None] > 0.80 + 0.15 * np.clip(d / r - 1, 0, 1))).astype(float)
+            a = np.where(valid, np.maximum(core, 0.85 * halo), 0.0).max(axis=1)
+            out[sel] = a
+        return out
+
+    def dirty_faces(self, mesh: BinMesh, threshold: float = 0.5) -> NDArray[np.bool_]:
+        """Faces (F,) whose centroid or a vertex has powder opacity above ``threshold``."""
+        tri = mesh.vertices[mesh.faces]
+        pts = np.concatenate([tri.mean(axis=1), tri[:, 0], tri[:, 1], tri[:, 2]])
+        tags = np.tile(mesh.surface, 4)
+        nrm = np.tile(mesh.face_normals(), (4, 1))
+        a = self.alpha(pts, tags, nrm).reshape(4, -1)
+        return (a > threshold).any(axis=0)
+
+
+def true_T_base_bin(
+    T_world_base: NDArray[np.float64], T_world_bin: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """The true bin pose in the robot base frame."""
+    return invert(T_world_base) @ T_world_bin
+
+
+def powder_for(bin_type: BinType, mesh: BinMesh, dirty: bool, amount: float, seed: int) -> PowderField:
+    """The scenario's powder field (empty when clean)."""
+    return PowderField.sample(mesh, amount if dirty else 0.0, seed)
