@@ -14,6 +14,7 @@ Backends: ``torch`` (the only one; torch is imported here, never by the supervis
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 from pathlib import Path
 from typing import Any
@@ -87,7 +88,7 @@ class ClassifierService:
 class BatchingClassifyServer:
     """The classify queryable: drains every queued query into one batch.
 
-    Zenoh callbacks only enqueue (FIFO channel); one thread answers.
+    Zenoh callbacks only enqueue; one thread answers.
     """
 
     def __init__(self, session: zenoh.Session, cell_id: str, service: ClassifierService, max_batch: int = 16) -> None:
@@ -96,25 +97,32 @@ class BatchingClassifyServer:
         self.key = keys.classifier_classify(cell_id)
         self.batches: list[int] = []  # sizes of the batches run (for tests and stats)
         self._closed = threading.Event()
-        self._queryable = session.declare_queryable(self.key, zenoh.handlers.FifoChannel(256), complete=True)
+        # The Zenoh callback only enqueues; a Python queue (not a Zenoh channel) so that
+        # close() never races a thread blocked inside the channel's recv().
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=1024)
+        self._queryable = session.declare_queryable(self.key, self._enqueue, complete=True)
         self._thread = threading.Thread(target=self._drain, name="classifier-classify", daemon=True)
         self._thread.start()
+
+    def _enqueue(self, q: Any) -> None:
+        try:
+            self._queue.put_nowait(q)
+        except queue.Full:
+            q.reply_err(encode(ErrorReply(kind="ClassifierError", reason="classifier queue full (1024 requests)")))
+            q.drop()
 
     def _drain(self) -> None:
         while not self._closed.is_set():
             try:
-                first = self._queryable.recv()
-            except Exception:  # the channel closes when the queryable is undeclared
-                return
+                first = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
             batch = [first]
             while len(batch) < self.max_batch:
                 try:
-                    q = self._queryable.try_recv()
-                except Exception:  # closed while draining: answer what we have
+                    batch.append(self._queue.get_nowait())
+                except queue.Empty:
                     break
-                if q is None:
-                    break
-                batch.append(q)
             try:
                 self._answer(batch)
             finally:
@@ -156,9 +164,16 @@ class BatchingClassifyServer:
         q.reply_err(encode(ErrorReply(kind=type(err).__name__, reason=str(err))))
 
     def close(self) -> None:
-        self._closed.set()
         self._queryable.undeclare()
+        self._closed.set()
         self._thread.join(timeout=5.0)
+        while True:  # queries that arrived but were never answered: tell their callers
+            try:
+                q = self._queue.get_nowait()
+            except queue.Empty:
+                break
+            q.reply_err(encode(ErrorReply(kind="WorkerError", reason="classifier worker is shutting down")))
+            q.drop()
 
 
 def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event) -> None:
