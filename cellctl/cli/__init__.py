@@ -22,7 +22,9 @@ VERB_MODULES = (
     "cellctl.cli.info",
     "cellctl.cli.worker",
     "cellctl.cli.bench",
+    "cellctl.cli.replay",
     "cellctl.cli.classify",
+    "cellctl.cli.vision",
 )
 
 

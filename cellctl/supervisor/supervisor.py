@@ -372,13 +372,14 @@ class Supervisor:
         spec = self.packml.states[top]
         if top == "Starting":
             self._create_cycle()
+        # Status first: the activation may close the cycle log before the dispatcher runs again.
+        self._publish_status()
         if step is not None:
             self._launch(step, self._run_step)
         elif spec.behaviour is not None:
             self._launch(spec.behaviour, getattr(self, f"_b_{spec.behaviour}"))
         elif top == "Complete" and self.cfg.supervisor.auto_reset:
             self._events.put(("fire", "reset"))
-        self._publish_status()
 
     def _launch(self, name: str, fn: Callable[[StepRun], str | None]) -> None:
         ctx = self._ctx or self._idle_context()
@@ -501,9 +502,15 @@ class Supervisor:
     def _stop_robot(self, reason: str) -> None:
         if self._alive.get("robot", 0) == 0:
             return
+        key = keys.robot_op(self.cell_id, "stop")
+        msg = StopRequest(reason=reason)
+        clog = self._ctx.log if self._ctx is not None and not self._ctx.finished else None
         try:
-            request(self.session, keys.robot_op(self.cell_id, "stop"), StopRequest(reason=reason), StopRequest,
-                    timeout=self.cfg.supervisor.timeouts.stop, role="robot")
+            if clog is not None:
+                clog.write_message(f"{key}/request", msg)
+            reply, _ = request(self.session, key, msg, StopRequest, timeout=self.cfg.supervisor.timeouts.stop, role="robot")
+            if clog is not None:
+                clog.write_message(f"{key}/reply", reply)
         except (WorkerError, ProtocolError) as err:
             # A robot that cannot confirm the stop is logged loudly; the state machine still
             # goes to the safe state and commands no further motion.

@@ -217,3 +217,31 @@ def test_start_params_are_validated(cfg, cell, plc) -> None:
     ack = plc.cmd("start", speed=3)
     assert not ack.accepted and "speed" in ack.reason
     assert cell.supervisor.state == "Idle"
+
+
+def test_replay_verify_passes_on_a_recorded_cycle_and_catches_a_change(cfg, cell, plc, tmp_path) -> None:
+    from cellctl.config import load_config
+    from cellctl.recording.replay import read_cycle, verify
+    from tests.conftest import free_port
+
+    with FakeCell(cfg, dirty_viewpoints={2}):
+        plc.cmd("reset")
+        plc.wait_state("Idle")
+        plc.cmd("start")
+        plc.wait_state("Complete")
+        res = plc.results.get(timeout=5)
+    path = cfg.path(res.log)
+    assert not read_cycle(path).truncated
+    port = free_port()
+    ep = f'["tcp/127.0.0.1:{port}"]'
+    vcfg = load_config(None, [f"bus.listen={ep}", f"bus.connect={ep}", f"recording.dir={tmp_path / 'v'}",
+                              f"recording.index={tmp_path / 'v' / 'cells.db'}", "robot.settle_s=0"])
+    report = verify(path, vcfg, timeout_s=30, identification=(fake_identify, None))
+    assert report.ok, report.differences
+    assert report.states_replayed[:2] == ["Starting", "Execute.approaching"]
+    # the same log checked by a supervisor with another settle time: the move requests differ
+    vcfg2 = load_config(None, [f"bus.listen={ep}", f"bus.connect={ep}", f"recording.dir={tmp_path / 'w'}",
+                               f"recording.index={tmp_path / 'w' / 'cells.db'}", "robot.settle_s=0.5"])
+    report = verify(path, vcfg2, timeout_s=30, identification=(fake_identify, None))
+    assert not report.ok
+    assert any("request on cell/cell1/robot/move differs" in d for d in report.differences)

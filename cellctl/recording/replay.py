@@ -1,0 +1,302 @@
+"""Read recorded cycles back: republish them on Zenoh (rosbag2-style ``play``) or re-run the
+supervisor against the recorded worker replies (``verify``, a regression test for logs).
+
+Reading is tolerant: a truncated file (a crash mid-cycle) yields every message up to the
+damage and says what was skipped; a file that is not MCAP, or that holds a message of a newer
+schema version than this cellctl speaks, is refused with a clear error.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from collections import defaultdict, deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+
+from cellctl.errors import RecordingError
+
+__all__ = ["RecordedCycle", "RecordedMessage", "read_cycle", "republish", "verify"]
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass(frozen=True)
+class RecordedMessage:
+    topic: str
+    schema: str
+    log_time: int
+    data: bytes
+
+    def json(self) -> Any:
+        return json.loads(self.data)
+
+
+@dataclass
+class RecordedCycle:
+    path: Path
+    messages: list[RecordedMessage] = field(default_factory=list)
+    truncated: bool = False
+    skipped: str | None = None
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+
+    def on(self, topic: str) -> list[RecordedMessage]:
+        return [m for m in self.messages if m.topic == topic]
+
+
+def read_cycle(path: Path | str) -> RecordedCycle:
+    """Read every intact message of a cycle log.
+
+    Raises:
+        RecordingError: the file is missing, not MCAP, or holds a newer wire version.
+    """
+    from cellctl.messages import MESSAGE_TYPES
+
+    p = Path(path)
+    try:
+        head = p.open("rb").read(len(MCAP_MAGIC))
+    except OSError as err:
+        raise RecordingError(f"cannot read {str(p)!r}: {err}") from err
+    if head != MCAP_MAGIC:
+        raise RecordingError(f"{str(p)!r} is not an MCAP file (starts with {head!r}, expected {MCAP_MAGIC!r})")
+    out = RecordedCycle(p)
+    schemas: dict[int, str] = {}
+    channels: dict[int, tuple[str, int]] = {}
+    with p.open("rb") as f:
+        try:
+            for rec in StreamReader(f, skip_magic=False).records:
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec.name
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = (rec.topic, rec.schema_id)
+                elif isinstance(rec, Message):
+                    topic, sid = channels[rec.channel_id]
+                    out.messages.append(RecordedMessage(topic, schemas.get(sid, ""), rec.log_time, bytes(rec.data)))
+                elif type(rec).__name__ == "Metadata":
+                    out.metadata[rec.name] = dict(rec.metadata)  # type: ignore[attr-defined]
+        except Exception as err:  # a truncated tail (crash) ends the stream with a read error
+            out.truncated = True
+            out.skipped = f"stopped at byte {f.tell()} of {p.stat().st_size}: {type(err).__name__}: {err}"
+    for m in out.messages:
+        model = MESSAGE_TYPES.get(m.schema)
+        if model is None:
+            continue
+        v = m.json().get("v")
+        supported = model.model_fields["v"].default
+        if isinstance(v, int) and v > supported:
+            raise RecordingError(
+                f"{str(p)!r} holds {m.schema} version {v}; this cellctl reads up to version {supported} — upgrade cellctl"
+            )
+    return out
+
+
+def republish(
+    cycle: RecordedCycle,
+    session: Any,
+    *,
+    rate: float = 1.0,
+    loop: bool = False,
+    start_offset_s: float = 0.0,
+    topics: list[str] | None = None,
+    prefix: str = "",
+    stop: threading.Event | None = None,
+) -> int:
+    """Put the recorded messages on Zenoh with their original spacing (scaled by ``rate``).
+
+    Topics that are not Zenoh keys (``/events``, ``/camera/image``) are published under
+    ``prefix`` + the topic without its leading slash. Returns how many messages were put.
+    """
+    if rate <= 0:
+        raise RecordingError(f"rate {rate!r} must be > 0")
+    msgs = [m for m in cycle.messages if topics is None or m.topic in topics]
+    if not msgs:
+        return 0
+    t_first = msgs[0].log_time + int(start_offset_s * 1e9)
+    msgs = [m for m in msgs if m.log_time >= t_first]
+    stop = stop or threading.Event()
+    sent = 0
+    while msgs and not stop.is_set():
+        t0 = time.monotonic()
+        for m in msgs:
+            due = t0 + (m.log_time - t_first) / 1e9 / rate
+            if stop.wait(max(0.0, due - time.monotonic())):
+                return sent
+            key = m.topic.lstrip("/")
+            session.put(f"{prefix}{key}", m.data)
+            sent += 1
+        if not loop:
+            break
+    return sent
+
+
+@dataclass
+class VerifyReport:
+    ok: bool
+    differences: list[str]
+    states_recorded: list[str]
+    states_replayed: list[str]
+    requests: int
+    skipped: str | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return self.__dict__ | {}
+
+
+_VOLATILE = {"stamp", "cycle_id", "log", "started", "finished", "request_id"}
+
+
+def _strip(obj: Any) -> Any:
+    """Drop the fields that legitimately differ between a run and its replay (times, ids)."""
+    if isinstance(obj, dict):
+        return {k: _strip(v) for k, v in obj.items() if k not in _VOLATILE}
+    if isinstance(obj, list):
+        return [_strip(v) for v in obj]
+    if isinstance(obj, float):
+        return round(obj, 6)
+    return obj
+
+
+def _state_sequence(statuses: list[dict[str, Any]]) -> list[str]:
+    seq: list[str] = []
+    for st in statuses:
+        s = st["state"] + (f".{st['step']}" if st.get("step") else "")
+        if not seq or seq[-1] != s:
+            seq.append(s)
+    return seq
+
+
+def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification: Any = None) -> VerifyReport:
+    """Re-run a recorded cycle through a fresh supervisor whose workers answer from the log.
+
+    The replay workers check that every request equals the recorded one and answer with the
+    recorded reply (images included); the supervisor's state sequence and its CycleResult
+    must match the recording, times and ids aside.
+    """
+    from cellctl.app import build_cell
+    from cellctl.bus import keys
+    from cellctl.bus.codec import decode, decode_as, encode
+    from cellctl.bus.session import open_session
+    from cellctl.messages import MESSAGE_TYPES, Ack, Command, CycleResult, ErrorReply
+    from cellctl.workers._server import WorkerServer
+
+    rec = read_cycle(path)
+    cid = cfg.cell_id
+    prefix = keys.prefix(cid) + "/"
+    by_key: dict[str, deque[tuple[dict, RecordedMessage | None]]] = defaultdict(deque)
+    images = deque(m for m in rec.messages if m.schema == "foxglove.CompressedImage" and m.topic == "/camera/image")
+    pending: dict[str, dict] = {}
+    for m in rec.messages:
+        if m.topic.endswith("/request"):
+            pending[m.topic[: -len("/request")]] = m.json()
+        elif m.topic.endswith("/reply"):
+            k = m.topic[: -len("/reply")]
+            by_key[k].append((pending.pop(k, {}), m))
+    results = [m.json() for m in rec.messages if m.schema == "cellctl/CycleResult"]
+    if not results:
+        raise RecordingError(f"{str(path)!r} holds no CycleResult (an interrupted cycle cannot be verified)")
+    commands = [m.json() for m in rec.messages if m.schema == "cellctl/Command" and m.topic == keys.cmd(cid)]
+    starts = [c for c in commands if c.get("command") == "start" or c.get("cntrl_cmd") == 2]
+    recorded_states = _state_sequence([m.json() for m in rec.messages if m.schema == "cellctl/Status"])
+    differences: list[str] = []
+    lock = threading.Lock()
+
+    def answer(key: str):  # noqa: ANN202
+        def handler(req: Any, payload: bytes | None) -> Any:
+            with lock:
+                if not by_key[key]:
+                    raise RecordingError(f"replay: unexpected extra request on {key}")
+                want, reply = by_key[key].popleft()
+            got = json.loads(req.model_dump_json())
+            if _strip(got) != _strip(want):
+                differences.append(f"request on {key} differs: recorded {_strip(want)} replayed {_strip(got)}")
+            assert reply is not None
+            msg = decode(reply.data, 64 * 1024 * 1024)
+            if isinstance(msg, ErrorReply):
+                raise RecordingError(msg.reason)
+            if msg.type == "cellctl/CaptureReply":
+                with lock:
+                    img = images.popleft().json()["data"] if images else ""
+                import base64
+
+                return msg, base64.b64decode(img)
+            return msg
+
+        return handler
+
+    role_ops: dict[str, list[tuple[str, str]]] = defaultdict(list)
+    for k in by_key:
+        rest = k[len(prefix):] if k.startswith(prefix) else k
+        role, _, op = rest.partition("/")
+        role_ops[role].append((op, k))
+    for role in cfg.supervisor.required_workers:
+        role_ops.setdefault(role, [])
+
+    cell = build_cell(cfg, identification=identification)
+    session = open_session(cfg, "client")
+    servers = []
+    try:
+        for role, ops in role_ops.items():
+            if role not in keys.ROLES:
+                continue
+            srv = WorkerServer(session, cid, role, "replay" if role == "planner" else None)
+            for op, k in ops:
+                srv.serve(op.replace("/", "-"), tuple(MESSAGE_TYPES.values()), answer(k), key=k)
+            srv.announce()
+            servers.append(srv)
+        statuses: queue.Queue[dict] = queue.Queue()
+        seen: list[dict] = []
+        session.declare_subscriber(keys.status(cid), lambda s: statuses.put(json.loads(s.payload.to_bytes())))
+        res_q: queue.Queue[CycleResult] = queue.Queue()
+        session.declare_subscriber(keys.result(cid), lambda s: res_q.put(decode_as(CycleResult, s.payload.to_bytes())))
+        time.sleep(0.3)
+
+        def send(cmd: Command) -> Ack:
+            (r,) = list(session.get(keys.cmd(cid), payload=encode(cmd), timeout=5))
+            return decode_as(Ack, r.ok.payload.to_bytes())
+
+        send(Command(command="reset"))
+        deadline = time.monotonic() + 10
+        while cell.supervisor.top_state != "Idle" and time.monotonic() < deadline:
+            time.sleep(0.02)
+        params = starts[0].get("params", {}) if starts else {}
+        while not statuses.empty():
+            statuses.get_nowait()
+        ack = send(Command(command="start", params=params))
+        if not ack.accepted:
+            differences.append(f"start refused on replay: {ack.reason}")
+        try:
+            replayed = res_q.get(timeout=timeout_s)
+        except queue.Empty:
+            differences.append(f"no CycleResult within {timeout_s:g} s")
+            replayed = None
+        time.sleep(0.2)
+        while not statuses.empty():
+            seen.append(statuses.get_nowait())
+    finally:
+        for srv in servers:
+            srv.close()
+        session.close()
+        cell.close()
+    replayed_states = _state_sequence([s for s in seen if s.get("cycle_id")])
+    outside = ("Idle", "Stopped", "Resetting", "Complete", "Aborted")  # published after the log closed
+    rec_cycle_states = [s for s in recorded_states if s.split(".")[0] not in outside]
+    rep_cycle_states = [s for s in replayed_states if s.split(".")[0] not in outside]
+    if rec_cycle_states != rep_cycle_states:
+        differences.append(f"states differ: recorded {rec_cycle_states} replayed {rep_cycle_states}")
+    if replayed is not None and _strip(results[-1]) != _strip(json.loads(replayed.model_dump_json())):
+        differences.append(f"result differs: recorded {_strip(results[-1])} replayed {_strip(json.loads(replayed.model_dump_json()))}")
+    left = {k: len(v) for k, v in by_key.items() if v}
+    if left:
+        differences.append(f"recorded requests never made on replay: {left}")
+    return VerifyReport(not differences, differences, rec_cycle_states, rep_cycle_states,
+                        sum(1 for m in rec.messages if m.topic.endswith("/request")), rec.skipped)
