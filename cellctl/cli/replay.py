@@ -24,6 +24,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(p)
     p.set_defaults(func=run_replay)
 
+    r = sub.add_parser("report", help="summarise a cycle and draw its dirt map (--png)")
+    r.add_argument("cycle_id")
+    r.add_argument("--png", default=None, help="write the dirt map picture here")
+    add_config_arguments(r)
+    r.set_defaults(func=run_report)
+
 
 def _free_port() -> int:
     with socket.socket() as s:
@@ -58,4 +64,49 @@ def run_replay(args: argparse.Namespace) -> int:
         n = republish(rec, s, rate=args.rate, loop=args.loop, start_offset_s=args.start_offset, topics=args.topics,
                       prefix=args.prefix, stop=stop)
     print(json.dumps({"published": n, "messages": len(rec.messages), "truncated": rec.truncated, "skipped": rec.skipped}))
+    return 0
+
+
+def run_report(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from cellctl.errors import RecordingError
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.recording.dirt_map import draw_dirt_map
+    from cellctl.recording.index import CycleIndex
+    from cellctl.recording.replay import read_cycle
+
+    cfg = config_from_args(args)
+    idx = CycleIndex(cfg.path(cfg.recording.index))
+    row = idx.get(args.cycle_id)
+    idx.close()
+    if row is None:
+        raise RecordingError(f"cycle {args.cycle_id!r} is not in the index {cfg.path(cfg.recording.index)}")
+    rec = read_cycle(row.log_path)
+    results = [m.json() for m in rec.messages if m.schema == "cellctl/CycleResult"]
+    if not results:
+        raise RecordingError(f"cycle {args.cycle_id!r} has no result in {row.log_path} (outcome {row.outcome})")
+    res = results[-1]
+    summary = {k: res.get(k) for k in ("cycle_id", "outcome", "reason", "verdict", "coverage", "plan_id")}
+    summary["bin"] = res.get("bin", {}).get("type")
+    summary["viewpoints"] = [(v["index"], v.get("label"), v.get("p_dirty"), v.get("uncertain")) for v in res["viewpoints"]]
+    print(json.dumps(summary, indent=1))
+    if args.png:
+        dm = res.get("dirt_map")
+        if not dm:
+            raise RecordingError(f"cycle {args.cycle_id!r} has no dirt map (outcome {res['outcome']})")
+        mesh = load_catalog(cfg.path(cfg.catalog)).load_mesh(summary["bin"])
+        from cellctl.messages import PoseMsg
+
+        T_base_bin = PoseMsg.model_validate(res["bin"]["pose"]).matrix()
+        cams = []
+        for v in res["viewpoints"]:
+            if v.get("camera_pose"):
+                p = PoseMsg.model_validate(v["camera_pose"]).matrix()
+                cams.append((np.linalg.inv(T_base_bin) @ p)[:3, 3])
+        draw_dirt_map(mesh, dm, Path(args.png), f"cycle {args.cycle_id} verdict {res.get('verdict')}",
+                      np.array(cams) if cams else None)
+        print(f"wrote {args.png}", file=sys.stderr)
     return 0
