@@ -1,0 +1,209 @@
+"""Load and check a bin mesh for planning; tell its external from its internal surface.
+
+The bin frame (ARCHITECTURE §5): origin at the centre of the top opening, +Z up, metres.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.errors import PlanningError
+
+__all__ = ["BinMesh", "infer_surface_tags", "load_bin_mesh", "load_catalog_mesh", "mesh_from_arrays"]
+
+MAX_BIN_EXTENT_M = 5.0  # a washable pharmaceutical bin is ~0.5–2 m; more means wrong units
+MIN_BIN_EXTENT_M = 0.05
+MIN_FACE_AREA_M2 = 1e-10
+
+
+@dataclass
+class BinMesh:
+    """A triangle mesh in the bin frame with per-face surface tags.
+
+    Attributes:
+        vertices: (V, 3) m.
+        faces: (F, 3) vertex indices.
+        normals: (F, 3) unit outward normals.
+        centroids: (F, 3) m.
+        areas: (F,) m².
+        internal: (F,) True for faces of the internal surface (inside the container).
+        sha256: hash of the mesh file (or of the arrays for generated meshes).
+        name: bin type or file name.
+        watertight: whether every edge is shared by exactly two faces.
+    """
+
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    normals: NDArray[np.float64]
+    centroids: NDArray[np.float64]
+    areas: NDArray[np.float64]
+    internal: NDArray[np.bool_]
+    sha256: str
+    name: str
+    watertight: bool
+
+    def surface_mask(self, surface: str) -> NDArray[np.bool_]:
+        """Faces of ``surface`` ("external" or "internal")."""
+        if surface == "internal":
+            return self.internal.copy()
+        if surface == "external":
+            return ~self.internal
+        raise PlanningError(f"surface {surface!r} is unknown; expected 'external' or 'internal'")
+
+    def trimesh(self):  # noqa: ANN201 - trimesh.Trimesh, imported lazily
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices, self.faces, process=False)
+
+
+def mesh_from_arrays(
+    vertices: NDArray,
+    faces: NDArray,
+    *,
+    name: str = "mesh",
+    internal: NDArray[np.bool_] | None = None,
+    sha256: str | None = None,
+    require_watertight: bool = False,
+) -> BinMesh:
+    """Validate arrays and build a :class:`BinMesh`.
+
+    Zero-area faces are dropped (they have no normal and cannot be seen); duplicate and
+    unreferenced vertices are merged.
+
+    Raises:
+        PlanningError: empty or non-finite mesh, implausible size (mm units?), no faces
+            left, or not watertight when ``require_watertight``.
+    """
+    import trimesh
+
+    V = np.asarray(vertices, dtype=np.float64)
+    Fc = np.asarray(faces, dtype=np.int64)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) < 3:
+        raise PlanningError(f"mesh {name!r}: vertices must be (V>=3, 3), got {V.shape}")
+    if Fc.ndim != 2 or Fc.shape[1] != 3 or len(Fc) == 0:
+        raise PlanningError(f"mesh {name!r}: faces must be (F>0, 3) triangles, got {Fc.shape}")
+    if not np.all(np.isfinite(V)):
+        raise PlanningError(f"mesh {name!r}: vertices contain NaN/inf")
+    if Fc.min() < 0 or Fc.max() >= len(V):
+        raise PlanningError(f"mesh {name!r}: face indices must lie in [0, {len(V) - 1}], got [{Fc.min()}, {Fc.max()}]")
+    ext = V.max(axis=0) - V.min(axis=0)
+    if ext.max() > MAX_BIN_EXTENT_M:
+        raise PlanningError(
+            f"mesh {name!r}: extent {np.round(ext, 3).tolist()} exceeds {MAX_BIN_EXTENT_M} m; "
+            "expected metres (is the mesh in millimetres? scale it by 0.001)"
+        )
+    if ext.max() < MIN_BIN_EXTENT_M:
+        raise PlanningError(
+            f"mesh {name!r}: extent {np.round(ext, 5).tolist()} m is below {MIN_BIN_EXTENT_M} m; expected metres"
+        )
+    tm = trimesh.Trimesh(V, Fc, process=True, validate=False)
+    areas = tm.area_faces
+    keep = areas > MIN_FACE_AREA_M2
+    if internal is not None:
+        internal = np.asarray(internal, dtype=bool)
+        if internal.shape != (len(Fc),):
+            raise PlanningError(f"mesh {name!r}: {internal.shape} surface tags for {len(Fc)} faces")
+        if len(tm.faces) != len(Fc):
+            raise PlanningError(f"mesh {name!r}: merging vertices changed the face count; tags no longer match")
+        internal = internal[keep]
+    if not np.all(keep):
+        tm.update_faces(keep)
+        tm.remove_unreferenced_vertices()
+    if len(tm.faces) == 0:
+        raise PlanningError(f"mesh {name!r}: every face has zero area (degenerate mesh)")
+    watertight = bool(tm.is_watertight)
+    if require_watertight and not watertight:
+        raise PlanningError(f"mesh {name!r} is not watertight: {len(tm.faces)} faces with open edges")
+    if sha256 is None:
+        sha256 = hashlib.sha256(
+            np.ascontiguousarray(tm.vertices).tobytes() + np.ascontiguousarray(tm.faces).tobytes()
+        ).hexdigest()
+    mesh = BinMesh(
+        vertices=np.asarray(tm.vertices, dtype=np.float64),
+        faces=np.asarray(tm.faces, dtype=np.int64),
+        normals=np.asarray(tm.face_normals, dtype=np.float64),
+        centroids=np.asarray(tm.triangles_center, dtype=np.float64),
+        areas=np.asarray(tm.area_faces, dtype=np.float64),
+        internal=np.zeros(len(tm.faces), dtype=bool),
+        sha256=sha256,
+        name=name,
+        watertight=watertight,
+    )
+    mesh.internal = internal if internal is not None else infer_surface_tags(mesh)
+    return mesh
+
+
+def load_bin_mesh(path: str | Path, *, name: str | None = None, internal: NDArray[np.bool_] | None = None) -> BinMesh:
+    """Load a mesh file (STL/OBJ/PLY/…) in metres, bin frame.
+
+    Raises:
+        PlanningError: the file is missing, unreadable, not a single triangle mesh, or bad
+            (see :func:`mesh_from_arrays`).
+    """
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise PlanningError(f"mesh file {str(p)!r} does not exist")
+    data = p.read_bytes()
+    try:
+        loaded = trimesh.load(p, force="mesh", process=False)
+    except Exception as err:  # trimesh raises many types for bad files
+        raise PlanningError(f"mesh file {str(p)!r} cannot be read: {type(err).__name__}: {err}") from err
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise PlanningError(f"mesh file {str(p)!r} holds no triangles")
+    return mesh_from_arrays(
+        loaded.vertices,
+        loaded.faces,
+        name=name or p.stem,
+        internal=internal,
+        sha256=hashlib.sha256(data).hexdigest(),
+    )
+
+
+def infer_surface_tags(mesh: BinMesh, probe_depth: float = 0.02) -> NDArray[np.bool_]:
+    """Guess which faces are internal when the catalog gives no tags.
+
+    A face is internal when it faces a probe point just below the top-opening origin
+    (``n · (o − c) > 0``) and the segment from that point to the face centroid crosses no
+    other face: exactly the faces a camera poking through the hole could see. Rims (normal
+    ⟂ the probe direction) and the outside (facing away) stay external.
+    """
+    o = np.array([0.0, 0.0, -probe_depth])
+    to_o = o - mesh.centroids
+    dist = np.linalg.norm(to_o, axis=1)
+    facing = np.einsum("ij,ij->i", mesh.normals, to_o) > 1e-9 * np.maximum(dist, 1e-9)
+    cand = np.flatnonzero(facing & (dist > 1e-6))
+    out = np.zeros(len(mesh.faces), dtype=bool)
+    if len(cand) == 0:
+        return out
+    from cellctl.planning.raycast import RayCaster
+
+    rc = RayCaster(mesh.vertices, mesh.faces)
+    dirs = -to_o[cand] / dist[cand, None]
+    origins = np.repeat(o[None], len(cand), axis=0)
+    out[cand] = rc.first_hit_is(origins, dirs, cand, dist[cand])
+    return out
+
+
+def load_catalog_mesh(catalog_path: str | Path, bin_type: str) -> BinMesh:
+    """The mesh of a catalog bin type with its surface tags and file sha256.
+
+    Raises:
+        PlanningError: unknown bin type, missing/altered mesh file, or a bad mesh.
+    """
+    from cellctl.errors import ConfigError
+    from cellctl.geometry.catalog import INTERNAL, file_sha256, load_catalog
+
+    try:
+        cat = load_catalog(catalog_path, verify_meshes=False)
+        cm = cat.load_mesh(bin_type)
+        sha = file_sha256(cat.mesh_path(bin_type))
+    except ConfigError as err:
+        raise PlanningError(f"cannot load bin type {bin_type!r}: {err}") from err
+    return mesh_from_arrays(cm.vertices, cm.faces, name=bin_type, internal=cm.surface == INTERNAL, sha256=sha)
