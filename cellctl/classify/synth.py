@@ -114,8 +114,8 @@ def synth_dataset(
         seed: RNG seed (same seed, same images).
         shifted: draw from the shifted distribution (see module doc).
         source: ``twin`` or ``procedural``.
-        size: stored image side in px (the classifier input is 128 px; a little more leaves
-            room for the crop augmentation).
+        size: stored image width in px (twin: 16:9 renders ``size`` px wide; procedural:
+            ``size``² images). The classifier input is 128 px.
         config: the cell config (twin source: bin type/catalog/plans).
         max_tries: redraws allowed per image before giving up (ambiguous labels).
 
@@ -155,10 +155,9 @@ def synth_dataset(
         else:
             raise ClassifierError(f"image {i}: {max_tries} draws in a row had an ambiguous powder area; check the source")
         name = f"{tag}_{surface}_{seed}_{i:05d}.png"
-        rgb = s.rgb
-        if rgb.shape[0] != size or rgb.shape[1] != size:
-            rgb = cv2.resize(rgb, (size, size), interpolation=cv2.INTER_AREA)
-        cv2.imwrite(str(base / label / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        # Stored as rendered (twin: 16:9 at ``size`` px wide; procedural: size²); the
+        # classifier squashes to its square input identically at training and inference.
+        cv2.imwrite(str(base / label / name), cv2.cvtColor(s.rgb, cv2.COLOR_RGB2BGR))
         counts[label] += 1
         frac = float((s.powder >= POWDER_ALPHA).mean())
         rows.append({"image": f"{label}/{name}", "label": label, "intended": LABELS[int(dirty)],

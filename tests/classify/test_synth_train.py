@@ -104,3 +104,19 @@ def test_train_refuses_bad_arguments(tiny_data: Path, tmp_path: Path) -> None:
         train(tiny_data, "external", tmp_path / "m.bin")
     with pytest.raises(ClassifierError, match="multiple of 32"):
         train(tiny_data, "external", tmp_path / "m.pt", input_size=100)
+
+
+def test_twin_source_renders_labelled_views(tmp_path: Path) -> None:
+    """The twin's camera renders views of the requested surface; labels follow the mask rule."""
+    pytest.importorskip("embreex")
+    import cv2
+
+    for surface in ("external", "internal"):
+        s = synth_dataset(tmp_path, surface, 6, seed=1, source="twin", size=96)
+        assert s["counts"] == {"clean": 3, "dirty": 3}
+        rows = list(csv.DictReader(open(tmp_path / surface / "labels.csv")))
+        for r in rows:
+            assert (r["label"] == "dirty") == (float(r["visible_fraction"]) >= MIN_VISIBLE_FRACTION)
+            assert json.loads(r["params"])["bin"]
+        img = cv2.imread(str(tmp_path / surface / rows[0]["image"]))
+        assert img.shape == (54, 96, 3)  # the D435's 16:9 at 96 px wide

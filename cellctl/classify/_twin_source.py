@@ -1,0 +1,143 @@
+"""The twin's camera as a dataset source (:func:`make_twin_source`), used by ``synth``.
+
+Viewpoints are sampled poses facing the requested surface (the paper's external
+viewpoints look along −normal from 0.3–0.8 m; internal ones radiate from the top opening):
+
+* external: a point on an external face (area-weighted), camera on its normal at
+  0.3–0.8 m, tilted up to ~20°, random roll about the optical axis;
+* internal: a point on an internal face, camera inside the top opening (within 60 % of the
+  hole radius, 0–15 cm above the rim), looking at it, random roll.
+
+A *dirty* draw seeds powder (amount U(0.2, 1)) and aims near one of its clumps on the
+requested surface (offset up to 10 cm, so powder is not always centred); a *clean* draw seeds
+none. A view is kept only if at least half of its pixels show the requested surface. The
+label then comes from the rendered visible-powder mask (see :mod:`cellctl.classify.synth`).
+
+Images are rendered at low resolution (``size`` px wide, the D435's 16:9 aspect): the
+classifier input is 128 px and the ray-traced render at 256×144 takes ~25 ms instead of
+~0.4 s at 1280×720. The classifier squashes every image to a square the same way at
+inference, so training and deployment see the same geometry.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from cellctl.errors import ClassifierError
+
+__all__ = ["make_twin_source"]
+
+MIN_SURFACE_FRACTION = 0.5
+
+
+def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: Any) -> Callable:
+    """A ``draw(rng, dirty) -> Sample`` function rendering with :class:`cellctl.sim.render.SimRenderer`."""
+    from cellctl.classify.synth import Sample
+    from cellctl.config import load_config
+    from cellctl.geometry.catalog import EXTERNAL, INTERNAL, load_catalog
+    from cellctl.geometry.transforms import rotation_about, transform_from
+    from cellctl.sim.render import D435_COLOR, RenderParams, SimRenderer, look_at, scaled_intrinsics
+
+    cfg = config if config is not None else load_config()
+    catalog = load_catalog(cfg.path(cfg.catalog), cfg.root)
+    names = list(catalog.names)
+    if not names:
+        raise ClassifierError(f"bin catalog {cfg.catalog} lists no bin types")
+    renderer = SimRenderer(catalog)
+    intr = scaled_intrinsics(D435_COLOR, size / D435_COLOR.width)
+    tag = EXTERNAL if surface == "external" else INTERNAL
+    meshes = {}
+    for name in names:
+        mesh = catalog.load_mesh(name)
+        faces = np.flatnonzero(mesh.surface == tag)
+        if len(faces):
+            areas = mesh.face_areas()[faces]
+            meshes[name] = (mesh, faces, areas / areas.sum())
+    if not meshes:
+        raise ClassifierError(f"no bin type in the catalog has {surface} faces")
+    usable = sorted(meshes)
+
+    def params(rng: np.random.Generator) -> tuple[RenderParams, dict[str, Any]]:
+        if not shifted:
+            p = RenderParams(
+                exposure=float(rng.uniform(0.75, 1.3)),
+                light_scale=float(rng.uniform(0.75, 1.25)),
+                light_offset=tuple(float(v) for v in rng.uniform([-0.4, -0.4, -0.3], [0.4, 0.4, 0.3])),
+                powder_rgb=tuple(float(v) for v in rng.uniform(0.86, 0.96) * rng.uniform(0.98, 1.0, 3)),
+                noise_sigma=float(rng.uniform(0.5, 3.0)),
+                ambient=float(rng.uniform(0.12, 0.2)),
+            )
+        else:
+            # Shifted: warm yellowish powder, harsher light, more sensor noise.
+            p = RenderParams(
+                exposure=float(rng.uniform(0.55, 1.6)),
+                light_scale=float(rng.uniform(0.5, 1.6)),
+                light_offset=tuple(float(v) for v in rng.uniform([-1.0, -1.0, -0.8], [1.0, 1.0, 0.5])),
+                powder_rgb=tuple(float(v) for v in np.array([0.95, 0.86, 0.58]) * rng.uniform(0.9, 1.0)),
+                noise_sigma=float(rng.uniform(4.0, 8.0)),
+                ambient=float(rng.uniform(0.06, 0.3)),
+            )
+        return p, {k: (list(v) if isinstance(v, tuple) else round(v, 4)) for k, v in p.__dict__.items()}
+
+    def point_on(mesh: Any, face: int, rng: np.random.Generator) -> np.ndarray:
+        tri = mesh.vertices[mesh.faces[face]]
+        u, v = rng.uniform(size=2)
+        if u + v > 1:
+            u, v = 1 - u, 1 - v
+        return tri[0] + u * (tri[1] - tri[0]) + v * (tri[2] - tri[0])
+
+    def camera(name: str, target: np.ndarray, normal: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        bt = catalog.get(name)
+        if surface == "external":
+            n = normal / np.linalg.norm(normal)
+            tilt = rng.normal(0, 0.2, 3)
+            d = n + tilt - (tilt @ n) * n
+            eye = target + rng.uniform(0.3, 0.8) * d / np.linalg.norm(d)
+        else:
+            r = bt.top_hole_radius_m * 0.6 * np.sqrt(rng.uniform())
+            a = rng.uniform(0, 2 * np.pi)
+            eye = np.array([r * np.cos(a), r * np.sin(a), rng.uniform(0.0, 0.15)])
+        up = (0.0, 0.0, 1.0) if abs((target - eye)[2]) < 0.95 * np.linalg.norm(target - eye) else (1.0, 0.0, 0.0)
+        T = look_at(eye, target, up)
+        roll = rotation_about((0.0, 0.0, 1.0), float(rng.uniform(-np.pi, np.pi)))
+        return T @ transform_from(roll, np.zeros(3))
+
+    def draw(rng: np.random.Generator, dirty: bool) -> Sample:
+        for _ in range(30):
+            name = usable[int(rng.integers(len(usable)))]
+            mesh, faces, w = meshes[name]
+            pseed = int(rng.integers(2**31))
+            amount = float(rng.uniform(0.2, 1.0)) if dirty else 0.0
+            normals = mesh.face_normals()
+            if dirty:
+                field = renderer.powder(name, True, amount, pseed)
+                mine = np.flatnonzero(field.surface == tag)
+                if len(mine) == 0:
+                    continue
+                k = int(rng.choice(mine))
+                off = rng.normal(0, 0.05, 3)
+                n = field.normals[k]
+                target = field.centres[k] + off - (off @ n) * n
+                normal = n
+            else:
+                face = int(rng.choice(faces, p=w))
+                target = point_on(mesh, face, rng)
+                normal = normals[face]
+            T_bin_cam = camera(name, target, normal, rng)
+            rp, pdict = params(rng)
+            out = renderer.render_bin_view(
+                name, T_bin_cam, intr, dirty=dirty, powder_amount=amount, seed=pseed, params=rp
+            )
+            if float((out.surface == tag).mean()) < MIN_SURFACE_FRACTION:
+                continue
+            return Sample(
+                out.rgb, out.powder_mask.astype(np.float32),
+                {"bin": name, "powder_amount": round(amount, 3), "powder_seed": pseed, **pdict,
+                 "eye_bin": [round(float(v), 3) for v in T_bin_cam[:3, 3]]},
+            )
+        raise ClassifierError(f"30 sampled {surface} viewpoints in a row did not show the surface; check the catalog")
+
+    return draw
