@@ -6,6 +6,14 @@ This ``__init__`` is light (no torch) so that the supervisor may import
 :mod:`~cellctl.classify.evaluate`, :mod:`~cellctl.classify.infer`, :mod:`~cellctl.classify.synth`.
 """
 
-from cellctl.classify.collect import LABELS, SURFACES, capture_path, check_label, check_surface, store_capture
+from cellctl.classify.collect import (
+    LABELS,
+    SURFACES,
+    capture_path,
+    check_label,
+    check_surface,
+    store_capture,
+    store_image,
+)
 
-__all__ = ["LABELS", "SURFACES", "capture_path", "check_label", "check_surface", "store_capture"]
+__all__ = ["LABELS", "SURFACES", "capture_path", "check_label", "check_surface", "store_capture", "store_image"]

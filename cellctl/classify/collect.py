@@ -11,11 +11,13 @@ from __future__ import annotations
 import os
 import re
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from cellctl.errors import ClassifierError
 
-__all__ = ["LABELS", "SURFACES", "capture_path", "check_label", "check_surface", "store_capture"]
+__all__ = ["LABELS", "SURFACES", "capture_path", "check_label", "check_surface", "store_capture", "store_image"]
 
 SURFACES = ("external", "internal")
 """Bin surfaces, one network each (external matt/brushed, internal glossy/polished)."""
@@ -104,3 +106,23 @@ def store_capture(
         Path(tmp).unlink(missing_ok=True)
         raise ClassifierError(f"cannot write {str(path)!r}: {err}") from err
     return path
+
+
+def store_image(cfg: Any, params: Mapping[str, Any], surface: str, cycle_id: str, k: int, image: bytes) -> Path:
+    """The supervisor's collect-mode hook: store one capture with the operator's label.
+
+    Args:
+        cfg: the cell config (``classifier.dataset_dir`` is the default dataset root,
+            resolved against the project root).
+        params: the Start command's params: ``label`` (``clean``/``dirty``, required) and an
+            optional ``dataset`` folder overriding the config.
+        surface, cycle_id, k, image: as :func:`store_capture`.
+
+    Raises:
+        ClassifierError: missing/unknown label or a bad image (see :func:`store_capture`).
+    """
+    label = params.get("label")
+    if not isinstance(label, str):
+        raise ClassifierError(f"collect mode needs start param label 'clean' or 'dirty', got {label!r}")
+    dataset = params.get("dataset") or cfg.path(cfg.classifier.dataset_dir)
+    return store_capture(Path(dataset), surface, label, cycle_id, k, image)

@@ -48,3 +48,19 @@ def test_collect_module_does_not_import_torch() -> None:
     code = "import sys, cellctl.classify.collect; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_store_image_supervisor_hook(tmp_path: Path) -> None:
+    """The supervisor's call: dataset from config (or params), label from the Start params."""
+    from cellctl.classify.collect import store_image
+    from cellctl.config import load_config
+
+    cfg = load_config(None, [f"classifier.dataset_dir={tmp_path / 'ds'}"])
+    png = cv2.imencode(".png", np.zeros((20, 20, 3), np.uint8))[1].tobytes()
+    cid = "20261127T064512-123-1"
+    p = store_image(cfg, {"mode": "collect", "label": "clean"}, "internal", cid, 3, png)
+    assert p == tmp_path / "ds" / "internal" / "clean" / f"{cid}_003.png"
+    p2 = store_image(cfg, {"label": "dirty", "dataset": str(tmp_path / "other")}, "external", cid, 0, png)
+    assert p2.parent == tmp_path / "other" / "external" / "dirty"
+    with pytest.raises(ClassifierError, match="needs start param label"):
+        store_image(cfg, {"mode": "collect"}, "external", cid, 0, png)
