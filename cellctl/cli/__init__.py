@@ -25,6 +25,7 @@ VERB_MODULES = (
     "cellctl.cli.replay",
     "cellctl.cli.classify",
     "cellctl.cli.vision",
+    "cellctl.cli.sim",
 )
 
 

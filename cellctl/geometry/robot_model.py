@@ -57,6 +57,8 @@ __all__ = [
     "ik",
     "ik_camera",
     "link_frames",
+    "unreachable_reason",
+    "view_blocked",
     "wrap_near",
 ]
 
@@ -269,3 +271,23 @@ def unreachable_reason(T_base_cam: ArrayLike) -> str:
     if d > max_d:
         return f"wrist centre is {d:.3f} m from the shoulder, beyond the arm's {max_d:.3f} m"
     return f"no analytic IK solution within the joint limits (wrist centre {d:.3f} m from the shoulder)"
+
+
+def view_blocked(q: ArrayLike, distance: float = 0.4) -> bool:
+    """True if the arm itself blocks the camera's optical axis within ``distance`` (m)."""
+    frames = link_frames(q)[0]
+    T_cam = frames[6] @ T_FLANGE_CAM
+    s = np.linspace(0.02, distance, 24)
+    pts = T_cam[:3, 3] + s[:, None] * T_cam[:3, 2]
+    for cap in CAPSULES:
+        if cap.name == "camera":
+            continue
+        T = frames[cap.link]
+        a = T[:3, :3] @ np.array(cap.p0) + T[:3, 3]
+        b = T[:3, :3] @ np.array(cap.p1) + T[:3, 3]
+        ab = b - a
+        t = np.clip((pts - a) @ ab / max(ab @ ab, 1e-12), 0, 1)
+        d = np.linalg.norm(pts - (a + t[:, None] * ab), axis=1)
+        if np.any(d < cap.radius + 0.01):
+            return True
+    return False

@@ -1,0 +1,119 @@
+"""Robot worker: ``cellctl worker robot --backend sim``.
+
+Serves (``cell/<id>/robot/<op>``, request → reply):
+
+* ``approach``: :class:`~cellctl.messages.ApproachRequest` → :class:`~cellctl.messages.ApproachReply`
+* ``move``: :class:`~cellctl.messages.MoveRequest` → :class:`~cellctl.messages.MoveReply`
+* ``state``: :class:`~cellctl.messages.RobotStateRequest` → :class:`~cellctl.messages.RobotState`
+* ``stop``: :class:`~cellctl.messages.StopRequest` → the same StopRequest (acknowledged)
+* sim only: ``scenario``: :class:`~cellctl.messages.SimScenarioRequest` → :class:`~cellctl.messages.SimState`,
+  and ``cell/<id>/sim/state`` (queryable: :class:`~cellctl.messages.SimStateRequest` → SimState)
+
+Publishes :class:`~cellctl.messages.JointState` on ``cell/<id>/robot/joints`` at
+``robot.joint_state_hz`` and, for the sim, SimState on ``cell/<id>/sim/state`` on every change
+(and at 1 Hz). Refusals (unreachable, collision, busy, bad input) are error replies; the
+worker keeps serving.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+from cellctl.bus import keys
+from cellctl.bus.codec import encode
+from cellctl.config import CellConfig
+from cellctl.errors import ConfigError
+from cellctl.geometry.robot_model import JOINT_NAMES
+from cellctl.messages import (
+    ApproachRequest,
+    JointState,
+    MoveRequest,
+    RobotStateRequest,
+    SimScenarioRequest,
+    SimStateRequest,
+    StopRequest,
+)
+from cellctl.workers.robot._port import Robot
+
+__all__ = ["BACKENDS", "Robot", "make_robot", "run_worker", "serve_robot"]
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+BACKENDS = ("sim",)
+
+
+def make_robot(cfg: CellConfig, backend: str | None = None, **kwargs: object) -> Robot:
+    """Build the robot backend named by ``backend`` (default ``cfg.robot.backend``).
+
+    Raises:
+        ConfigError: unknown backend or invalid sim configuration.
+    """
+    name = backend or cfg.robot.backend
+    if name == "sim":
+        from cellctl.workers.robot._sim import SimRobot
+
+        return SimRobot(cfg, **kwargs)  # type: ignore[arg-type]
+    raise ConfigError(f"robot backend {name!r} is unknown; expected one of {list(BACKENDS)}")
+
+
+def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -> None:  # noqa: ANN001
+    """Serve ``robot`` on ``session`` until ``stop`` is set (blocking)."""
+    from cellctl.workers._server import WorkerServer
+    from cellctl.workers.robot._sim import SimRobot
+
+    cell = cfg.cell_id
+    changed = threading.Event()
+    if isinstance(robot, SimRobot):
+        robot.on_change = changed.set
+
+    def _stop(req: StopRequest, _raw: bytes | None) -> StopRequest:
+        robot.stop(req.reason)
+        return req
+
+    pub_j = session.declare_publisher(keys.robot_joints(cell))
+    pub_s = session.declare_publisher(keys.sim_state(cell)) if isinstance(robot, SimRobot) else None
+    with WorkerServer(session, cell, "robot") as server:
+        server.serve("approach", ApproachRequest, lambda r, _: robot.approach(r))
+        server.serve("move", MoveRequest, lambda r, _: robot.move(r))
+        server.serve("state", RobotStateRequest, lambda r, _: robot.state())
+        server.serve("stop", StopRequest, _stop)
+        if isinstance(robot, SimRobot):
+            server.serve("scenario", SimScenarioRequest, lambda r, _: robot.set_scenario(r))
+            server.serve(
+                "sim_state", SimStateRequest, lambda r, _: robot.sim_state(), key=keys.sim_state(cell)
+            )
+        server.announce()
+        log.info("robot worker serving cell %s", cell)
+        period = 1.0 / cfg.robot.joint_state_hz
+        last_sim = 0.0
+        try:
+            while not stop.is_set():
+                st = robot.state()
+                pub_j.put(encode(JointState(names=list(JOINT_NAMES), position=st.joints)))
+                now = time.monotonic()
+                if pub_s is not None and (changed.is_set() or now - last_sim > 1.0):
+                    changed.clear()
+                    pub_s.put(encode(robot.sim_state()))  # type: ignore[attr-defined]
+                    last_sim = now
+                stop.wait(period)
+        finally:
+            robot.stop("worker shutting down")
+            pub_j.undeclare()
+            if pub_s is not None:
+                pub_s.undeclare()
+
+
+def run_worker(cfg: CellConfig, backend: str | None, stop: threading.Event) -> None:
+    """Entry point of ``cellctl worker robot``: build the backend, serve until ``stop``."""
+    from cellctl.bus.session import open_session
+
+    robot = make_robot(cfg, backend)
+    session = open_session(cfg, "client")
+    try:
+        with robot:
+            serve_robot(session, cfg, robot, stop)
+    finally:
+        session.close()

@@ -1,0 +1,347 @@
+"""The simulated robot: UR10e on a mobile base in the twin's cell.
+
+It owns the **scenario** (bin type and pose, dirt, seed, where the base parked), because
+parking error and the bin's pose must be the same for motion, collisions and the camera's
+renders. The camera worker reads it through :class:`~cellctl.messages.SimState`.
+
+Motions follow the joint path of :func:`cellctl.sim.motion.plan_path` in simulated time at
+half the UR10e joint speed limits × ``robot.speed_scale``; joints are updated along the way
+(published by the worker), and :meth:`SimRobot.stop` interrupts a motion where it is.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.config import CellConfig
+from cellctl.errors import CellError, RobotError
+from cellctl.geometry import robot_model as rm
+from cellctl.geometry.catalog import Catalog, load_catalog
+from cellctl.geometry.transforms import invert
+from cellctl.messages import (
+    ApproachReply,
+    ApproachRequest,
+    MoveReply,
+    MoveRequest,
+    PoseMsg,
+    RobotState,
+    SimScenarioRequest,
+    SimState,
+)
+from cellctl.sim import scene
+from cellctl.sim.collision import CollisionWorld
+from cellctl.sim.motion import path_length, plan_path
+from cellctl.workers.robot._port import Robot
+
+__all__ = ["SimRobot"]
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+SPEED_FRACTION = 0.5
+"""Nominal motion speed as a fraction of the joint speed limits."""
+DRIVE_S = 4.0
+"""Simulated time the mobile base needs to park (divided by speed_scale)."""
+
+
+class SimRobot(Robot):
+    """The sim backend of the robot role.
+
+    Args:
+        cfg: the cell config (``robot``, ``sim``, ``catalog`` sections).
+        catalog: an already loaded catalog (default: load ``cfg.catalog``).
+        on_change: called (without locks held) after the joints or the scenario changed.
+
+    Raises:
+        ConfigError: the catalog or the configured bin type is invalid.
+    """
+
+    def __init__(
+        self, cfg: CellConfig, catalog: Catalog | None = None, on_change: Callable[[], None] | None = None
+    ) -> None:
+        self.cfg = cfg
+        self.catalog = catalog or load_catalog(cfg.path(cfg.catalog))
+        s = cfg.sim
+        self.catalog.get(s.bin_type)
+        x, y, z, yaw_deg = s.bin_pose_xyz_yaw
+        self._scenario = scene.Scenario(
+            bin_type=s.bin_type,
+            bin_xyz_yaw=(x, y, z, float(np.radians(yaw_deg))),
+            dirty=s.dirty,
+            powder_amount=s.powder_amount,
+            seed=s.seed,
+        )
+        self._q = scene.HOME_JOINTS.copy()
+        self._parked = False
+        self._park_attempt = 0
+        self._busy = threading.Lock()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._stop_reason = ""
+        self._moving = False
+        self.on_change = on_change
+        self._world = self._make_world()
+
+    # --- world ------------------------------------------------------------------------------
+
+    def _make_world(self) -> CollisionWorld:
+        sc = self._scenario
+        bt = self.catalog.get(sc.bin_type)
+        mesh = self.catalog.load_mesh(sc.bin_type)
+        T_world_base = sc.base()
+        return CollisionWorld(
+            mesh,
+            invert(T_world_base) @ sc.T_world_bin(bt),
+            invert(T_world_base),
+            walls=scene.CABIN_HALF,
+            margin=self.cfg.robot.collision_margin_m,
+        )
+
+    @property
+    def world(self) -> CollisionWorld:
+        """Collision world of the current scenario (robot base frame)."""
+        return self._world
+
+    @property
+    def scenario(self) -> scene.Scenario:
+        return self._scenario
+
+    @property
+    def joints(self) -> NDArray[np.float64]:
+        with self._lock:
+            return self._q.copy()
+
+    def _changed(self) -> None:
+        if self.on_change is not None:
+            try:
+                self.on_change()
+            except Exception:  # a publisher problem must not break a motion
+                log.exception("robot on_change callback failed")
+
+    # --- motion -----------------------------------------------------------------------------
+
+    def _acquire(self, what: str) -> None:
+        if not self._busy.acquire(blocking=False):
+            raise RobotError(f"cannot {what}: the robot is busy with another motion (send 'stop' first)")
+        self._stop.clear()
+
+    def _execute(self, path: NDArray[np.float64]) -> float:
+        """Follow ``path`` in simulated time; returns the duration (s). Raises RobotError if stopped."""
+        speed = rm.MAX_JOINT_SPEED * SPEED_FRACTION * self.cfg.robot.speed_scale
+        seg_t = np.array([np.max(np.abs(b - a) / speed) for a, b in zip(path[:-1], path[1:], strict=True)])
+        total = float(seg_t.sum())
+        cum = np.concatenate([[0.0], np.cumsum(seg_t)])
+        dt = 1.0 / self.cfg.robot.joint_state_hz
+        t0 = time.monotonic()
+        self._moving = True
+        try:
+            while True:
+                t = time.monotonic() - t0
+                if t >= total:
+                    q = path[-1].copy()
+                else:
+                    k = int(np.searchsorted(cum, t, side="right") - 1)
+                    f = (t - cum[k]) / max(seg_t[k], 1e-12)
+                    q = path[k] + f * (path[k + 1] - path[k])
+                with self._lock:
+                    self._q = q
+                self._changed()
+                if t >= total:
+                    return total
+                if self._stop.is_set():
+                    raise RobotError(
+                        f"motion stopped ({self._stop_reason or 'stop requested'}) at joints "
+                        f"{np.round(q, 4).tolist()}"
+                    )
+                time.sleep(min(dt, total - t))
+        finally:
+            self._moving = False
+
+    def _go(self, q_goal: NDArray[np.float64]) -> tuple[float, float]:
+        path = plan_path(
+            self._world,
+            self.joints,
+            q_goal,
+            timeout_s=self.cfg.robot.plan_timeout_s,
+            seed=self._scenario.seed,
+        )
+        return path_length(path), self._execute(path)
+
+    def _go_camera(self, T_base_cam: NDArray[np.float64]) -> tuple[float, float]:
+        pos = np.round(T_base_cam[:3, 3], 4).tolist()
+        sols = rm.ik_camera(T_base_cam, self.joints)
+        if len(sols) == 0:
+            raise RobotError(
+                f"camera pose at {pos} (base frame) is unreachable: {rm.unreachable_reason(T_base_cam)}"
+            )
+        flags = self._world.check(sols)
+        free = sols[~flags]
+        # prefer solutions whose own links do not block the camera's view (stable sort keeps
+        # the nearest-first order otherwise)
+        blocked = np.array([rm.view_blocked(q) for q in free], dtype=bool)
+        free = np.concatenate([free[~blocked], free[blocked]]) if len(free) else free
+        if len(free) == 0:
+            why = "; ".join(", ".join(self._world.explain(s)) for s in sols[:2])
+            raise RobotError(
+                f"camera pose at {pos} (base frame) is unreachable without collision: all {len(sols)} IK "
+                f"solutions collide (e.g. {why})"
+            )
+        last: CellError | None = None
+        for q in free[:4]:
+            try:
+                return self._go(q)
+            except RobotError as err:
+                if self._stop.is_set():
+                    raise
+                last = err
+        raise RobotError(
+            f"camera pose at {pos}: no collision-free path to any of {len(free)} IK solutions: {last}"
+        )
+
+    def _settle(self, settle_s: float | None) -> None:
+        s = self.cfg.robot.settle_s if settle_s is None else settle_s
+        if s > 0 and self._stop.wait(s):
+            raise RobotError(f"settling stopped ({self._stop_reason or 'stop requested'})")
+
+    # --- Robot interface --------------------------------------------------------------------
+
+    def approach(self, req: ApproachRequest) -> ApproachReply:
+        self._acquire("approach")
+        try:
+            bt = self.catalog.get(self._scenario.bin_type)
+            mesh = self.catalog.load_mesh(self._scenario.bin_type)
+            if req.park:
+                self._park(bt, mesh)
+            elif not self._parked:
+                raise RobotError(
+                    "cannot go to an observation pose before parking: send approach with park=true"
+                )
+            T_base_cam = invert(scene.nominal_T_bin_base(bt, mesh)) @ scene.observation_T_bin_cam(
+                bt, req.observation_index
+            )
+            self._go_camera(T_base_cam)
+            self._settle(None)
+            q = self.joints
+            return ApproachReply(
+                joints=q.tolist(),
+                flange_pose=PoseMsg.from_matrix(rm.fk(q)),
+                camera_pose=PoseMsg.from_matrix(rm.camera_pose(q)),
+                observation_index=req.observation_index,
+            )
+        finally:
+            self._busy.release()
+
+    def _park(self, bt, mesh) -> None:  # noqa: ANN001 - BinType, BinMesh
+        if np.abs(self.joints - scene.HOME_JOINTS).max() > 1e-6:
+            self._go(scene.HOME_JOINTS)  # tuck the arm before the base drives
+        self._park_attempt += 1
+        T = scene.park(
+            self._scenario,
+            bt,
+            mesh,
+            self.cfg.sim.approach_error_m,
+            self.cfg.sim.approach_error_deg,
+            self._park_attempt,
+        )
+        drive = DRIVE_S / self.cfg.robot.speed_scale
+        if self._stop.wait(drive):
+            raise RobotError(f"parking stopped ({self._stop_reason or 'stop requested'})")
+        self._scenario = self._scenario.with_base(T)
+        self._parked = True
+        self._world = self._make_world()
+        self._changed()
+
+    def move(self, req: MoveRequest) -> MoveReply:
+        self._acquire("move")
+        try:
+            if req.joints is not None:
+                q = rm.check_joints(req.joints, "target joints")
+                hits = self._world.explain(q)
+                if hits:
+                    raise RobotError(
+                        f"target joints {np.round(q, 4).tolist()} are in collision: {', '.join(hits)}"
+                    )
+                length, duration = self._go(q)
+            else:
+                assert req.camera_pose is not None
+                if req.camera_pose.frame_id != "base":
+                    raise RobotError(
+                        f"camera_pose.frame_id is {req.camera_pose.frame_id!r}; expected 'base' (robot base)"
+                    )
+                length, duration = self._go_camera(req.camera_pose.matrix())
+            self._settle(req.settle_s)
+            q = self.joints
+            return MoveReply(
+                joints=q.tolist(),
+                camera_pose=PoseMsg.from_matrix(rm.camera_pose(q)),
+                path_length_rad=length,
+                duration_s=duration,
+            )
+        finally:
+            self._busy.release()
+
+    def state(self) -> RobotState:
+        q = self.joints
+        return RobotState(
+            joints=q.tolist(),
+            flange_pose=PoseMsg.from_matrix(rm.fk(q)),
+            camera_pose=PoseMsg.from_matrix(rm.camera_pose(q)),
+            moving=self._moving,
+        )
+
+    def stop(self, reason: str) -> None:
+        self._stop_reason = reason
+        self._stop.set()
+
+    # --- sim only ---------------------------------------------------------------------------
+
+    def set_scenario(self, req: SimScenarioRequest) -> SimState:
+        """Change the scenario (bin type/pose, dirt, seed); optionally park again.
+
+        Raises:
+            ConfigError: unknown bin type. RobotError: a motion is running.
+        """
+        self._acquire("change the scenario")
+        try:
+            if req.bin_type is not None:
+                self.catalog.get(req.bin_type)
+            upd = {
+                k: getattr(req, k)
+                for k in ("bin_type", "bin_xyz_yaw", "dirty", "powder_amount", "seed")
+                if getattr(req, k) is not None
+            }
+            if upd:
+                from dataclasses import replace
+
+                self._scenario = replace(self._scenario, **upd)
+                self._world = self._make_world()
+            if req.repark:
+                self._park(
+                    self.catalog.get(self._scenario.bin_type), self.catalog.load_mesh(self._scenario.bin_type)
+                )
+            self._changed()
+            return self.sim_state()
+        finally:
+            self._busy.release()
+
+    def sim_state(self) -> SimState:
+        sc = self._scenario
+        bt = self.catalog.get(sc.bin_type)
+        return SimState(
+            bin_type=sc.bin_type,
+            bin_xyz_yaw=sc.bin_xyz_yaw,
+            dirty=sc.dirty,
+            powder_amount=sc.powder_amount,
+            seed=sc.seed,
+            world_T_bin=PoseMsg.from_matrix(sc.T_world_bin(bt), "world"),
+            world_T_base=PoseMsg.from_matrix(sc.base(), "world"),
+            parked=self._parked,
+            joints=self.joints.tolist(),
+            moving=self._moving,
+        )
