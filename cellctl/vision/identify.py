@@ -325,26 +325,33 @@ def identify(
     nsol, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
     if nsol < 1:
         raise not_identified("ambiguous", f"IPPE found no pose for {n} corners of board {name!r}")
-    errs = np.asarray(errs, dtype=np.float64).ravel()
-    order = np.argsort(errs)
-    best = int(order[0])
-    if nsol >= 2:
-        second = int(order[1])
-        ratio = float(errs[best] / errs[second]) if errs[second] > 0 else 1.0
-        gap = _rot_deg(cv2.Rodrigues(rvecs[best])[0].T @ cv2.Rodrigues(rvecs[second])[0])
+    # Refine every IPPE solution with LM: near head-on views both converge to the same pose
+    # (no ambiguity); a genuine two-fold ambiguity keeps two distinct minima whose residuals
+    # are compared.
+    sols = []
+    for k in range(nsol):
+        rv, tv = cv2.solvePnPRefineLM(obj, img, K, dist, rvecs[k].copy(), tvecs[k].copy())
+        pr = cv2.projectPoints(obj, rv, tv, K, dist)[0].reshape(-1, 2)
+        sols.append((float(np.sqrt(np.mean(np.sum((pr - img) ** 2, axis=1)))), rv, tv))
+    sols.sort(key=lambda x: x[0])
+    rms, rvec, tvec = sols[0]
+    if len(sols) >= 2:
+        rms2, rvec2, _ = sols[1]
+        gap = _rot_deg(cv2.Rodrigues(rvec)[0].T @ cv2.Rodrigues(rvec2)[0])
+        ratio = rms / rms2 if rms2 > 0 else 1.0
+        if gap <= st.ambiguity_gap_deg:  # both minima are the same pose
+            ratio = 0.0
     else:
         ratio, gap = 0.0, 0.0
-    if ratio > st.max_ambiguity_ratio and gap > st.ambiguity_gap_deg:
+    if ratio > st.max_ambiguity_ratio:
         raise not_identified(
             "ambiguous",
-            f"ambiguous IPPE solution ratio {ratio:.2f} > {st.max_ambiguity_ratio} (best {errs[best]:.3f} px, "
-            f"second {errs[order[1]]:.3f} px, solutions {gap:.1f}° apart): board too small or too far for "
-            f"a unique pose ({n} corners)",
+            f"ambiguous IPPE solution ratio {ratio:.2f} > {st.max_ambiguity_ratio} (best {rms:.3f} px, "
+            f"second {sols[1][0]:.3f} px RMS after refinement, solutions {gap:.1f}° apart): board too small "
+            f"or too far for a unique pose ({n} corners)",
         )
-    rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, dist, rvecs[best].copy(), tvecs[best].copy())
     proj = cv2.projectPoints(obj, rvec, tvec, K, dist)[0].reshape(-1, 2)
     res = np.linalg.norm(proj - img, axis=1)
-    rms = float(np.sqrt(np.mean(res**2)))
     if rms > st.max_reproj_px:
         raise not_identified(
             "reprojection",
