@@ -106,6 +106,19 @@ class ResNet18(nn.Module):
         x = self.layer4(self.layer3(self.layer2(self.layer1(x))))
         return torch.flatten(self.avgpool(x), 1)
 
+    def stage_modules(self) -> list[list[nn.Module]]:
+        """The network as consecutive stages (stem, layer1..layer4), for split training."""
+        return [[self.conv1, self.bn1], [self.layer1], [self.layer2], [self.layer3], [self.layer4]]
+
+    def run_stages(self, x: torch.Tensor, start: int, stop: int) -> torch.Tensor:
+        """Apply stages ``start..stop-1`` (see :meth:`stage_modules`)."""
+        for k in range(start, stop):
+            x = self.maxpool(self.relu(self.bn1(self.conv1(x)))) if k == 0 else self.stage_modules()[k][0](x)
+        return x
+
+    def pool(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.flatten(self.avgpool(x), 1)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.fc(self.features(x))
 
@@ -206,6 +219,25 @@ class EfficientNetLite0(nn.Module):
         for block in self._blocks:
             x = block(x)
         x = self._swish(self._bn1(self._conv_head(x)))
+        return torch.flatten(self._avg_pooling(x), 1)
+
+    def stage_modules(self) -> list[list[nn.Module]]:
+        """The network as consecutive stages (stem, 16 blocks, head conv), for split training."""
+        return [[self._conv_stem, self._bn0], *[[b] for b in self._blocks], [self._conv_head, self._bn1]]
+
+    def run_stages(self, x: torch.Tensor, start: int, stop: int) -> torch.Tensor:
+        """Apply stages ``start..stop-1`` (see :meth:`stage_modules`)."""
+        last = len(self._blocks) + 1
+        for k in range(start, stop):
+            if k == 0:
+                x = self._swish(self._bn0(self._conv_stem(x)))
+            elif k == last:
+                x = self._swish(self._bn1(self._conv_head(x)))
+            else:
+                x = self._blocks[k - 1](x)
+        return x
+
+    def pool(self, x: torch.Tensor) -> torch.Tensor:
         return torch.flatten(self._avg_pooling(x), 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
