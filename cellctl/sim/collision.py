@@ -179,6 +179,22 @@ def _sample_capsules() -> _Sampled:
 _SAMPLES = _sample_capsules()
 
 
+@dataclass
+class _Caps:
+    link: NDArray[np.int64]
+    p0: NDArray[np.float64]  # (C, 4) homogeneous
+    p1: NDArray[np.float64]
+    radius: NDArray[np.float64]
+
+
+_CAPS = _Caps(
+    np.array([c.link for c in rm.CAPSULES]),
+    np.array([[*c.p0, 1.0] for c in rm.CAPSULES]),
+    np.array([[*c.p1, 1.0] for c in rm.CAPSULES]),
+    np.array([c.radius for c in rm.CAPSULES]),
+)
+
+
 class CollisionWorld:
     """The robot's surroundings in its base frame, with batch collision queries.
 
@@ -275,22 +291,20 @@ class CollisionWorld:
             binhit &= env
             hit |= binhit
         coll = hit.any(axis=1)
-        # self-collision of non-adjacent capsule pairs
+        # self-collision of non-adjacent capsule pairs (all pairs of all configurations at once)
+        selfhit = np.zeros((N, len(self._pairs)), dtype=bool)
         if len(self._pairs):
-            ends = []
-            for cap in rm.CAPSULES:
-                Tl = frames[:, cap.link]
-                ends.append(
-                    (
-                        Tl[:, :3, :3] @ np.array(cap.p0) + Tl[:, :3, 3],
-                        Tl[:, :3, :3] @ np.array(cap.p1) + Tl[:, :3, 3],
-                    )
-                )
-            radii = np.array([cap.radius for cap in rm.CAPSULES])
-            selfhit = np.zeros((N, len(self._pairs)), dtype=bool)
-            for k, (a, b) in enumerate(self._pairs):
-                d = segment_distances(ends[a][0], ends[a][1], ends[b][0], ends[b][1])
-                selfhit[:, k] = d < radii[a] + radii[b]
+            C = _CAPS
+            e0 = np.einsum("ncij,cj->nci", frames[:, C.link], C.p0)[..., :3]
+            e1 = np.einsum("ncij,cj->nci", frames[:, C.link], C.p1)[..., :3]
+            a, b = self._pairs[:, 0], self._pairs[:, 1]
+            d = segment_distances(
+                e0[:, a].reshape(-1, 3),
+                e1[:, a].reshape(-1, 3),
+                e0[:, b].reshape(-1, 3),
+                e1[:, b].reshape(-1, 3),
+            ).reshape(N, -1)
+            selfhit = d < (C.radius[a] + C.radius[b])
             coll |= selfhit.any(axis=1)
         if explain:
             names = S.names

@@ -85,6 +85,8 @@ class SimRobot(Robot):
         self._stop = threading.Event()
         self._stop_reason = ""
         self._moving = False
+        self.last_path: NDArray[np.float64] | None = None
+        """Waypoints (K, 6) of the last planned motion (for tests and logs)."""
         self.on_change = on_change
         self._world = self._make_world()
 
@@ -164,14 +166,22 @@ class SimRobot(Robot):
             self._moving = False
 
     def _go(self, q_goal: NDArray[np.float64]) -> tuple[float, float]:
-        path = plan_path(
-            self._world,
-            self.joints,
-            q_goal,
-            timeout_s=self.cfg.robot.plan_timeout_s,
-            seed=self._scenario.seed,
-        )
+        path = self._plan(self.joints, q_goal)
+        self.last_path = path
         return path_length(path), self._execute(path)
+
+    def _plan(self, q_start: NDArray[np.float64], q_goal: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Direct plan; if RRTConnect gives up, go through the home pose (the hub of free space)."""
+        kw = {"timeout_s": self.cfg.robot.plan_timeout_s, "seed": self._scenario.seed}
+        try:
+            return plan_path(self._world, q_start, q_goal, **kw)
+        except RobotError as err:
+            if "no collision-free path" not in str(err) or self._world.in_collision(scene.HOME_JOINTS):
+                raise
+            log.info("direct plan failed (%s); planning via home", err)
+            a = plan_path(self._world, q_start, scene.HOME_JOINTS, **kw)
+            b = plan_path(self._world, scene.HOME_JOINTS, q_goal, **kw)
+            return np.vstack([a, b[1:]])
 
     def _go_camera(self, T_base_cam: NDArray[np.float64]) -> tuple[float, float]:
         pos = np.round(T_base_cam[:3, 3], 4).tolist()
