@@ -139,8 +139,13 @@ class ClassifierConfig(_Model):
 
 
 class PoseTolerance(_Model):
-    translation_mm: float = Field(default=20.0, gt=0)
-    rotation_deg: float = Field(default=2.0, gt=0)
+    """How far the measured bin pose (robot base frame) may be from a plan's and still be adjusted.
+
+    It must exceed the base's parking error (sim default ±30 mm, ±2°), or every cycle replans.
+    """
+
+    translation_mm: float = Field(default=60.0, gt=0)
+    rotation_deg: float = Field(default=4.0, gt=0)
 
 
 class PlannerConfig(_Model):
