@@ -231,6 +231,7 @@ class CycleResult(WireMessage):
     reason: str | None = None
     bin: BinInfo = Field(default_factory=BinInfo)
     plan_id: str | None = None
+    plan_adjusted: bool | None = Field(default=None, description="viewpoints re-expressed at the measured bin pose")
     planner_job_id: str | None = None
     verdict: Literal["clean", "dirty"] | None = None
     viewpoints: list[ViewpointResult] = Field(default_factory=list)

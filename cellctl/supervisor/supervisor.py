@@ -547,6 +547,7 @@ class Supervisor:
             reason=ctx.reason or reason,
             bin=BinInfo(type=ctx.bin_type, pose=PoseMsg.from_matrix(ctx.T_base_bin) if ctx.T_base_bin is not None else None),
             plan_id=getattr(ctx.plan, "plan_id", None),
+            plan_adjusted=getattr(ctx.plan, "adjusted", None),
             planner_job_id=ctx.planner_job_id,
             verdict=ctx.verdict if outcome == CycleOutcome.completed else None,
             viewpoints=ctx.viewpoints,
