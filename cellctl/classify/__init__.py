@@ -16,4 +16,12 @@ from cellctl.classify.collect import (
     store_image,
 )
 
-__all__ = ["LABELS", "SURFACES", "capture_path", "check_label", "check_surface", "store_capture", "store_image"]
+__all__ = [
+    "LABELS",
+    "SURFACES",
+    "capture_path",
+    "check_label",
+    "check_surface",
+    "store_capture",
+    "store_image",
+]

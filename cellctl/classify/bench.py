@@ -87,13 +87,17 @@ def bench_classify(args: argparse.Namespace) -> dict[str, Any]:
         images = [load_image(p) for p, _ in items]
         y = np.array([lab for _, lab in items])
     out: dict[str, Any] = {}
-    models: dict[str, Any] = {"fp32": base, "fused": SurfaceModel.load(path, surface=surface, variant="fused")}
+    models: dict[str, Any] = {
+        "fp32": base,
+        "fused": SurfaceModel.load(path, surface=surface, variant="fused"),
+    }
     for name, model in models.items():
         print(f"bench: {name}", file=sys.stderr)
         p50, p95 = _timings(model.predict_proba, images, n)
         p = model.predict_proba(images)
         out[name] = {
-            "ms_p50": round(p50, 2), "ms_p95": round(p95, 2),
+            "ms_p50": round(p50, 2),
+            "ms_p95": round(p95, 2),
             "images_per_s_b16": round(_throughput(model.predict_proba, images), 1),
             "accuracy": metrics(p, y, model.threshold, model.band)["accuracy"],
             "model_id": model.model_id,
@@ -109,18 +113,27 @@ def bench_classify(args: argparse.Namespace) -> dict[str, Any]:
         p50, p95 = _timings(q_proba, images, max(10, n // 5))
         p = np.concatenate([q_proba(images[s : s + 32]) for s in range(0, len(images), 32)])
         out["int8"] = {
-            "ms_p50": round(p50, 2), "ms_p95": round(p95, 2),
+            "ms_p50": round(p50, 2),
+            "ms_p95": round(p95, 2),
             "images_per_s_b16": round(_throughput(q_proba, images, rounds=2), 1),
             "accuracy": metrics(p, y, base.threshold, base.band)["accuracy"],
-            "shipped": False, "note": "FX static int8 (x86); slower than fp32 for depthwise-conv Lite0",
+            "shipped": False,
+            "note": "FX static int8 (x86); slower than fp32 for depthwise-conv Lite0",
         }
     except Exception as err:  # a quantization backend problem must not hide the other figures
         out["int8"] = {"error": f"{type(err).__name__}: {err}"}
     load = os.getloadavg()
     out["setup"] = {
-        "surface": surface, "model": str(Path(path)), "input_px": base.input_size, "threads": threads,
-        "cpu_count": os.cpu_count(), "loadavg_1m": round(load[0], 2), "n_latency": n, "n_accuracy": len(y),
-        "accuracy_source": source, "torch": torch.__version__,
+        "surface": surface,
+        "model": str(Path(path)),
+        "input_px": base.input_size,
+        "threads": threads,
+        "cpu_count": os.cpu_count(),
+        "loadavg_1m": round(load[0], 2),
+        "n_latency": n,
+        "n_accuracy": len(y),
+        "accuracy_source": source,
+        "torch": torch.__version__,
         "note": "batch-1 times include resize+normalise; CPU shared with other processes (see loadavg)",
     }
     return out

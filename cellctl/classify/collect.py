@@ -17,7 +17,15 @@ from typing import Any
 
 from cellctl.errors import ClassifierError
 
-__all__ = ["LABELS", "SURFACES", "capture_path", "check_label", "check_surface", "store_capture", "store_image"]
+__all__ = [
+    "LABELS",
+    "SURFACES",
+    "capture_path",
+    "check_label",
+    "check_surface",
+    "store_capture",
+    "store_image",
+]
 
 SURFACES = ("external", "internal")
 """Bin surfaces, one network each (external matt/brushed, internal glossy/polished)."""
@@ -48,15 +56,15 @@ def capture_path(dataset: Path | str, surface: str, label: str, cycle_id: str, k
     check_surface(surface)
     check_label(label)
     if not _NAME.match(cycle_id or ""):
-        raise ClassifierError(f"cycle id {cycle_id!r} is not usable in a file name; expected letters, digits, _.-")
+        raise ClassifierError(
+            f"cycle id {cycle_id!r} is not usable in a file name; expected letters, digits, _.-"
+        )
     if not isinstance(k, int) or k < 0:
         raise ClassifierError(f"viewpoint index {k!r} must be a non-negative integer")
     return Path(dataset) / surface / label / f"{cycle_id}_{k:03d}.png"
 
 
-def store_capture(
-    dataset: Path | str, surface: str, label: str, cycle_id: str, k: int, image: bytes
-) -> Path:
+def store_capture(dataset: Path | str, surface: str, label: str, cycle_id: str, k: int, image: bytes) -> Path:
     """Store one captured image for training; PNG bytes are written as is, JPEG is re-encoded to PNG.
 
     The write is atomic (temporary file + rename), so a crash never leaves a truncated PNG
@@ -108,7 +116,9 @@ def store_capture(
     return path
 
 
-def store_image(cfg: Any, params: Mapping[str, Any], surface: str, cycle_id: str, k: int, image: bytes) -> Path:
+def store_image(
+    cfg: Any, params: Mapping[str, Any], surface: str, cycle_id: str, k: int, image: bytes
+) -> Path:
     """The supervisor's collect-mode hook: store one capture with the operator's label.
 
     Args:

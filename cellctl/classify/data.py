@@ -75,7 +75,8 @@ def decode_image(data: bytes, source: str = "<bytes>") -> NDArray[np.uint8]:
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ClassifierError(
-            f"image {source} ({len(data)} bytes, starts {bytes(data[:8])!r}) cannot be decoded; expected PNG or JPEG"
+            f"image {source} ({len(data)} bytes, starts {bytes(data[:8])!r}) cannot be decoded; "
+            "expected PNG or JPEG"
         )
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
@@ -162,9 +163,11 @@ def list_dataset(root: Path | str, surface: str) -> list[tuple[Path, int]]:
         )
     items: list[tuple[Path, int]] = []
     for label, name in enumerate(LABELS):
-        files = sorted(p for p in (base / name).glob("*") if p.suffix.lower() in IMAGE_EXTS) if (
-            base / name
-        ).is_dir() else []
+        files = (
+            sorted(p for p in (base / name).glob("*") if p.suffix.lower() in IMAGE_EXTS)
+            if (base / name).is_dir()
+            else []
+        )
         if len(files) < 2:
             raise ClassifierError(
                 f"dataset {str(base)!r} has {len(files)} '{name}' image(s); expected at least 2 per class "
@@ -175,7 +178,11 @@ def list_dataset(root: Path | str, surface: str) -> list[tuple[Path, int]]:
 
 
 def split_dataset(
-    root: Path | str, surface: str, *, seed: int = 0, fractions: tuple[float, float, float] = (0.7, 0.15, 0.15)
+    root: Path | str,
+    surface: str,
+    *,
+    seed: int = 0,
+    fractions: tuple[float, float, float] = (0.7, 0.15, 0.15),
 ) -> Split:
     """Stratified reproducible split (see module doc).
 

@@ -45,7 +45,12 @@ class Prediction:
     model_id: str
 
     def as_dict(self) -> dict[str, Any]:
-        return {"label": self.label, "p_dirty": self.p_dirty, "uncertain": self.uncertain, "model_id": self.model_id}
+        return {
+            "label": self.label,
+            "p_dirty": self.p_dirty,
+            "uncertain": self.uncertain,
+            "model_id": self.model_id,
+        }
 
 
 class SurfaceModel:
@@ -56,8 +61,19 @@ class SurfaceModel:
     """
 
     def __init__(
-        self, net: nn.Module, *, surface: str, arch: str, input_size: int, mean: list[float], std: list[float],
-        threshold: float, band: float, model_id: str, card: dict[str, Any] | None, variant: str,
+        self,
+        net: nn.Module,
+        *,
+        surface: str,
+        arch: str,
+        input_size: int,
+        mean: list[float],
+        std: list[float],
+        threshold: float,
+        band: float,
+        model_id: str,
+        card: dict[str, Any] | None,
+        variant: str,
     ) -> None:
         self.net = net
         self.surface = surface
@@ -96,7 +112,9 @@ class SurfaceModel:
             raise ClassifierError(f"classifier weights {str(p)!r} cannot be read: {err}") from err
         if not isinstance(blob, dict) or blob.get("format") != WEIGHTS_FORMAT:
             got = blob.get("format") if isinstance(blob, dict) else type(blob).__name__
-            raise ClassifierError(f"{str(p)!r} is not a cellctl classifier file (format {got!r}, expected {WEIGHTS_FORMAT!r})")
+            raise ClassifierError(
+                f"{str(p)!r} is not a cellctl classifier file (format {got!r}, expected {WEIGHTS_FORMAT!r})"
+            )
         if surface is not None and blob.get("surface") != surface:
             raise ClassifierError(
                 f"{str(p)!r} is a model for surface {blob.get('surface')!r}, expected {surface!r}"
@@ -131,9 +149,17 @@ class SurfaceModel:
                 net = torch.jit.freeze(torch.jit.trace(net, torch.zeros(1, 3, size, size)))
         model_id = f"{blob['surface']}-{arch}-{sha[:12]}" + ("" if variant == "fp32" else f"-{variant}")
         return cls(
-            net, surface=str(blob["surface"]), arch=arch, input_size=size, mean=list(blob["mean"]),
-            std=list(blob["std"]), threshold=float(blob["threshold"]), band=float(blob["uncertain_logit_band"]),
-            model_id=model_id, card=card, variant=variant,
+            net,
+            surface=str(blob["surface"]),
+            arch=arch,
+            input_size=size,
+            mean=list(blob["mean"]),
+            std=list(blob["std"]),
+            threshold=float(blob["threshold"]),
+            band=float(blob["uncertain_logit_band"]),
+            model_id=model_id,
+            card=card,
+            variant=variant,
         )
 
     def tensor(self, images: list[NDArray[np.uint8]]) -> torch.Tensor:
@@ -160,7 +186,9 @@ class SurfaceModel:
         ]
 
 
-def load_surface_models(models_dir: Path | str, variant: str = "fp32") -> tuple[dict[str, SurfaceModel], dict[str, str]]:
+def load_surface_models(
+    models_dir: Path | str, variant: str = "fp32"
+) -> tuple[dict[str, SurfaceModel], dict[str, str]]:
     """Load every surface's model from ``models_dir/<surface>.pt``.
 
     Returns:
@@ -171,7 +199,9 @@ def load_surface_models(models_dir: Path | str, variant: str = "fp32") -> tuple[
     problems: dict[str, str] = {}
     for s in SURFACES:
         try:
-            models[s] = SurfaceModel.load(Path(models_dir) / f"{s}.pt", surface=check_surface(s), variant=variant)
+            models[s] = SurfaceModel.load(
+                Path(models_dir) / f"{s}.pt", surface=check_surface(s), variant=variant
+            )
         except ClassifierError as err:
             problems[s] = str(err)
     return models, problems

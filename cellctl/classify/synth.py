@@ -66,7 +66,9 @@ def label_from_mask(powder: NDArray[np.floating], min_fraction: float = MIN_VISI
     return None
 
 
-def _procedural_source(surface: str, size: int, shifted: bool) -> Callable[[np.random.Generator, bool], Sample]:
+def _procedural_source(
+    surface: str, size: int, shifted: bool
+) -> Callable[[np.random.Generator, bool], Sample]:
     from cellctl.classify.texture import Look, composite, powder_layer, steel_image
 
     look = Look.shifted() if shifted else Look()
@@ -80,7 +82,9 @@ def _procedural_source(surface: str, size: int, shifted: bool) -> Callable[[np.r
     return draw
 
 
-def _twin_source(surface: str, size: int, shifted: bool, seed: int, config: Any) -> Callable[[np.random.Generator, bool], Sample]:
+def _twin_source(
+    surface: str, size: int, shifted: bool, seed: int, config: Any
+) -> Callable[[np.random.Generator, bool], Sample]:
     from cellctl.classify._twin_source import make_twin_source
 
     return make_twin_source(surface, size, shifted, seed, config)
@@ -101,7 +105,7 @@ def synth_dataset(
     seed: int = 0,
     shifted: bool = False,
     source: str = "twin",
-    size: int = 160,
+    size: int = 256,
     config: Any = None,
     max_tries: int = 20,
 ) -> dict[str, Any]:
@@ -145,7 +149,13 @@ def synth_dataset(
     discarded = 0
     rows = []
     tag = "shifted" if shifted else "synth"
-    for i, dirty in enumerate(tqdm(list(_draws(n, rng)), desc=f"synth {surface} ({source}{', shifted' if shifted else ''})", file=sys.stderr)):
+    for i, dirty in enumerate(
+        tqdm(
+            list(_draws(n, rng)),
+            desc=f"synth {surface} ({source}{', shifted' if shifted else ''})",
+            file=sys.stderr,
+        )
+    ):
         for _ in range(max_tries):
             s = draw(rng, dirty)
             label = label_from_mask(s.powder)
@@ -153,23 +163,39 @@ def synth_dataset(
                 break
             discarded += 1
         else:
-            raise ClassifierError(f"image {i}: {max_tries} draws in a row had an ambiguous powder area; check the source")
+            raise ClassifierError(
+                f"image {i}: {max_tries} draws in a row had an ambiguous powder area; check the source"
+            )
         name = f"{tag}_{surface}_{seed}_{i:05d}.png"
         # Stored as rendered (twin: 16:9 at ``size`` px wide; procedural: size²); the
         # classifier squashes to its square input identically at training and inference.
         cv2.imwrite(str(base / label / name), cv2.cvtColor(s.rgb, cv2.COLOR_RGB2BGR))
         counts[label] += 1
         frac = float((s.powder >= POWDER_ALPHA).mean())
-        rows.append({"image": f"{label}/{name}", "label": label, "intended": LABELS[int(dirty)],
-                     "visible_fraction": round(frac, 5), "params": json.dumps(s.params, sort_keys=True)})
+        rows.append(
+            {
+                "image": f"{label}/{name}",
+                "label": label,
+                "intended": LABELS[int(dirty)],
+                "visible_fraction": round(frac, 5),
+                "params": json.dumps(s.params, sort_keys=True),
+            }
+        )
     with open(base / "labels.csv", "a" if (base / "labels.csv").exists() else "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))
         if f.tell() == 0:
             w.writeheader()
         w.writerows(rows)
     summary = {
-        "out": str(base), "surface": surface, "source": source, "shifted": shifted, "seed": seed, "size": size,
-        "counts": counts, "discarded_ambiguous": discarded, "seconds": round(time.perf_counter() - t0, 1),
+        "out": str(base),
+        "surface": surface,
+        "source": source,
+        "shifted": shifted,
+        "seed": seed,
+        "size": size,
+        "counts": counts,
+        "discarded_ambiguous": discarded,
+        "seconds": round(time.perf_counter() - t0, 1),
         "min_visible_fraction": MIN_VISIBLE_FRACTION,
     }
     # Provenance read by `cellctl train` into the model card (and by the bench to draw a

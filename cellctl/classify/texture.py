@@ -34,11 +34,16 @@ class Look:
     def shifted() -> Look:
         """Warm light, yellowish powder, stronger sensor noise (not seen in training)."""
         return Look(
-            powder_rgb=(0.93, 0.86, 0.62), light_tint=(1.08, 0.98, 0.82), exposure=(0.6, 1.45), noise_sigma=(3.0, 7.0)
+            powder_rgb=(0.93, 0.86, 0.62),
+            light_tint=(1.08, 0.98, 0.82),
+            exposure=(0.6, 1.45),
+            noise_sigma=(3.0, 7.0),
         )
 
 
-def fbm(shape: tuple[int, int], rng: np.random.Generator, octaves: int = 4, base: int = 4) -> NDArray[np.float32]:
+def fbm(
+    shape: tuple[int, int], rng: np.random.Generator, octaves: int = 4, base: int = 4
+) -> NDArray[np.float32]:
     """Fractal value noise in [0, 1], shape ``(H, W)``."""
     h, w = shape
     out = np.zeros((h, w), np.float32)
@@ -54,7 +59,9 @@ def fbm(shape: tuple[int, int], rng: np.random.Generator, octaves: int = 4, base
     return out / max(float(out.max()), 1e-6)
 
 
-def steel_image(surface: str, size: int, rng: np.random.Generator, look: Look = Look()) -> NDArray[np.float32]:
+def steel_image(
+    surface: str, size: int, rng: np.random.Generator, look: Look = Look()
+) -> NDArray[np.float32]:
     """A clean stainless image, RGB float32 in [0, 1], shape ``(size, size, 3)``."""
     check_surface(surface)
     s = size
@@ -72,7 +79,9 @@ def steel_image(surface: str, size: int, rng: np.random.Generator, look: Look = 
         base = 0.55 + 0.06 * grain + 0.12 * (fbm((s, s), rng, 3, 2) - 0.5)
         yy, xx = np.mgrid[0:s, 0:s].astype(np.float32) / s
         ang = rng.uniform(0, np.pi)
-        lobe = np.exp(-(((np.cos(ang) * (xx - rng.uniform(0.2, 0.8)) + np.sin(ang) * (yy - 0.5)) / 0.25) ** 2))
+        lobe = np.exp(
+            -(((np.cos(ang) * (xx - rng.uniform(0.2, 0.8)) + np.sin(ang) * (yy - 0.5)) / 0.25) ** 2)
+        )
         base = base + rng.uniform(0.05, 0.2) * lobe
     else:
         # Polished: dark mirror reflecting a blurred environment, a few saturated highlights.
@@ -82,7 +91,16 @@ def steel_image(surface: str, size: int, rng: np.random.Generator, look: Look = 
             c = rng.uniform(0, s, 2)
             ax = (float(rng.uniform(0.03, 0.2) * s), float(rng.uniform(0.01, 0.06) * s))
             hl = np.zeros((s, s), np.float32)
-            cv2.ellipse(hl, (int(c[0]), int(c[1])), (int(ax[0]), int(ax[1])), float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
+            cv2.ellipse(
+                hl,
+                (int(c[0]), int(c[1])),
+                (int(ax[0]), int(ax[1])),
+                float(rng.uniform(0, 180)),
+                0,
+                360,
+                1.0,
+                -1,
+            )
             base = base + rng.uniform(0.3, 0.8) * cv2.GaussianBlur(hl, (0, 0), max(1.0, s / 64))
         base = base + 0.015 * (rng.random((s, s)).astype(np.float32) - 0.5)
     tint = np.array(look.light_tint, np.float32) * rng.uniform(0.97, 1.03, 3).astype(np.float32)
@@ -109,7 +127,9 @@ def powder_layer(size: int, rng: np.random.Generator, coverage: float) -> NDArra
     return cv2.GaussianBlur(alpha, (0, 0), max(0.6, s / 256)).astype(np.float32)
 
 
-def composite(img: NDArray[np.float32], alpha: NDArray[np.float32], rng: np.random.Generator, look: Look) -> NDArray[np.uint8]:
+def composite(
+    img: NDArray[np.float32], alpha: NDArray[np.float32], rng: np.random.Generator, look: Look
+) -> NDArray[np.uint8]:
     """Powder over steel plus sensor noise, as RGB uint8."""
     powder = np.array(look.powder_rgb, np.float32) * np.array(look.light_tint, np.float32)
     powder = powder * rng.uniform(*look.exposure) * rng.uniform(0.85, 1.0)

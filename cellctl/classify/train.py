@@ -149,7 +149,9 @@ class _Images:
         return t, torch.from_numpy(self.y[idx])
 
 
-def _predict(model: nn.Module, data: _Images, mean: torch.Tensor, std: torch.Tensor, bs: int = 64) -> np.ndarray:
+def _predict(
+    model: nn.Module, data: _Images, mean: torch.Tensor, std: torch.Tensor, bs: int = 64
+) -> np.ndarray:
     model.eval()
     out = []
     with torch.inference_mode():
@@ -159,13 +161,20 @@ def _predict(model: nn.Module, data: _Images, mean: torch.Tensor, std: torch.Ten
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def _features(model: nn.Module, data: _Images, mean, std, rng, views: int, desc: str) -> tuple[torch.Tensor, torch.Tensor]:
+def _features(
+    model: nn.Module, data: _Images, mean, std, rng, views: int, desc: str
+) -> tuple[torch.Tensor, torch.Tensor]:
     model.eval()
     feats, labels = [], []
     bs = 64
     with torch.inference_mode():
         for v in range(views):
-            for s in tqdm(range(0, len(data), bs), desc=f"features {desc} view {v + 1}/{views}", file=sys.stderr, leave=False):
+            for s in tqdm(
+                range(0, len(data), bs),
+                desc=f"features {desc} view {v + 1}/{views}",
+                file=sys.stderr,
+                leave=False,
+            ):
                 idx = np.arange(s, min(s + bs, len(data)))
                 # view 0 is the plain image, further views are augmented
                 x, y = data.batch(idx, rng if (v > 0 and rng is not None) else None, mean, std)
@@ -180,8 +189,12 @@ def _prefix_cache(model: nn.Module, data: _Images, mean, std, rng, views: int, k
     acts, labels = [], []
     with torch.inference_mode():
         for v in range(views):
-            for s in tqdm(range(0, len(data), 64), desc=f"prefix {desc} view {v + 1}/{views}", file=sys.stderr,
-                          leave=False):
+            for s in tqdm(
+                range(0, len(data), 64),
+                desc=f"prefix {desc} view {v + 1}/{views}",
+                file=sys.stderr,
+                leave=False,
+            ):
                 idx = np.arange(s, min(s + 64, len(data)))
                 x, y = data.batch(idx, rng if (v > 0 and rng is not None) else None, mean, std)
                 acts.append(model.run_stages(x, 0, k))
@@ -281,7 +294,10 @@ def train(
     if ps.input_size % 32 or not 64 <= ps.input_size <= 512:
         raise ClassifierError(f"input size {ps.input_size} px must be a multiple of 32 in [64, 512]")
     head_ph = replace(ps.head, epochs=min(ps.head.epochs, max_epochs[0] or ps.head.epochs))
-    ft_ph = replace(ps.finetune, epochs=min(ps.finetune.epochs, max_epochs[1] if max_epochs[1] is not None else ps.finetune.epochs))
+    ft_ph = replace(
+        ps.finetune,
+        epochs=min(ps.finetune.epochs, max_epochs[1] if max_epochs[1] is not None else ps.finetune.epochs),
+    )
     out = Path(out)
     if out.suffix != ".pt":
         raise ClassifierError(f"output {str(out)!r} must end in .pt")
@@ -306,23 +322,39 @@ def train(
         backbone_src = str(imagenet_weights or lite0_imagenet_path())
     else:
         pretrained = imagenet_weights or False
-        backbone_src = str(imagenet_weights) if imagenet_weights else "random init (no offline ResNet18 weights)"
+        backbone_src = (
+            str(imagenet_weights) if imagenet_weights else "random init (no offline ResNet18 weights)"
+        )
     model = build_model(ps.arch, pretrained=pretrained)
     backbone_sha = sha256_file(backbone_src) if Path(backbone_src).is_file() else None
     rows: list[dict[str, Any]] = []
     loss_fn = nn.CrossEntropyLoss()
     best: dict[str, Any] = {"val_loss": math.inf, "state": None, "epoch": -1, "phase": None}
 
-    def record(phase: str, epoch: int, tl: float, ta: float, vl: float, vacc: float, lr: float, dt: float) -> bool:
-        rows.append({
-            "phase": phase, "epoch": epoch, "global_epoch": len(rows) + 1, "lr": lr,
-            "train_loss": round(tl, 5), "train_acc": round(ta, 5), "val_loss": round(vl, 5), "val_acc": round(vacc, 5),
-            "seconds": round(dt, 2),
-        })
+    def record(
+        phase: str, epoch: int, tl: float, ta: float, vl: float, vacc: float, lr: float, dt: float
+    ) -> bool:
+        rows.append(
+            {
+                "phase": phase,
+                "epoch": epoch,
+                "global_epoch": len(rows) + 1,
+                "lr": lr,
+                "train_loss": round(tl, 5),
+                "train_acc": round(ta, 5),
+                "val_loss": round(vl, 5),
+                "val_acc": round(vacc, 5),
+                "seconds": round(dt, 2),
+            }
+        )
         improved = vl < best["val_loss"] - 1e-5
         if improved:
-            best.update(val_loss=vl, epoch=len(rows), phase=phase,
-                        state={k: v.detach().clone() for k, v in model.state_dict().items()})
+            best.update(
+                val_loss=vl,
+                epoch=len(rows),
+                phase=phase,
+                state={k: v.detach().clone() for k, v in model.state_dict().items()},
+            )
         return improved
 
     # --- phase 1: head on cached features ---
@@ -357,7 +389,9 @@ def train(
             vlog = head(fva)
             vl = float(loss_fn(vlog, yva))
             vacc = float((vlog.argmax(1) == yva).float().mean())
-        improved = record("head", ep + 1, tl / len(perm), tc / len(perm), vl, vacc, lr, time.perf_counter() - te0)
+        improved = record(
+            "head", ep + 1, tl / len(perm), tc / len(perm), vl, vacc, lr, time.perf_counter() - te0
+        )
         bar.set_postfix(val_acc=f"{vacc:.3f}", val_loss=f"{vl:.3f}")
         stale = 0 if improved else stale + 1
         if stale >= head_ph.patience:
@@ -421,15 +455,20 @@ def train(
             model.eval()
             if ft_ph.cached:
                 with torch.inference_mode():
-                    pv = torch.cat([torch.softmax(forward_cached(hva[i : i + 128]), 1)[:, 1]
-                                    for i in range(0, len(yhv), 128)]).numpy()
+                    pv = torch.cat(
+                        [
+                            torch.softmax(forward_cached(hva[i : i + 128]), 1)[:, 1]
+                            for i in range(0, len(yhv), 128)
+                        ]
+                    ).numpy()
             else:
                 pv = _predict(model, va, mean, std)
             pvt = torch.from_numpy(np.stack([1 - pv, pv], 1)).clamp_min(1e-7).log()
             vl = float(nn.functional.nll_loss(pvt, torch.from_numpy(va.y)))
             vacc = float(((pv >= 0.5).astype(int) == va.y).mean())
-            improved = record("finetune", ep + 1, tl / len(perm), tc / len(perm), vl, vacc, lr,
-                              time.perf_counter() - te0)
+            improved = record(
+                "finetune", ep + 1, tl / len(perm), tc / len(perm), vl, vacc, lr, time.perf_counter() - te0
+            )
             bar.set_postfix(val_acc=f"{vacc:.3f}", val_loss=f"{vl:.3f}")
             stale = 0 if improved else stale + 1
             if stale >= ft_ph.patience:
@@ -452,26 +491,40 @@ def train(
     train_s = time.perf_counter() - t0
 
     meta = {
-        "arch": ps.arch, "surface": surface, "input_size": size, "mean": mean_l, "std": std_l,
-        "labels": list(LABELS), "threshold": threshold, "uncertain_logit_band": band,
+        "arch": ps.arch,
+        "surface": surface,
+        "input_size": size,
+        "mean": mean_l,
+        "std": std_l,
+        "labels": list(LABELS),
+        "threshold": threshold,
+        "uncertain_logit_band": band,
     }
     save_model(model, out, meta)
     sha = sha256_file(out)
     card = {
         "model_id": f"{surface}-{ps.arch}-{sha[:12]}",
-        "weights": out.name, "sha256": sha, "bytes": out.stat().st_size, "weights_dtype": "float16 (run in float32)",
+        "weights": out.name,
+        "sha256": sha,
+        "bytes": out.stat().st_size,
+        "weights_dtype": "float16 (run in float32)",
         **meta,
         "decision": {
             "rule": "dirty if p_dirty >= threshold",
             "target_false_clean": target_false_clean,
             "uncertain": f"|logit(p_dirty) - logit(threshold)| < {band}",
         },
-        "preset": preset, "phases": {"head": asdict(head_ph), "finetune": asdict(ft_ph)},
+        "preset": preset,
+        "phases": {"head": asdict(head_ph), "finetune": asdict(ft_ph)},
         "cache_views": ps.cache_views,
         "backbone": {"source": backbone_src, "sha256": backbone_sha, **describe(model)},
-        "data": {"root": str(Path(data).resolve()), "split_seed": seed, "counts": split.counts(),
-                 "synth": _provenance(Path(data) / surface),
-                 "augmentation": "reflect pad-crop 1/16, h/v flip, brightness/contrast x0.8-1.2, noise sigma 0-4"},
+        "data": {
+            "root": str(Path(data).resolve()),
+            "split_seed": seed,
+            "counts": split.counts(),
+            "synth": _provenance(Path(data) / surface),
+            "augmentation": "reflect pad-crop 1/16, h/v flip, brightness/contrast x0.8-1.2, noise sigma 0-4",
+        },
         "seed": seed,
         "best_epoch": {"global_epoch": best["epoch"], "phase": best["phase"], "val_loss": best["val_loss"]},
         "metrics": {"val": val_m, "test": test_m},
@@ -487,6 +540,9 @@ def train(
         w.writeheader()
         w.writerows(rows)
     if rows:
-        _plot(rows, out.with_suffix(".png"), f"{surface} ({ps.arch}, preset {preset}): test acc {test_m['accuracy']:.3f}")
+        _plot(
+            rows,
+            out.with_suffix(".png"),
+            f"{surface} ({ps.arch}, preset {preset}): test acc {test_m['accuracy']:.3f}",
+        )
     return card
-

@@ -30,9 +30,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--out", required=True, help="dataset root; images go to OUT/<surface>/<clean|dirty>/")
     s.add_argument("--shifted", action="store_true", help="other lighting / powder colour / camera noise")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--source", choices=("twin", "procedural"), default="twin",
-                   help="twin: the pybullet twin's camera (default); procedural: numpy textures")
-    s.add_argument("--size", type=int, default=160, help="stored image side in px (default 160)")
+    s.add_argument(
+        "--source",
+        choices=("twin", "procedural"),
+        default="twin",
+        help="twin: the pybullet twin's camera (default); procedural: numpy textures",
+    )
+    s.add_argument(
+        "--size",
+        type=int,
+        default=256,
+        help="image width in px (twin: 16:9 renders; procedural: square); default 256",
+    )
     add_config_arguments(s)
     s.set_defaults(func=run_synth)
 
@@ -44,7 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--arch", choices=("lite0", "resnet18"), default=None, help="backbone (default: lite0)")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--input-size", type=int, default=None, help="model input side in px (default 128)")
-    t.add_argument("--target-false-clean", type=float, default=0.01, help="threshold target on val (default 0.01)")
+    t.add_argument(
+        "--target-false-clean", type=float, default=0.01, help="threshold target on val (default 0.01)"
+    )
     t.add_argument("--max-epochs", type=int, nargs=2, default=None, metavar=("HEAD", "FINETUNE"))
     t.add_argument("--threads", type=int, default=None)
     add_config_arguments(t)
@@ -54,9 +65,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--surface", required=True, choices=SURFACE_CHOICES)
     e.add_argument("--data", required=True)
     e.add_argument("--model", default=None, help="weights (default: <classifier.models_dir>/<surface>.pt)")
-    e.add_argument("--split", choices=("auto", "test", "all"), default="auto",
-                   help="test: held-out part of the training split; all: every image; auto: test if DATA is the "
-                        "training folder")
+    e.add_argument(
+        "--split",
+        choices=("auto", "test", "all"),
+        default="auto",
+        help="test: held-out part of the training split; all: every image; auto: test if DATA is the "
+        "training folder",
+    )
     e.add_argument("--variant", choices=("fp32", "fused"), default="fp32")
     e.add_argument("--target-false-clean", type=float, default=0.01)
     e.add_argument("--png", default=None, help="write a ROC + score histogram PNG here")
@@ -86,8 +101,16 @@ def run_synth(args: argparse.Namespace) -> int:
     from cellctl.classify.synth import synth_dataset
 
     cfg = config_from_args(args)
-    summary = synth_dataset(args.out, args.surface, args.n, seed=args.seed, shifted=args.shifted,
-                            source=args.source, size=args.size, config=cfg)
+    summary = synth_dataset(
+        args.out,
+        args.surface,
+        args.n,
+        seed=args.seed,
+        shifted=args.shifted,
+        source=args.source,
+        size=args.size,
+        config=cfg,
+    )
     print(json.dumps(summary))
     return 0
 
@@ -97,21 +120,41 @@ def run_train(args: argparse.Namespace) -> int:
 
     cfg = config_from_args(args)
     card = train(
-        args.data, args.surface, args.out, preset=args.preset, arch=args.arch, seed=args.seed,
-        input_size=args.input_size, target_false_clean=args.target_false_clean,
-        imagenet_weights=cfg.path(cfg.classifier.imagenet_weights) if cfg.classifier.imagenet_weights else None,
-        max_epochs=tuple(args.max_epochs) if args.max_epochs else (None, None), threads=args.threads,
+        args.data,
+        args.surface,
+        args.out,
+        preset=args.preset,
+        arch=args.arch,
+        seed=args.seed,
+        input_size=args.input_size,
+        target_false_clean=args.target_false_clean,
+        imagenet_weights=cfg.path(cfg.classifier.imagenet_weights)
+        if cfg.classifier.imagenet_weights
+        else None,
+        max_epochs=tuple(args.max_epochs) if args.max_epochs else (None, None),
+        threads=args.threads,
     )
     t = card["metrics"]["test"]
-    print(json.dumps({"model_id": card["model_id"], "out": args.out, "test": t, "train_seconds": card["train_seconds"]}))
+    print(
+        json.dumps(
+            {"model_id": card["model_id"], "out": args.out, "test": t, "train_seconds": card["train_seconds"]}
+        )
+    )
     return 0
 
 
 def run_eval(args: argparse.Namespace) -> int:
     from cellctl.classify.evaluate import evaluate_folder
 
-    report = evaluate_folder(_model_path(args), args.data, args.surface, split=args.split,
-                             target_false_clean=args.target_false_clean, variant=args.variant, png=args.png)
+    report = evaluate_folder(
+        _model_path(args),
+        args.data,
+        args.surface,
+        split=args.split,
+        target_false_clean=args.target_false_clean,
+        variant=args.variant,
+        png=args.png,
+    )
     text = json.dumps(report, indent=None if args.json else 2)
     print(text)
     if args.out:

@@ -71,8 +71,11 @@ def test_split_is_reproducible_stratified_and_disjoint(tmp_path: Path) -> None:
     assert a.train != c.train
     sets = [set(p for p, _ in part) for part in (a.train, a.val, a.test)]
     assert sum(map(len, sets)) == 40 and not (sets[0] & sets[1]) and not (sets[1] & sets[2])
-    assert a.counts() == {"train": {"clean": 14, "dirty": 14}, "val": {"clean": 3, "dirty": 3},
-                          "test": {"clean": 3, "dirty": 3}}
+    assert a.counts() == {
+        "train": {"clean": 14, "dirty": 14},
+        "val": {"clean": 3, "dirty": 3},
+        "test": {"clean": 3, "dirty": 3},
+    }
     mean, std = channel_stats([p for p, _ in a.train], 16)
     assert len(mean) == 3 and all(s > 0 for s in std)
 

@@ -37,7 +37,12 @@ def test_metrics_confusion_and_uncertain_band() -> None:
     p = np.array([0.05, 0.6, 0.4, 0.95])
     y = np.array([0, 0, 1, 1])
     m = metrics(p, y, 0.5, 1.0)
-    assert m["confusion"] == {"clean_as_clean": 1, "clean_as_dirty": 1, "dirty_as_clean": 1, "dirty_as_dirty": 1}
+    assert m["confusion"] == {
+        "clean_as_clean": 1,
+        "clean_as_dirty": 1,
+        "dirty_as_clean": 1,
+        "dirty_as_dirty": 1,
+    }
     assert m["false_clean_rate"] == 0.5 and m["accuracy"] == 0.5
     assert list(is_uncertain(p, 0.5, 1.0)) == [False, True, True, False]
     assert m["uncertain_fraction"] == 0.5 and m["accuracy_certain"] == 1.0

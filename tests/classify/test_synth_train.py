@@ -32,7 +32,7 @@ def test_label_rule() -> None:
 def test_synth_is_balanced_reproducible_and_labelled(tmp_path: Path) -> None:
     a = synth_dataset(tmp_path / "a", "internal", 12, seed=4, source="procedural", size=48)
     b = synth_dataset(tmp_path / "b", "internal", 12, seed=4, source="procedural", size=48)
-    assert a["counts"] == {"clean": 6, "dirty": 6}
+    assert a["counts"] == b["counts"] == {"clean": 6, "dirty": 6}
     fa = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*.png"))
     fb = sorted(p.relative_to(tmp_path / "b") for p in (tmp_path / "b").rglob("*.png"))
     assert fa == fb

@@ -31,7 +31,9 @@ def router(cfg: CellConfig):
         yield s
 
 
-def test_worker_serves_refuses_and_keeps_serving(cfg: CellConfig, router, tiny_models: Path, tmp_path: Path) -> None:
+def test_worker_serves_refuses_and_keeps_serving(
+    cfg: CellConfig, router, tiny_models: Path, tmp_path: Path
+) -> None:
     only_external = tmp_path / "m"
     only_external.mkdir()
     for suffix in (".pt", ".json"):
@@ -42,17 +44,30 @@ def test_worker_serves_refuses_and_keeps_serving(cfg: CellConfig, router, tiny_m
         server = BatchingClassifyServer(ws, cfg.cell_id, service)
         try:
             key = keys.classifier_classify(cfg.cell_id)
-            rep, _ = request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=_png(0))
+            rep, _ = request(
+                cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=_png(0)
+            )
             assert rep.label in ("clean", "dirty") and rep.model_id.startswith("external-lite0-")
             with pytest.raises(WorkerFailed, match="cannot be decoded"):
-                request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=b"garbage!")
+                request(
+                    cs,
+                    key,
+                    ClassifyRequest(surface="external"),
+                    ClassifyReply,
+                    timeout=10,
+                    payload=b"garbage!",
+                )
             with pytest.raises(WorkerFailed, match="empty"):
                 request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=b"")
             with pytest.raises(WorkerFailed, match="no model for surface 'internal'.*do not exist"):
-                request(cs, key, ClassifyRequest(surface="internal"), ClassifyReply, timeout=10, payload=_png(1))
+                request(
+                    cs, key, ClassifyRequest(surface="internal"), ClassifyReply, timeout=10, payload=_png(1)
+                )
             small = cv2.imencode(".png", np.zeros((4, 4, 3), np.uint8))[1].tobytes()
             with pytest.raises(WorkerFailed, match="4×4 px"):
-                request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=small)
+                request(
+                    cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=small
+                )
             # a request without the image attachment layout (JSON payload only)
             with pytest.raises(WorkerFailed, match="attachment"):
                 request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10)
@@ -60,7 +75,9 @@ def test_worker_serves_refuses_and_keeps_serving(cfg: CellConfig, router, tiny_m
             bad = b'{"type":"cellctl/ClassifyRequest","v":1,"surface":"roof","format":"png"}'
             replies = list(cs.get(key, payload=_png(2), attachment=bad, timeout=10))
             assert replies[0].ok is None and b"surface" in replies[0].err.payload.to_bytes()
-            rep2, _ = request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=_png(0))
+            rep2, _ = request(
+                cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=_png(0)
+            )
             assert rep2.p_dirty == pytest.approx(rep.p_dirty)
         finally:
             server.close()
@@ -76,8 +93,9 @@ def test_queued_requests_are_batched(cfg: CellConfig, router, tiny_models: Path)
             surfaces = ["external", "internal"] * 4
 
             def one(i: int) -> ClassifyReply:
-                return request(cs, key, ClassifyRequest(surface=surfaces[i]), ClassifyReply, timeout=20,
-                               payload=_png(i))[0]
+                return request(
+                    cs, key, ClassifyRequest(surface=surfaces[i]), ClassifyReply, timeout=20, payload=_png(i)
+                )[0]
 
             with ThreadPoolExecutor(8) as pool:
                 futs = [pool.submit(one, i) for i in range(8)]
@@ -91,7 +109,9 @@ def test_queued_requests_are_batched(cfg: CellConfig, router, tiny_models: Path)
 
 
 def test_run_worker_announces_and_stops(cfg: CellConfig, router, tiny_models: Path) -> None:
-    cfg2 = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"models_dir": tiny_models})})
+    cfg2 = cfg.model_copy(
+        update={"classifier": cfg.classifier.model_copy(update={"models_dir": tiny_models})}
+    )
     stop = threading.Event()
     t = threading.Thread(target=run_worker, args=(cfg2, None, stop), daemon=True)
     t.start()
@@ -102,8 +122,14 @@ def test_run_worker_announces_and_stops(cfg: CellConfig, router, tiny_models: Pa
             if time.monotonic() > deadline or not t.is_alive():
                 pytest.fail("classifier worker never announced itself")
             stop.wait(0.2)
-        rep, _ = request(cs, keys.classifier_classify(cfg.cell_id), ClassifyRequest(surface="internal"),
-                         ClassifyReply, timeout=10, payload=_png(3))
+        rep, _ = request(
+            cs,
+            keys.classifier_classify(cfg.cell_id),
+            ClassifyRequest(surface="internal"),
+            ClassifyReply,
+            timeout=10,
+            payload=_png(3),
+        )
         assert rep.model_id.startswith("internal-lite0-") and rep.model_id.endswith("-fused")
     stop.set()
     t.join(10)
