@@ -337,7 +337,9 @@ class SimRenderer:
         tm = trimesh.Trimesh(V, F, process=False)
         ray = RayMeshIntersector(tm)
         W_, H_ = K.width, K.height
-        u, v = np.meshgrid(np.arange(W_) + 0.5, np.arange(H_) + 0.5)
+        # OpenCV convention (what Intrinsics and cv2 use): integer pixel coordinates are pixel
+        # centres; a +0.5 here shifts the whole image by half a pixel (bias in PnP).
+        u, v = np.meshgrid(np.arange(W_, dtype=np.float64), np.arange(H_, dtype=np.float64))
         d_cam = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u)], -1).reshape(-1, 3)
         d_cam /= np.linalg.norm(d_cam, axis=1, keepdims=True)
         R, o = T_world_cam[:3, :3], T_world_cam[:3, 3]
