@@ -17,9 +17,11 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from cellctl.errors import IdentificationError
 from cellctl.geometry.transforms import invert, pose_error
@@ -28,7 +30,7 @@ from cellctl.vision.board import BoardSpec, board_centre
 from cellctl.vision.identify import identify
 from cellctl.vision.render import RenderSettings, random_view, render_boards
 
-__all__ = ["DISTANCES_M", "bench_pose", "configured_intrinsics", "measure"]
+__all__ = ["DISTANCES_M", "bench_pose", "configured_intrinsics", "measure", "pinhole_renderer", "twin_renderer"]
 
 DISTANCES_M = (0.5, 1.0, 1.5, 2.0)
 D435_FX_PER_WIDTH = 910.0 / 1280.0
@@ -41,6 +43,12 @@ def configured_intrinsics(cfg: Any) -> Intrinsics:
     Uses ``camera.fx/fy/cx/cy`` (or ``camera.intrinsics``) when the section has them,
     otherwise a D435 colour model scaled to ``camera.width × camera.height``.
     """
+    try:  # the camera worker's own rule, when the twin is installed: both sides agree
+        from cellctl.workers.camera._port import intrinsics_from_config
+
+        return intrinsics_from_config(cfg.camera)
+    except ImportError:
+        pass
     cam = cfg.camera
     intr = getattr(cam, "intrinsics", None)
     if intr is not None:
@@ -51,6 +59,48 @@ def configured_intrinsics(cfg: Any) -> Intrinsics:
     cx = float(getattr(cam, "cx", None) or w / 2.0)
     cy = float(getattr(cam, "cy", None) or h / 2.0)
     return Intrinsics(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy)
+
+
+RenderFn = Callable[[NDArray[np.float64], np.random.Generator], NDArray[np.uint8]]
+"""``render(T_cam_board, rng) -> BGR uint8 image`` of one view."""
+
+
+def pinhole_renderer(spec: Any, intr: Intrinsics) -> RenderFn:
+    """Exact pinhole render of the board alone (3× supersampled, random blur and noise)."""
+
+    def render(T: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.uint8]:
+        st = RenderSettings(noise_sigma=float(rng.uniform(1.0, 3.0)), blur_sigma=float(rng.uniform(0.4, 0.9)))
+        return render_boards([(spec, T)], intr, st, rng)
+
+    return render
+
+
+def twin_renderer(catalog: Any, bin_type: str, intr: Intrinsics, board: Any | None = None) -> RenderFn:
+    """The twin's ray-traced cell (cellctl.sim.render): the bin with its board in the cabin.
+
+    Args:
+        catalog: the bin catalog.
+        bin_type: which bin (its mesh and board placement).
+        intr: camera intrinsics.
+        board: render this board spec instead of the catalog's (same placement), to compare sizes.
+    """
+    from cellctl.geometry.catalog import Catalog
+    from cellctl.sim.render import RenderParams, SimRenderer
+
+    if board is not None:
+        types = [t.model_copy(update={"board": board, "tag_T_bin": None}) if t.name == bin_type else t
+                 for t in catalog]
+        catalog = Catalog(types, catalog.root)
+    renderer = SimRenderer(catalog)
+    T_bin_board = catalog.get(bin_type).T_bin_board()
+
+    def render(T: NDArray[np.float64], rng: np.random.Generator) -> NDArray[np.uint8]:
+        params = RenderParams(noise_sigma=float(rng.uniform(1.0, 3.0)), exposure=float(rng.uniform(0.85, 1.15)))
+        out = renderer.render_bin_view(bin_type, T_bin_board @ invert(T), intr, dirty=False,
+                                       seed=int(rng.integers(1 << 30)), params=params)
+        return np.ascontiguousarray(out.rgb[..., ::-1])
+
+    return render
 
 
 def _pct(x: list[float]) -> dict[str, float | None]:
@@ -72,7 +122,8 @@ def _errors(spec: Any, T_true: np.ndarray, T_est: np.ndarray) -> tuple[float, fl
 
 def measure(
     spec: Any, intr: Intrinsics, n: int, seed: int, distances: tuple[float, ...] = DISTANCES_M,
-    focal_error: float = 0.005, progress: bool = True,
+    focal_error: float = 0.005, progress: bool = True, render: RenderFn | None = None,
+    reference: bool = False,
 ) -> dict[str, Any]:
     """Render and identify ``n`` views per distance; percentiles of the errors.
 
@@ -84,23 +135,38 @@ def measure(
         distances: camera-to-board-centre distances, metres.
         focal_error: relative focal-length error for the second identification pass.
         progress: tqdm bar on stderr.
+        render: ``render(T_cam_board, rng) -> BGR image``; default: :func:`pinhole_renderer`.
+        reference: also identify an exact pinhole render of the same view (``pinhole_reference``).
     """
     from tqdm import tqdm
+
+    render = render or pinhole_renderer(spec, intr)
+    ref_render = pinhole_renderer(spec, intr) if reference else None
 
     catalog = {"bench": spec}
     biased = intr.model_copy(update={"fx": intr.fx * (1 + focal_error), "fy": intr.fy * (1 + focal_error)})
     rng = np.random.default_rng(seed)
-    rows, rows_f = [], []
+    rows, rows_f, rows_p = [], [], []
     times: list[float] = []
     bar = tqdm(total=n * len(distances), desc="bench pose", unit="view", disable=not progress)
     for d in distances:
-        acc: dict[str, list[float]] = {"t": [], "r": [], "b": [], "tf": [], "rf": [], "bf": []}
+        acc: dict[str, list[float]] = {k: [] for k in ("t", "r", "b", "tf", "rf", "bf", "tp", "rp", "bp")}
         fails: dict[str, int] = {}
+        fails_p: dict[str, int] = {}
         fails_f: dict[str, int] = {}
         for _ in range(n):
             T = random_view(spec, intr, d, rng)
-            st = RenderSettings(noise_sigma=float(rng.uniform(1.0, 3.0)), blur_sigma=float(rng.uniform(0.4, 0.9)))
-            img = render_boards([(spec, T)], intr, st, rng)
+            img = render(T, rng)
+            if ref_render is not None:
+                try:
+                    ref = identify(ref_render(T, rng), intr, None, catalog)
+                    dt, dr, db = _errors(spec, T, ref.T_cam_board)
+                    acc["tp"].append(dt)
+                    acc["rp"].append(dr)
+                    acc["bp"].append(db)
+                except IdentificationError as err:
+                    code = getattr(err, "code", "error")
+                    fails_p[code] = fails_p.get(code, 0) + 1
             t0 = time.perf_counter()
             try:
                 ident = identify(img, intr, None, catalog)
@@ -126,9 +192,14 @@ def measure(
                      "rot_deg": _pct(acc["r"]), "bin_origin_mm": _pct(acc["b"]), "not_identified": fails})
         rows_f.append({"distance_m": d, "n": n, "identified": len(acc["tf"]), "trans_mm": _pct(acc["tf"]),
                        "rot_deg": _pct(acc["rf"]), "bin_origin_mm": _pct(acc["bf"]), "not_identified": fails_f})
+        rows_p.append({"distance_m": d, "n": n, "identified": len(acc["tp"]), "trans_mm": _pct(acc["tp"]),
+                       "rot_deg": _pct(acc["rp"]), "bin_origin_mm": _pct(acc["bp"]), "not_identified": fails_p})
     bar.close()
-    return {"distances": rows, "focal_error_0_5pct": {"distances": rows_f},
-            "ms_per_identification": round(float(np.mean(times)), 2) if times else None}
+    out = {"distances": rows, "focal_error_0_5pct": {"distances": rows_f},
+           "ms_per_identification": round(float(np.mean(times)), 2) if times else None}
+    if reference:
+        out["pinhole_reference"] = {"distances": rows_p}
+    return out
 
 
 def _targets(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -152,20 +223,72 @@ def _spec_dict(spec: Any) -> dict[str, Any]:
             "size_m": [round(spec.squares_x * spec.square_m, 4), round(spec.squares_y * spec.square_m, 4)]}
 
 
+def _figure(out: dict[str, Any], path: Any) -> None:
+    """p95 translation and rotation error against distance, one line per configuration (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = [("catalog board", out["distances"]), ("catalog board, fx +0.5 %", out["focal_error_0_5pct"]["distances"])]
+    if "pinhole_reference" in out:
+        series.append(("catalog board, exact pinhole render", out["pinhole_reference"]["distances"]))
+    if "alternative_board" in out:
+        alt = out["alternative_board"]
+        series.append((f"{alt['board']['square_m'] * 1000:.0f} mm squares", alt["distances"]))
+        series.append((f"{alt['board']['square_m'] * 1000:.0f} mm squares, fx +0.5 %",
+                       alt["focal_error_0_5pct"]["distances"]))
+    fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
+    for label, rows in series:
+        d = [r["distance_m"] for r in rows]
+        ax[0].plot(d, [r["trans_mm"]["p95"] if r["trans_mm"]["p95"] is not None else np.nan for r in rows], "o-",
+                   label=label)
+        ax[1].plot(d, [r["rot_deg"]["p95"] if r["rot_deg"]["p95"] is not None else np.nan for r in rows], "o-")
+        ax[2].plot(d, [r["identified"] / max(r["n"], 1) for r in rows], "o-")
+    ax[0].plot([0.5, 1.0], [2, 2], "k--", lw=1)
+    ax[0].plot([2.0], [5], "kv")
+    ax[1].plot([0.5, 1.0], [0.2, 0.2], "k--", lw=1)
+    ax[0].set(xlabel="distance (m)", ylabel="board-centre error p95 (mm)", yscale="log")
+    ax[1].set(xlabel="distance (m)", ylabel="rotation error p95 (deg)", yscale="log")
+    ax[2].set(xlabel="distance (m)", ylabel="identified fraction", ylim=(0, 1.05))
+    ax[0].legend(fontsize=7)
+    fig.suptitle(f"cellctl bench pose — {out['bin_type']}, {out['renderer_name']} renderer, seed {out['seed']}, "
+                 f"n={out['distances'][0]['n']}/distance (dashed: targets)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def bench_pose(args: argparse.Namespace) -> dict[str, Any]:
-    """``cellctl bench pose``: see the module docstring. ``args.n`` views per distance (default 40)."""
+    """``cellctl bench pose``: see the module docstring.
+
+    ``args.n`` views per distance (default 20). Renders with the twin's ray tracer when it is
+    installed (else the exact pinhole renderer), the catalog board of ``sim.bin_type`` and a
+    7×5 board with 60 mm squares for comparison. Writes a PNG figure beside ``--out`` (or
+    ``logs/bench/pose.png``).
+    """
+    from pathlib import Path
+
     from cellctl.cli import config_from_args
     from cellctl.geometry.catalog import load_catalog
 
     cfg = config_from_args(args)
-    n = int(args.n or 40)
+    n = int(args.n or 20)
     seed = int(args.seed)
     intr = configured_intrinsics(cfg)
     catalog = load_catalog(cfg.path(cfg.catalog), root=cfg.root, verify_meshes=False)
     bin_type = cfg.sim.bin_type if cfg.sim.bin_type in catalog else catalog.names[0]
     spec = catalog.get(bin_type).board
+    try:
+        import cellctl.sim.render  # noqa: F401 - probe: is the twin installed?
+
+        catalog.load_mesh(bin_type)
+        twin = True
+    except Exception:  # no twin (or no mesh): fall back to the exact pinhole renderer
+        twin = False
     t0 = time.perf_counter()
-    main = measure(spec, intr, n, seed)
+    render = twin_renderer(catalog, bin_type, intr) if twin else None
+    main = measure(spec, intr, n, seed, render=render, reference=twin)
     out: dict[str, Any] = {
         "distances": main["distances"],
         "ms_per_identification": main["ms_per_identification"],
@@ -175,16 +298,28 @@ def bench_pose(args: argparse.Namespace) -> dict[str, Any]:
         "bin_type": bin_type,
         "board": _spec_dict(spec),
         "intrinsics": intr.model_dump(),
-        "renderer": "pinhole homography of the board texture, 3x supersampled (cellctl.vision.render)",
+        "renderer_name": "twin" if twin else "pinhole",
+        "renderer": ("twin: cellctl.sim.render ray tracer, bin + board in the cabin, 1 ray/pixel" if twin else
+                     "pinhole homography of the board texture, 3x supersampled (cellctl.vision.render)"),
         "targets_met": _targets(main["distances"]),
     }
-    # The board size decides the 2 m result: also measure the board the vision notes recommend.
-    big = BoardSpec(squares_x=7, squares_y=5, square_m=0.06, marker_m=0.045, dictionary=str(spec.dictionary),
-                    first_id=int(spec.first_id), T_bin_board=np.asarray(spec.T_bin_board, dtype=np.float64))
-    if abs(float(spec.square_m) - big.square_m) > 1e-9:
-        alt = measure(big, intr, n, seed)
+    if "pinhole_reference" in main:
+        out["pinhole_reference"] = main["pinhole_reference"]
+    # The board size decides the 2 m result: also measure a 7×5 board with 60 mm squares.
+    if abs(float(spec.square_m) - 0.06) > 1e-9:
+        if hasattr(spec, "model_copy"):
+            big = spec.model_copy(update={"square_m": 0.06, "marker_m": 0.045})
+        else:
+            big = BoardSpec(squares_x=7, squares_y=5, square_m=0.06, marker_m=0.045, dictionary=str(spec.dictionary),
+                            first_id=int(spec.first_id), T_bin_board=np.asarray(spec.T_bin_board, dtype=np.float64))
+        alt_render = twin_renderer(catalog, bin_type, intr, board=big) if twin else None
+        alt = measure(big, intr, n, seed, render=alt_render)
         out["alternative_board"] = {"board": _spec_dict(big), "distances": alt["distances"],
                                     "focal_error_0_5pct": alt["focal_error_0_5pct"],
                                     "targets_met": _targets(alt["distances"])}
     out["wall_s"] = round(time.perf_counter() - t0, 1)
+    fig = Path(args.out).with_suffix(".png") if getattr(args, "out", None) else cfg.path("logs/bench/pose.png")
+    fig.parent.mkdir(parents=True, exist_ok=True)
+    _figure(out, fig)
+    out["figure"] = str(fig)
     return out
