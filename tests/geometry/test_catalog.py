@@ -72,7 +72,7 @@ def test_case_study_matches_the_paper(catalog) -> None:
 
 def test_marker_ids_identify_types(catalog) -> None:
     ranges = {t.name: t.board.ids for t in catalog}
-    assert ranges["case_study"] == range(0, 17)
+    assert ranges["case_study"] == range(17)
     for name, ids in ranges.items():
         assert catalog.by_marker_id(ids.start).name == name
         assert catalog.by_marker_id(ids.stop - 1).name == name

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cellctl.config import project_root
 from cellctl.geometry import robot_model as rm
 from cellctl.geometry.catalog import load_catalog
 from cellctl.geometry.transforms import invert
-from cellctl.config import project_root
 from cellctl.sim import scene
 from cellctl.sim.collision import CollisionWorld, segment_distances
 
