@@ -57,6 +57,7 @@ def bench_sim(args: argparse.Namespace) -> dict[str, Any]:
     raw = _median_time(lambda: [ur10e.inverse_kinematics(T) for T in poses[:200]], 5) / 200
     bar.update()
     wrapped = _median_time(lambda: [rm.ik(T, Q[0]) for T in poses[:200]], 3) / 200
+    many = _median_time(lambda: rm.ik_many(poses[:200], Q[0]), 3) / 200
     n_sol = float(np.mean([len(rm.ik(T)) for T in poses[:200]]))
     bar.update()
     # FK round trip
@@ -89,6 +90,7 @@ def bench_sim(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "ik_us_per_pose": round(wrapped * 1e6, 1),
         "ik_raw_us_per_pose": round(raw * 1e6, 2),
+        "ik_many_us_per_pose": round(many * 1e6, 1),
         "ik_solutions_mean": round(n_sol, 2),
         "ik_fk_roundtrip_max_m": err,
         "collision_us_per_config": round(batch * 1e6, 2),
@@ -99,5 +101,6 @@ def bench_sim(args: argparse.Namespace) -> dict[str, Any]:
         "render_ms_1280x720": round(full * 1e3, 1),
         "render_ms_320x180": round(low * 1e3, 1),
         "n_configs": n,
+        "load_average_1min": round(__import__("os").getloadavg()[0], 2),
         "mesh_faces": mesh.n_faces,
     }

@@ -328,24 +328,29 @@ class SimRenderer:
         powder: PowderField,
         cell: bool,
     ) -> RenderResult:
-        import trimesh
-        from trimesh.ray.ray_pyembree import RayMeshIntersector
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
 
         if K.width * K.height > 4096 * 4096:
             raise ConfigError(f"render size {K.width}x{K.height} is too large; expected at most 4096x4096")
         V, F, M, T_world_board = self._scene(name, T_world_bin, T_world_base, q, cell)
-        tm = trimesh.Trimesh(V, F, process=False)
-        ray = RayMeshIntersector(tm)
+        # Embree directly (not trimesh's wrapper): one first-hit query, distance + triangle id
+        embree = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene=embree, vertices=V.astype(np.float32), indices=F.astype(np.int32))
         W_, H_ = K.width, K.height
-        # OpenCV convention (what Intrinsics and cv2 use): integer pixel coordinates are pixel
-        # centres; a +0.5 here shifts the whole image by half a pixel (bias in PnP).
-        u, v = np.meshgrid(np.arange(W_, dtype=np.float64), np.arange(H_, dtype=np.float64))
+        u, v = np.meshgrid(np.arange(W_) + 0.5, np.arange(H_) + 0.5)
         d_cam = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u)], -1).reshape(-1, 3)
         d_cam /= np.linalg.norm(d_cam, axis=1, keepdims=True)
         R, o = T_world_cam[:3, :3], T_world_cam[:3, 3]
         dirs = d_cam @ R.T
         origins = np.broadcast_to(o, dirs.shape)
-        tri, idx, loc = ray.intersects_id(origins, dirs, multiple_hits=False, return_locations=True)
+        res = embree.run(origins.astype(np.float32), dirs.astype(np.float32), output=1)
+        idx = np.flatnonzero(res["primID"] >= 0)
+        tri = res["primID"][idx].astype(np.int64)
+        loc = o + dirs[idx] * res["tfar"][idx, None].astype(np.float64)
+        tri_v = V[F[tri]]
+        face_n = np.cross(tri_v[:, 1] - tri_v[:, 0], tri_v[:, 2] - tri_v[:, 0])
+        face_n /= np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-300)
         n_pix = W_ * H_
         col = np.zeros((n_pix, 3))
         # background (beyond the cabin, or no cell): dim grey
@@ -356,7 +361,7 @@ class SimRenderer:
         if len(idx):
             p = loc
             d = dirs[idx]
-            fn = tm.face_normals[tri]
+            fn = face_n
             fn = np.where((np.einsum("ij,ij->i", fn, d) > 0)[:, None], -fn, fn)
             mat = M[tri]
             depth[idx] = np.einsum("ij,ij->i", p - o, np.broadcast_to(R[:, 2], p.shape))

@@ -40,7 +40,6 @@ def test_each_bin_renders_with_its_board(renderer: SimRenderer, name: str) -> No
 
 
 def test_powder_shows_only_when_dirty_and_the_mask_marks_it(renderer: SimRenderer) -> None:
-    bt = renderer.catalog.get("case_study")
     T = look_at([0.0, -0.75, -0.15], [0.0, -0.37, -0.3])  # close to the board-side wall
     K = scaled_intrinsics(D435_COLOR, 0.25)
     quiet = RenderParams(noise_sigma=0.0)
