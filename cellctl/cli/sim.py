@@ -55,7 +55,7 @@ def render(args: argparse.Namespace) -> int:
     from cellctl.messages import Intrinsics
     from cellctl.sim import scene
     from cellctl.sim.collision import CollisionWorld
-    from cellctl.sim.render import SimRenderer, look_at
+    from cellctl.sim.render import RenderParams, SimRenderer, look_at
 
     cfg = config_from_args(args)
     cat = load_catalog(cfg.path(cfg.catalog))
@@ -87,7 +87,8 @@ def render(args: argparse.Namespace) -> int:
         T_world_cam = look_at(eye, (target + sc.base()[:3, 3]) / 2)
     else:
         T_world_cam = sc.base() @ rm.camera_pose(q)
-    out = SimRenderer(cat).render(sc, T_world_cam, K, joints=q)
+    params = RenderParams(noise_sigma=cfg.camera.noise_sigma)
+    out = SimRenderer(cat).render(sc, T_world_cam, K, joints=q, params=params)
     if not cv2.imwrite(args.out, out.rgb[..., ::-1]):
         raise ConfigError(f"cannot write {args.out!r}")
     print(
