@@ -155,6 +155,7 @@ class SimRenderer:
         self.catalog = catalog
         self._boards: dict[str, NDArray[np.float64]] = {}
         self._powder: dict[tuple, PowderField] = {}
+        self._rays: dict[tuple, NDArray[np.float32]] = {}
 
     # --- scene assembly -------------------------------------------------------------------
 
@@ -164,6 +165,18 @@ class SimRenderer:
 
             self._boards[name] = board_image(self.catalog.get(name).board, 60).astype(np.float64) / 255.0
         return self._boards[name]
+
+    def _ray_dirs(self, K: Intrinsics) -> NDArray[np.float32]:
+        """Unit ray directions (H·W, 3) in the camera frame, cached per intrinsics."""
+        key = (K.width, K.height, K.fx, K.fy, K.cx, K.cy)
+        if key not in self._rays:
+            if len(self._rays) > 8:
+                self._rays.clear()
+            u, v = np.meshgrid(np.arange(K.width) + 0.5, np.arange(K.height) + 0.5)
+            d = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u)], -1).reshape(-1, 3)
+            d /= np.linalg.norm(d, axis=1, keepdims=True)
+            self._rays[key] = d.astype(np.float32)
+        return self._rays[key]
 
     def powder(self, name: str, dirty: bool, amount: float, seed: int) -> PowderField:
         """The powder field of a scenario (cached)."""
@@ -338,16 +351,14 @@ class SimRenderer:
         embree = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=embree, vertices=V.astype(np.float32), indices=F.astype(np.int32))
         W_, H_ = K.width, K.height
-        u, v = np.meshgrid(np.arange(W_) + 0.5, np.arange(H_) + 0.5)
-        d_cam = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u)], -1).reshape(-1, 3)
-        d_cam /= np.linalg.norm(d_cam, axis=1, keepdims=True)
+        d_cam = self._ray_dirs(K)
         R, o = T_world_cam[:3, :3], T_world_cam[:3, 3]
-        dirs = d_cam @ R.T
-        origins = np.broadcast_to(o, dirs.shape)
-        res = embree.run(origins.astype(np.float32), dirs.astype(np.float32), output=1)
+        dirs = d_cam @ R.T.astype(np.float32)
+        origins = np.broadcast_to(o.astype(np.float32), dirs.shape)
+        res = embree.run(np.ascontiguousarray(origins, dtype=np.float32), dirs, output=1)
         idx = np.flatnonzero(res["primID"] >= 0)
         tri = res["primID"][idx].astype(np.int64)
-        loc = o + dirs[idx] * res["tfar"][idx, None].astype(np.float64)
+        loc = o + dirs[idx].astype(np.float64) * res["tfar"][idx, None].astype(np.float64)
         tri_v = V[F[tri]]
         face_n = np.cross(tri_v[:, 1] - tri_v[:, 0], tri_v[:, 2] - tri_v[:, 0])
         face_n /= np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-300)
