@@ -100,29 +100,34 @@ class PowderField:
             return out
         from scipy.spatial import cKDTree
 
-        ragged = value_noise3(pts / 0.012, self.seed)  # clump edge wobble, ~1 cm features
-        grain = value_noise3(pts / 0.0015, self.seed + 17)  # ~1.5 mm grains
+        reach = float(self.radii.max() * 1.8)
         for tag in (EXTERNAL, INTERNAL):
-            sel = np.flatnonzero(surface == tag)
             mine = np.flatnonzero(self.surface == tag)
+            sel = np.flatnonzero(surface == tag)
             if len(sel) == 0 or len(mine) == 0:
                 continue
             tree = cKDTree(self.centres[mine])
+            # only points near some clump get the (costly) noise and k-nearest evaluation
+            d1, _ = tree.query(pts[sel], k=1, distance_upper_bound=reach)
+            sel = sel[np.isfinite(d1)]
+            if len(sel) == 0:
+                continue
+            ragged = value_noise3(pts[sel] / 0.012, self.seed)  # clump edge wobble, ~1 cm features
+            grain = value_noise3(pts[sel] / 0.0015, self.seed + 17)  # ~1.5 mm grains
             k = min(4, len(mine))
-            d, j = tree.query(pts[sel], k=k, distance_upper_bound=float(self.radii.max() * 1.8))
-            d = np.atleast_2d(d.T).T if k == 1 else d
-            j = np.atleast_2d(j.T).T if k == 1 else j
+            d, j = tree.query(pts[sel], k=k, distance_upper_bound=reach)
+            if k == 1:
+                d, j = d[:, None], j[:, None]
             valid = np.isfinite(d)
             jj = np.where(valid, j, 0)
             r = self.radii[mine][jj]
             if normals is not None:  # do not wrap around sharp edges onto other faces
                 agree = np.einsum("mkj,mj->mk", self.normals[mine][jj], normals[sel]) > 0.2
                 valid &= agree
-            edge = r * (0.7 + 0.6 * ragged[sel, None])
+            edge = r * (0.7 + 0.6 * ragged[:, None])
             core = np.clip((edge - d) / 0.006, 0, 1)
-            halo = ((d < 1.6 * r) & (grain[sel, None] > 0.80 + 0.15 * np.clip(d / r - 1, 0, 1))).astype(float)
-            a = np.where(valid, np.maximum(core, 0.85 * halo), 0.0).max(axis=1)
-            out[sel] = a
+            halo = ((d < 1.6 * r) & (grain[:, None] > 0.80 + 0.15 * np.clip(d / r - 1, 0, 1))).astype(float)
+            out[sel] = np.where(valid, np.maximum(core, 0.85 * halo), 0.0).max(axis=1)
         return out
 
     def dirty_faces(self, mesh: BinMesh, threshold: float = 0.5) -> NDArray[np.bool_]:

@@ -425,22 +425,25 @@ class SimRenderer:
                 horiz = np.abs(nbin[:, 2]) > 0.7
                 coord = np.where(horiz, pbin[:, 1], pbin[:, 2])  # grain: around the walls, along x on plates
                 streak = 0.6 * _STREAKS(coord, 0.00035) + 0.4 * _STREAKS(coord + 3.1, 0.0021)
-                wav = value_noise3(pbin / 0.15, 99) - 0.5
                 ext = mat[st] == M_BIN_EXT
+                inn = ~ext
                 lig = light[st]
+                val = np.empty(len(lig))
                 # brushed: grey albedo with streaks, broad specular stretched by the grain
-                brushed = (0.50 + 0.07 * streak + 0.05 * wav) * lig + 0.55 * spec_b[st] * (1 + 0.5 * streak)
+                if ext.any():
+                    wav = value_noise3(pbin[ext] / 0.15, 99) - 0.5
+                    se = streak[ext]
+                    spec = 0.55 * spec_b[st][ext] * (1 + 0.5 * se)
+                    val[ext] = (0.50 + 0.07 * se + 0.05 * wav) * lig[ext] + spec
                 # polished: reflect a synthetic cabin (bright ceiling, light panels) + sharp highlight
-                dd = d[st]
-                nn = fn[st]
-                r = dd - 2 * np.einsum("ij,ij->i", dd, nn)[:, None] * nn
-                env = 0.10 + 0.35 * np.clip(r[:, 2], 0, 1) ** 2
-                panels = ((np.abs(np.sin(r[:, 0] * 4.0 + r[:, 1] * 1.5)) > 0.92) & (r[:, 2] > 0.3)).astype(
-                    float
-                )
-                env = env + 0.9 * panels + 0.05 * (value_noise3(r * 3.0, 5) - 0.5)
-                polished = 0.16 * lig + 0.75 * env + 2.5 * spec_p[st] + 0.02 * streak
-                val = np.where(ext, brushed, polished)
+                if inn.any():
+                    dd = d[st][inn]
+                    nn = fn[st][inn]
+                    r = dd - 2 * np.einsum("ij,ij->i", dd, nn)[:, None] * nn
+                    env = 0.10 + 0.35 * np.clip(r[:, 2], 0, 1) ** 2
+                    panels = (np.abs(np.sin(r[:, 0] * 4.0 + r[:, 1] * 1.5)) > 0.92) & (r[:, 2] > 0.3)
+                    env = env + 0.9 * panels + 0.05 * (value_noise3(r * 3.0, 5) - 0.5)
+                    val[inn] = 0.16 * lig[inn] + 0.75 * env + 2.5 * spec_p[st][inn] + 0.02 * streak[inn]
                 tint = np.array([0.97, 0.99, 1.02])
                 sc = val[:, None] * tint
                 # powder: matte, covers the steel
