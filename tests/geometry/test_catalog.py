@@ -203,3 +203,21 @@ def test_inconsistent_tag_and_board_are_rejected(tmp_path: Path) -> None:
     data["bins"]["case_study"]["board"]["T_bin_board"][0][3] += 0.05
     with pytest.raises(ConfigError, match="T_bin_board disagrees with inv\\(tag_T_bin\\)"):
         load_catalog(_write(path, data))
+
+
+def test_any_mesh_format_following_the_frame_convention_is_accepted(tmp_path: Path) -> None:
+    """An OBJ bin (no tags in the file) with a sidecar of surface tags loads like the PLY ones."""
+    import trimesh
+
+    path, data = _copy_catalog(tmp_path)
+    V, F, S = build_mesh(DESIGNS["drum"])
+    obj = tmp_path / "models" / "bins" / "drum2.obj"
+    trimesh.Trimesh(V, F, process=False).export(obj)
+    np.save(obj.with_suffix(".obj.surface.npy"), S)
+    entry = dict(data["bins"]["drum"], mesh="models/bins/drum2.obj", mesh_sha256=file_sha256(obj))
+    entry["board"] = dict(entry["board"], first_id=51)
+    data["bins"]["drum2"] = entry
+    cat = load_catalog(_write(path, data))
+    m = cat.load_mesh("drum2")
+    assert m.n_faces == len(F) and np.array_equal(m.surface, S)
+    assert cat.by_marker_id(60).name == "drum2"
