@@ -359,8 +359,25 @@ def train(
 
     # --- phase 1: head on cached features ---
     head = head_module(model)
-    ftr, ytr = _features(model, tr, mean, std, rng, max(1, ps.cache_views), "train")
-    fva, yva = _features(model, va, mean, std, None, 1, "val")
+    views = max(1, ps.cache_views)
+    n_stages = len(model.stage_modules())
+    if ft_ph.epochs > 0 and ft_ph.cached:
+        # One backbone pass serves both phases: the prefix activations are kept for phase 2,
+        # and the pooled features of phase 1 are the (frozen, eval-mode) suffix applied to them.
+        k = CACHE_SPLIT[ps.arch]
+        htr, yh = _prefix_cache(model, tr, mean, std, rng, views, k, "train")
+        hva, yhv = _prefix_cache(model, va, mean, std, None, 1, k, "val")
+        with torch.inference_mode():
+            ftr = torch.cat(
+                [model.pool(model.run_stages(htr[i : i + 256], k, n_stages)) for i in range(0, len(yh), 256)]
+            )
+            fva = torch.cat(
+                [model.pool(model.run_stages(hva[i : i + 256], k, n_stages)) for i in range(0, len(yhv), 256)]
+            )
+        ytr, yva = yh, yhv
+    else:
+        ftr, ytr = _features(model, tr, mean, std, rng, views, "train")
+        fva, yva = _features(model, va, mean, std, None, 1, "val")
     opt = _optimizer(list(head.parameters()), head_ph)
     sched = _scheduler(opt, head_ph)
     dropout = getattr(model, "_dropout", nn.Identity())
@@ -406,13 +423,9 @@ def train(
     if ft_ph.epochs > 0:
         for p in model.parameters():
             p.requires_grad_(False)
-        n_stages = len(model.stage_modules())
         if ft_ph.cached:
-            # Frozen prefix cached once (cache_views augmented views); the suffix trains.
-            k = CACHE_SPLIT[ps.arch]
+            # Frozen prefix cached above (cache_views augmented views); the suffix trains.
             trainable = [p for st in model.stage_modules()[k:] for m in st for p in m.parameters()]
-            htr, yh = _prefix_cache(model, tr, mean, std, rng, max(1, ps.cache_views), k, "train")
-            hva, yhv = _prefix_cache(model, va, mean, std, None, 1, k, "val")
             what = f"stages {k}-{n_stages - 1} of {n_stages} on cached activations"
         else:
             trainable = backbone_parameters(model, ft_ph.unfreeze)
