@@ -141,10 +141,11 @@ class ClassifierConfig(_Model):
 class PoseTolerance(_Model):
     """How far the measured bin pose (robot base frame) may be from a plan's and still be adjusted.
 
-    It must exceed the base's parking error (sim default ±30 mm, ±2°), or every cycle replans.
+    Two parks differ by up to twice the base's parking error (plus the lever of its yaw error),
+    so the tolerance must exceed that, or every cycle replans.
     """
 
-    translation_mm: float = Field(default=60.0, gt=0)
+    translation_mm: float = Field(default=80.0, gt=0)
     rotation_deg: float = Field(default=4.0, gt=0)
 
 
@@ -167,8 +168,8 @@ class SimConfig(_Model):
     dirty: StrictBool = False
     powder_amount: float = Field(default=0.5, ge=0, le=1)
     seed: int = 0
-    approach_error_m: float = Field(default=0.03, ge=0, le=0.5)
-    approach_error_deg: float = Field(default=2.0, ge=0, le=30)
+    approach_error_m: float = Field(default=0.02, ge=0, le=0.5)
+    approach_error_deg: float = Field(default=1.0, ge=0, le=30)
 
 
 class CellSection(_Model):

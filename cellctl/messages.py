@@ -350,6 +350,9 @@ class SimScenarioRequest(WireMessage):
     bin_xyz_yaw: tuple[float, float, float, float] | None = Field(
         default=None, description="bin footprint x, y (m), lift z (m), yaw (rad) in the world frame"
     )
+    park_offset_xy_yaw: tuple[float, float, float] | None = Field(
+        default=None, description="systematic parking offset x, y (m), yaw (rad) in the base frame (obstacle)"
+    )
     dirty: bool | None = None
     powder_amount: float | None = Field(default=None, ge=0.0, le=1.0)
     seed: int | None = None
@@ -363,6 +366,7 @@ class SimState(WireMessage):
     v: Literal[1] = 1
     bin_type: str
     bin_xyz_yaw: tuple[float, float, float, float]
+    park_offset_xy_yaw: tuple[float, float, float] = (0.0, 0.0, 0.0)
     dirty: bool
     powder_amount: float
     seed: int

@@ -107,18 +107,22 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     _say(f"cellctl demo — cell {c!r} on {cfg.bus.listen}, outputs in {out}")
 
     x0, y0, z0, yaw0 = cfg.sim.bin_pose_xyz_yaw
-    yaw0 = math.radians(yaw0)
-    nudge = (x0 + 0.012, y0 - 0.008, z0, yaw0 + math.radians(0.8))
-    moved = (x0 + 0.30, y0 + 0.20, z0, yaw0 + math.radians(10.0))
+    home = (x0, y0, z0, math.radians(yaw0))
     bt = cfg.sim.bin_type
+    # The base parks relative to the bin, so "the bin stands somewhere new" is modelled as a
+    # systematic parking offset (an obstacle where the base would park).
+    nudged = (0.008, -0.006, math.radians(0.5))
+    moved = (0.25, 0.05, math.radians(8.0))
     stages = [
-        Stage(f"new {bt} bin → no plan", {"bin_type": bt, "bin_xyz_yaw": (x0, y0, z0, yaw0), "dirty": False},
+        Stage(f"new {bt} bin → no plan", {"bin_type": bt, "bin_xyz_yaw": home, "dirty": False,
+                                          "park_offset_xy_yaw": (0.0, 0.0, 0.0)},
               Expect("replan_required"), after="wait_plan"),
         Stage("same bin, clean → plan found, scan", {}, Expect("completed", "clean")),
-        Stage("bin nudged 14 mm, 0.8° → adjusted, scan", {"bin_xyz_yaw": nudge}, Expect("completed", "clean", True)),
+        Stage("parked 10 mm, 0.5° off → adjusted, scan", {"park_offset_xy_yaw": nudged},
+              Expect("completed", "clean", True)),
         Stage("same place, powder on the bin → dirty", {"dirty": True, "powder_amount": 0.6, "seed": 7},
               Expect("completed", "dirty")),
-        Stage("bin moved 0.36 m, 10° → beyond tolerance", {"bin_xyz_yaw": moved, "dirty": False},
+        Stage("parked 0.25 m, 8° off → beyond tolerance", {"park_offset_xy_yaw": moved, "dirty": False},
               Expect("replan_required")),
     ]
 

@@ -58,6 +58,9 @@ class Scenario:
         dirty: whether powder is on the bin.
         powder_amount: 0..1, fraction of the maximum contamination.
         seed: seeds parking error and powder placement.
+        park_offset_xy_yaw: a systematic parking offset (x, y in m, yaw in rad, in the parked
+            base's frame) on top of the random error: the base cannot reach its nominal spot
+            (an obstacle in the cabin), so the bin stands somewhere new relative to the robot.
         T_world_base: the parked robot base pose (None before the first approach).
     """
 
@@ -66,6 +69,7 @@ class Scenario:
     dirty: bool = False
     powder_amount: float = 0.5
     seed: int = 0
+    park_offset_xy_yaw: tuple[float, float, float] = (0.0, 0.0, 0.0)
     T_world_base: tuple[tuple[float, ...], ...] | None = None
 
     def T_world_bin(self, bin_type: BinType) -> NDArray[np.float64]:
@@ -102,7 +106,9 @@ def park(
     a = rng.uniform(0, 2 * np.pi)
     dyaw = np.radians(error_deg) * rng.uniform(-1, 1)
     err = transform_from_xyz_rpy([r * np.cos(a), r * np.sin(a), 0.0], [0.0, 0.0, dyaw])
-    return scenario.T_world_bin(bin_type) @ nominal_T_bin_base(bin_type, mesh) @ err
+    ox, oy, oyaw = scenario.park_offset_xy_yaw
+    offset = transform_from_xyz_rpy([ox, oy, 0.0], [0.0, 0.0, oyaw])
+    return scenario.T_world_bin(bin_type) @ nominal_T_bin_base(bin_type, mesh) @ offset @ err
 
 
 def observation_T_bin_cam(bin_type: BinType, index: int) -> NDArray[np.float64]:

@@ -323,7 +323,7 @@ class SimRobot(Robot):
                 self.catalog.get(req.bin_type)
             upd = {
                 k: getattr(req, k)
-                for k in ("bin_type", "bin_xyz_yaw", "dirty", "powder_amount", "seed")
+                for k in ("bin_type", "bin_xyz_yaw", "dirty", "powder_amount", "seed", "park_offset_xy_yaw")
                 if getattr(req, k) is not None
             }
             if upd:
@@ -346,6 +346,7 @@ class SimRobot(Robot):
         return SimState(
             bin_type=sc.bin_type,
             bin_xyz_yaw=sc.bin_xyz_yaw,
+            park_offset_xy_yaw=sc.park_offset_xy_yaw,
             dirty=sc.dirty,
             powder_amount=sc.powder_amount,
             seed=sc.seed,
