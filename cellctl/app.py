@@ -34,6 +34,16 @@ def load_identification(cfg: CellConfig) -> tuple[Any, Any]:
     return identify, load_catalog(cfg.path(cfg.catalog))
 
 
+def _die_with_parent() -> None:
+    """Child side of fork: get SIGTERM when the daemon dies, even by SIGKILL (Linux only)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
 class WorkerProcesses:
     """Child worker processes (``cellctl worker <role>``), stopped with SIGTERM then SIGKILL."""
 
@@ -54,7 +64,8 @@ class WorkerProcesses:
 
     def start_one(self, role: str, cmd: list[str] | None = None) -> None:
         cmd = cmd or self._cmds[role]
-        self.procs[role] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, start_new_session=True)
+        self.procs[role] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, start_new_session=True,
+                                            preexec_fn=_die_with_parent)
         log.info("started %s worker pid %d", role, self.procs[role].pid)
 
     def stop(self, timeout: float = 10.0) -> None:

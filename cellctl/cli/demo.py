@@ -15,6 +15,7 @@ import datetime as _dt
 import json
 import math
 import queue
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -126,6 +127,10 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
               Expect("replan_required")),
     ]
 
+    def _terminate(signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")  # unwinds the cell: workers stopped, logs closed
+
+    signal.signal(signal.SIGTERM, _terminate)
     rows: list[Row] = []
     failures = 0
     with build_cell(cfg, with_workers=True, config_file=args.config, overrides=overrides) as cell:
