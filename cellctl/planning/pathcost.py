@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from cellctl.planning.collision import CollisionWorld
 
-__all__ = ["JointPlanner", "PathCosts", "path_cost_matrix"]
+__all__ = ["JointPlanner", "PathCosts", "path_cost_matrix", "verify_edge"]
 
 UNREACHABLE_COST = 1.0e3  # rad; a pair no planner connected is avoided by the tour, not fatal
 
@@ -131,6 +131,33 @@ class PathCosts:
     planned: int = 0
     failed: int = 0
     paths: dict[tuple[int, int], NDArray[np.float64]] = field(default_factory=dict)
+    lazy: NDArray[np.bool_] | None = None
+
+
+LAZY_FACTOR = 1.5  # estimated detour of a colliding pair relative to the straight joint distance
+
+
+def verify_edge(
+    pc: PathCosts, Q: NDArray[np.float64], i: int, j: int, planner: JointPlanner, budget_s: float, simplify_s: float
+) -> bool:
+    """Plan a lazily estimated pair now (RRTConnect); update ``pc`` in place.
+
+    Returns:
+        True if a path was found (its length replaces the estimate).
+    """
+    a, b = min(i, j), max(i, j)
+    if pc.lazy is None or not pc.lazy[a, b]:
+        return pc.D[a, b] < UNREACHABLE_COST
+    ok, length, path = planner.plan(Q[a], Q[b], "rrtconnect", budget_s, simplify_s)
+    pc.planned += 1
+    pc.lazy[a, b] = pc.lazy[b, a] = False
+    if ok:
+        pc.D[a, b] = pc.D[b, a] = length
+        pc.paths[(a, b)] = path
+    else:
+        pc.D[a, b] = pc.D[b, a] = UNREACHABLE_COST + float(np.linalg.norm(Q[b] - Q[a]))
+        pc.failed += 1
+    return ok
 
 
 def path_cost_matrix(
@@ -141,6 +168,7 @@ def path_cost_matrix(
     budget_s: float = 1.0,
     simplify_s: float = 0.2,
     max_step: float = 0.02,
+    lazy: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> PathCosts:
     """Pairwise path costs between configurations ``Q`` (n, 6).
@@ -150,6 +178,8 @@ def path_cost_matrix(
             ``budget_s`` for every pair).
         budget_s: planner time limit per query, s.
         simplify_s: simplification time limit per planned path, s.
+        lazy: fast mode only: do not plan colliding pairs now; give them the estimate
+            ``LAZY_FACTOR`` × straight distance and mark them in ``PathCosts.lazy``.
     """
     n = len(Q)
     D = np.zeros((n, n))
@@ -167,6 +197,14 @@ def path_cost_matrix(
         straight[ju[free], iu[free]] = True
         D[iu[free], ju[free]] = direct[free]
         todo = np.flatnonzero(~free)
+        if lazy:
+            # lazy evaluation: colliding pairs get an optimistic estimate now; only the pairs
+            # the tour actually uses are planned later (see :func:`verify_edge`)
+            D[iu[todo], ju[todo]] = LAZY_FACTOR * direct[todo]
+            out.lazy = np.zeros((n, n), dtype=bool)
+            out.lazy[iu[todo], ju[todo]] = True
+            out.lazy[ju[todo], iu[todo]] = True
+            todo = todo[:0]
         algo = "rrtconnect"
     elif mode == "paper":
         todo = np.arange(len(iu))

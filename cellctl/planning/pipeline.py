@@ -73,8 +73,8 @@ class PlanParams:
     margin: float = 0.005
     camera: CameraModel = field(default_factory=CameraModel)
     paper_budget_s: float = 1.0
-    fallback_budget_s: float = 1.0
-    simplify_s: float = 0.2
+    fallback_budget_s: float = 0.25
+    simplify_s: float = 0.1
     cover_time_limit_s: float = 5.0
     q_start: tuple[float, ...] | None = None
 
@@ -177,7 +177,7 @@ def make_plan(
     """
     from cellctl.planning.collision import CollisionWorld
     from cellctl.planning.filters import camera_collision_filter, distance_filter, height_filter, occlusion_filter
-    from cellctl.planning.pathcost import JointPlanner, path_cost_matrix
+    from cellctl.planning.pathcost import JointPlanner, path_cost_matrix, verify_edge
     from cellctl.planning.raycast import RayCaster
     from cellctl.planning.reach import reachability
     from cellctl.planning.seeds import sample_seeds
@@ -337,17 +337,36 @@ def make_plan(
         params.mode,
         budget_s=params.paper_budget_s if params.mode == "paper" else params.fallback_budget_s,
         simplify_s=params.simplify_s,
+        lazy=params.mode == "fast",
         progress=lambda d, t: st.update(d, t),
     )
     stage_counts["matrix_pairs"] = len(nodes) * (len(nodes) - 1) // 2
-    stage_counts["matrix_planned"] = pc.planned
-    stage_counts["matrix_failed"] = pc.failed
+    stage_counts["matrix_straight"] = int(np.triu(pc.straight, 1).sum())
     st.end()
     st.start("ordering", "ant colony")
-    order = ant_colony(pc.D, rng)
-    order = two_opt(pc.D, order)
-    plan["tour_cost"] = path_cost(pc.D, order)
+    order = two_opt(pc.D, ant_colony(pc.D, rng))
     st.end()
+    if pc.lazy is not None:
+        # plan only the tour's estimated edges; re-order while some turned out longer/impossible
+        jp = JointPlanner(world)
+        for _round in range(6):
+            st.start("distance_matrix", "tour edges")
+            edges = [(int(a), int(b)) for a, b in zip(order[:-1], order[1:], strict=True)]
+            todo = [(a, b) for a, b in edges if pc.lazy[a, b]]
+            for k, (a, b) in enumerate(todo):
+                verify_edge(pc, nodes, a, b, jp, params.fallback_budget_s, params.simplify_s)
+                st.update(k + 1, len(todo))
+            st.end()
+            if not todo:
+                break
+            st.start("ordering", "ant colony")
+            order = two_opt(pc.D, ant_colony(pc.D, rng))
+            st.end()
+        still = [(int(a), int(b)) for a, b in zip(order[:-1], order[1:], strict=True) if pc.lazy[a, b]]
+        stage_counts["tour_unverified_edges"] = len(still)
+    stage_counts["matrix_planned"] = pc.planned
+    stage_counts["matrix_failed"] = pc.failed
+    plan["tour_cost"] = path_cost(pc.D, order)
 
     vps = []
     for rank, node in enumerate(order[1:]):

@@ -19,7 +19,7 @@ from cellctl.planning.collision import CollisionWorld
 from cellctl.planning.robot import RobotModel
 from cellctl.planning.viewpoints import Viewpoints
 
-__all__ = ["Reached", "reachability", "roll_sequence", "wrap_towards"]
+__all__ = ["Reached", "branch_signature", "candidates", "reachability", "roll_sequence", "wrap_towards"]
 
 _WRAPPABLE = (0, 3, 4, 5)  # joints with a ±2π range: q and q ± 2π are the same geometry
 
@@ -102,6 +102,21 @@ def candidates(
     return Q[order], r[order]
 
 
+def branch_signature(Q: NDArray[np.float64], robot: RobotModel) -> NDArray[np.int64]:
+    """IK branch of each configuration as an int 0..7: shoulder (front/back), elbow, wrist flags.
+
+    Straight joint-space motions between configurations of one branch stay "the same arm
+    shape" and rarely sweep through the bin; motions across branches flip the arm over.
+    """
+    F = robot.fk_frames(Q)
+    w = F[:, 4, :3, 3]  # wrist-1 centre
+    q1 = Q[:, 0]
+    front = (w[:, 0] * np.cos(q1) + w[:, 1] * np.sin(q1)) < 0  # DH a2 < 0: the arm reaches along -x1
+    elbow = Q[:, 2] > 0
+    wrist = np.sin(Q[:, 4]) > 0
+    return front.astype(np.int64) * 4 + elbow.astype(np.int64) * 2 + wrist.astype(np.int64)
+
+
 def reachability(
     vp: Viewpoints,
     robot: RobotModel,
@@ -114,6 +129,12 @@ def reachability(
 ) -> Reached:
     """Keep, per seed direction, the first distance rank with a free IK solution.
 
+    All IK candidates (every roll, every branch) of the viewpoints of one rank are checked in
+    one batch. Then one IK branch is preferred for the whole plan — the branch most viewpoints
+    can use — and each viewpoint takes its free candidate of that branch closest to the
+    branch's median configuration (other branches only when it has none), so consecutive
+    viewpoints are usually joined by short, collision-free straight joint motions.
+
     Args:
         vp: filtered viewpoints (bin frame).
         robot: kinematic model.
@@ -122,60 +143,51 @@ def reachability(
         q_ref: (6,) reference configuration (home/current), rad.
         n_roll: rolls about the optical axis to try.
         accept: optional extra test ``accept(vp_index, q) -> bool`` on the chosen solution
-            (paper mode: "a motion planner finds a path to it").
+            (paper mode: "a motion planner finds a path to it from the start").
         progress: ``progress(done, total)`` callback.
     """
     rolls = roll_sequence(n_roll)
     checks0 = world.checks
     resolved: dict[int, tuple[int, NDArray[np.float64], float]] = {}
     tried = 0
-    ranks = np.unique(vp.rank)
     total = len(vp)
     done = 0
-    for rank in ranks:
-        idx = [i for i in np.flatnonzero(vp.rank == rank) if int(vp.seed[i]) not in resolved]
+    preferred: int | None = None
+    centre: NDArray[np.float64] | None = None
+    for rank in np.unique(vp.rank):
+        idx = [int(i) for i in np.flatnonzero(vp.rank == rank) if int(vp.seed[i]) not in resolved]
         done += int(np.sum(vp.rank == rank)) - len(idx)
-        cand = {}
-        for i in idx:
-            cand[i] = candidates(T_base_bin, vp.T[i], robot, rolls, q_ref)
         tried += len(idx)
-        pending = [i for i in idx if len(cand[i][0])]
-        done += len(idx) - len(pending)
-        pos = {i: 0 for i in pending}
-        chunk = 2
-        while pending:
-            # check the next `chunk` candidates of every pending viewpoint in one batch
-            owners, Qb, rb = [], [], []
-            for i in pending:
-                Q, r = cand[i]
-                sl = slice(pos[i], pos[i] + chunk)
-                owners += [i] * len(Q[sl])
-                Qb.append(Q[sl])
-                rb.append(r[sl])
-            free = world.robot_free(np.concatenate(Qb))
-            Qcat, rcat = np.concatenate(Qb), np.concatenate(rb)
-            owners_a = np.asarray(owners)
-            still = []
-            for i in pending:
-                sel = np.flatnonzero((owners_a == i) & free)
-                hit = None
-                for s in sel:  # already in preference order
-                    if accept is None or accept(i, Qcat[s]):
-                        hit = s
-                        break
-                if hit is not None:
-                    resolved[int(vp.seed[i])] = (i, Qcat[hit], float(rcat[hit]))
-                    done += 1
-                elif accept is not None and len(sel):
-                    done += 1  # paper mode: the planner refused the best free goal; no retry
-                else:
-                    pos[i] += chunk
-                    if pos[i] < len(cand[i][0]):
-                        still.append(i)
-                    else:
-                        done += 1
-            pending = still
-            chunk *= 2
+        owners, Qs, rs = [], [], []
+        for i in idx:
+            Q, r = candidates(T_base_bin, vp.T[i], robot, rolls, q_ref)
+            owners += [i] * len(Q)
+            Qs.append(Q)
+            rs.append(r)
+        if not owners:
+            continue
+        Qc, rc, own = np.concatenate(Qs), np.concatenate(rs), np.asarray(owners)
+        free = world.robot_free(Qc)
+        Qc, rc, own = Qc[free], rc[free], own[free]
+        br = branch_signature(Qc, robot) if len(Qc) else np.zeros(0, dtype=np.int64)
+        if preferred is None and len(Qc):
+            per_branch = [len(np.unique(own[br == b])) for b in range(8)]
+            preferred = int(np.argmax(per_branch))
+            sel = br == preferred
+            centre = np.median(Qc[sel], axis=0) if sel.any() else q_ref
+        for i in idx:
+            m = own == i
+            if not m.any():
+                done += 1
+                continue
+            Qi, ri, bi = Qc[m], rc[m], br[m]
+            key = np.linalg.norm(Qi - centre, axis=1) + 100.0 * (bi != preferred)
+            for s in np.argsort(key, kind="stable"):
+                if accept is None or accept(i, Qi[s]):
+                    resolved[int(vp.seed[i])] = (i, Qi[s], float(ri[s]))
+                    break
+                break  # paper mode: the planner's verdict on the best goal decides
+            done += 1
             if progress:
                 progress(done, total)
     if progress:

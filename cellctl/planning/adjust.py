@@ -1,0 +1,154 @@
+"""Cache lookup with pose tolerance: reuse a plan at a slightly different bin pose (paper §IV-B).
+
+Within tolerance, every viewpoint is re-expressed at the measured bin pose (the plan stores
+it in the bin frame), IK is re-solved next to the planned joints, and the new configurations
+and the straight motions between consecutive ones are collision-checked. Any failure, a pose
+beyond tolerance, a changed mesh or a changed robot model is a miss with the reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.geometry.transforms import invert, pose_error
+from cellctl.planning.mesh import BinMesh
+from cellctl.planning.planfile import list_plans
+from cellctl.planning.robot import RobotModel
+
+__all__ = ["LookupResult", "adjust_plan", "lookup_plan"]
+
+
+@dataclass
+class LookupResult:
+    """Outcome of a cache lookup.
+
+    Attributes:
+        hit: a usable (possibly adjusted) plan was found.
+        reason: why not (or a note on the hit).
+        plan_id: the plan looked at.
+        viewpoints: visiting order; each ``{"index", "T_base_cam" (4x4), "q" (6), "faces"}``.
+        coverage: fraction of the surface's area the plan sees.
+        adjusted: the viewpoints were re-expressed at a different bin pose.
+        translation_mm, rotation_deg: measured-vs-planned bin pose difference.
+    """
+
+    hit: bool
+    reason: str
+    plan_id: str | None = None
+    viewpoints: list[dict[str, Any]] = field(default_factory=list)
+    coverage: float = 0.0
+    adjusted: bool = False
+    translation_mm: float | None = None
+    rotation_deg: float | None = None
+
+
+def adjust_plan(
+    plan: dict[str, Any],
+    T_base_bin: NDArray[np.float64],
+    mesh: BinMesh,
+    robot: RobotModel,
+    use_all: bool = False,
+) -> tuple[list[dict[str, Any]] | None, str]:
+    """Re-express a plan's viewpoints at ``T_base_bin``; None + reason if any fails.
+
+    Args:
+        use_all: take every reachable viewpoint (data collection) instead of the tour.
+    """
+    from cellctl.planning.collision import CollisionWorld
+    from cellctl.planning.reach import wrap_towards
+
+    world = CollisionWorld(mesh, robot, invert(T_base_bin), margin=float(plan["params"].get("margin", 0.005)))
+    src = plan["reachable"] if use_all else plan["viewpoints"]
+    out: list[dict[str, Any]] = []
+    Q = []
+    for k, vp in enumerate(src):
+        T = np.asarray(T_base_bin) @ np.asarray(vp["T_bin_cam"])
+        q_plan = np.asarray(vp["q"], dtype=np.float64)
+        S = robot.ik_cam(T)
+        if len(S) == 0:
+            return None, f"viewpoint {k} is out of reach at the measured bin pose"
+        S = wrap_towards(S, q_plan, robot)
+        q = S[np.argmin(np.linalg.norm(S - q_plan, axis=1))]
+        if np.abs(q - q_plan).max() > 0.5:
+            return None, (
+                f"viewpoint {k}: nearest IK solution moves a joint by {np.abs(q - q_plan).max():.2f} rad "
+                "(> 0.5 rad): the arm would change configuration"
+            )
+        Q.append(q)
+        out.append({"index": k, "T_base_cam": T.tolist(), "q": q.tolist(), "faces": list(vp["faces"])})
+    if not Q:
+        return out, "empty plan"
+    Qa = np.array(Q)
+    free = world.robot_free(Qa)
+    if not free.all():
+        k = int(np.flatnonzero(~free)[0])
+        return None, f"viewpoint {k} collides at the measured bin pose ({', '.join(world.sim.explain(Qa[k]))})"
+    if not use_all:
+        # consecutive moves the plan made as straight joint motions must stay free
+        straight = [k for k, vp in enumerate(src) if not vp.get("approach")]
+        pairs = [(k - 1, k) for k in straight if k > 0]
+        if pairs:
+            A = Qa[[a for a, _ in pairs]]
+            B = Qa[[b for _, b in pairs]]
+            ok = world.motion_free(A, B)
+            if not ok.all():
+                a, b = pairs[int(np.flatnonzero(~ok)[0])]
+                return None, f"the straight move from viewpoint {a} to {b} collides at the measured bin pose"
+    return out, "ok"
+
+
+def lookup_plan(
+    plans_dir: Path | str,
+    bin_type: str,
+    surface: str,
+    T_base_bin: NDArray[np.float64],
+    mesh: BinMesh,
+    robot: RobotModel,
+    tolerance_mm: float,
+    tolerance_deg: float,
+    use_all: bool = False,
+) -> LookupResult:
+    """Find a cached plan for this bin at this pose and adjust it; miss with the reason otherwise."""
+    plans, skipped = list_plans(plans_dir, bin_type, surface)
+    note = f" ({len(skipped)} damaged plan file(s) skipped: {skipped[0]})" if skipped else ""
+    if not plans:
+        return LookupResult(False, f"no plan for bin type {bin_type!r}, {surface} surface{note}")
+    rid = robot.model_id()
+    good = [p for p in plans if p.get("mesh_sha256") == mesh.sha256 and p.get("robot_model_id") == rid]
+    if not good:
+        p = plans[0]
+        what = "mesh hash" if p.get("mesh_sha256") != mesh.sha256 else "robot model"
+        return LookupResult(False, f"plan {p['plan_id']} was made for another {what}; replan{note}", p["plan_id"])
+    good = [p for p in good if p.get("viewpoints")] or good
+
+    def err(p: dict[str, Any]) -> tuple[float, float]:
+        dt, dr = pose_error(np.asarray(p["T_base_bin"]), T_base_bin)
+        return dt * 1000.0, float(np.degrees(dr))
+
+    best = min(good, key=lambda p: err(p)[0] / tolerance_mm + err(p)[1] / tolerance_deg)
+    dmm, ddeg = err(best)
+    res = LookupResult(False, "", best["plan_id"], translation_mm=dmm, rotation_deg=ddeg)
+    if not best.get("viewpoints"):
+        res.reason = f"plan {best['plan_id']} is empty: {best.get('reason')}"
+        return res
+    if dmm > tolerance_mm or ddeg > tolerance_deg:
+        res.reason = (
+            f"bin pose differs from plan {best['plan_id']} by {dmm:.1f} mm / {ddeg:.2f} deg; "
+            f"tolerance is {tolerance_mm:g} mm / {tolerance_deg:g} deg"
+        )
+        return res
+    vps, why = adjust_plan(best, T_base_bin, mesh, robot, use_all)
+    if vps is None:
+        res.reason = f"plan {best['plan_id']} cannot be adjusted: {why}"
+        return res
+    res.hit = True
+    res.viewpoints = vps
+    res.coverage = float(best.get("coverage", 0.0))
+    res.adjusted = dmm > 1e-3 or ddeg > 1e-4
+    res.reason = "within tolerance" + note
+    return res
