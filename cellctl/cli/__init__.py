@@ -27,6 +27,7 @@ VERB_MODULES = (
     "cellctl.cli.classify",
     "cellctl.cli.vision",
     "cellctl.cli.sim",
+    "cellctl.cli.plan",
 )
 
 
