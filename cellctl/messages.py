@@ -238,6 +238,7 @@ class CycleResult(WireMessage):
     coverage: float | None = None
     dirt_map: dict[str, Any] | None = None
     log: str | None = None
+    timing: dict[str, Any] | None = Field(default=None, description="seconds per step and in worker requests")
     started: str | None = None
     finished: str = Field(default_factory=now_iso)
 

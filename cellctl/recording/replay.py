@@ -152,7 +152,7 @@ class VerifyReport:
         return self.__dict__ | {}
 
 
-_VOLATILE = {"stamp", "cycle_id", "log", "started", "finished", "request_id"}
+_VOLATILE = {"stamp", "cycle_id", "log", "started", "finished", "request_id", "timing"}
 
 
 def _strip(obj: Any) -> Any:

@@ -70,6 +70,9 @@ class CycleContext:
     reason: str | None = None
     saved_step: str | None = None
     finished: bool = False
+    step_seconds: dict[str, float] = field(default_factory=dict)
+    rpc_seconds: dict[str, float] = field(default_factory=dict)
+    rpc_count: int = 0
     _pool: ThreadPoolExecutor | None = None
 
     @property
@@ -131,7 +134,11 @@ class StepRun:
             self.ctx.log.write_message(f"{k}/reply", ErrorReply(kind=type(err).__name__, reason=str(err)))
             self.ctx.log.event(int(EventLevel.error), f"{role}/{op}: {err}")
             raise
-        log.debug("%s/%s in %.1f ms", role, op, (time.perf_counter() - t0) * 1e3)
+        dt = time.perf_counter() - t0
+        log.debug("%s/%s in %.1f ms", role, op, dt * 1e3)
+        # Time inside worker requests, per calling step: what the supervisor did not spend itself.
+        self.ctx.rpc_seconds[self.name] = self.ctx.rpc_seconds.get(self.name, 0.0) + dt
+        self.ctx.rpc_count += 1
         self.ctx.log.write_message(f"{k}/reply", reply)
         self.checkpoint()
         return reply, raw

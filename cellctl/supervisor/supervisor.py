@@ -401,7 +401,12 @@ class Supervisor:
         threading.Thread(target=body, name=f"run-{name}", daemon=True).start()
 
     def _run_step(self, run: StepRun) -> str:
-        return STEPS[run.name]()(run)
+        t0 = time.perf_counter()
+        try:
+            return STEPS[run.name]()(run)
+        finally:
+            sec = run.ctx.step_seconds
+            sec[run.name] = sec.get(run.name, 0.0) + time.perf_counter() - t0
 
     def _on_done(self, token: int, outcome: str | None, reason: str | None) -> None:
         if token != self._active_token:
@@ -554,6 +559,8 @@ class Supervisor:
             coverage=ctx.coverage,
             dirt_map=ctx.dirt_map,
             log=getattr(ctx, "log_rel", None),
+            timing={"steps_s": {k: round(v, 4) for k, v in ctx.step_seconds.items()},
+                    "rpc_s": {k: round(v, 4) for k, v in ctx.rpc_seconds.items()}, "rpc_count": ctx.rpc_count},
             started=ctx.started,
         )
         ctx.log.write_message(keys.result(self.cell_id), res)
