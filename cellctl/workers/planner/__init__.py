@@ -1,0 +1,264 @@
+"""Planner worker: offline planning jobs and plan-cache lookups over Zenoh.
+
+Ops (``cellctl worker planner``):
+
+* ``cell/<id>/planner/jobs``: :class:`PlanJobRequest` → :class:`PlanJobReply` (queued, job id);
+  :class:`PlanJobQuery` → :class:`PlanJobReply` (state). Progress per stage is published on
+  ``cell/<id>/planner/jobs/<job>/progress`` as :class:`PlanJobProgress`. The finished plan is
+  written atomically into ``planner.plans_dir``; a worker dying mid-job leaves no plan file,
+  and its job record (``<plans_dir>/jobs/<job>.json``) reads as failed to any other worker
+  on the same host.
+* ``cell/<id>/planner/lookup``: :class:`PlanLookupRequest` → :class:`PlanLookupReply`: cache
+  lookup + pose tolerance + IK/collision re-check at the measured pose, so the supervisor
+  never imports OMPL/trimesh/open3d.
+
+Several workers may serve the same cell (each with its own liveliness instance name).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import socket
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+from cellctl.config import CellConfig
+from cellctl.errors import CellError, ConfigError, PlanningError
+from cellctl.messages import (
+    PlanJobProgress,
+    PlanJobQuery,
+    PlanJobReply,
+    PlanJobRequest,
+    PlanLookupReply,
+    PlanLookupRequest,
+    PlannedViewpoint,
+    PoseMsg,
+)
+
+__all__ = ["BACKENDS", "PlannerService", "run_worker"]
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+BACKENDS = ("local",)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class PlannerService:
+    """Job queue, job records, lookups; independent of the bus (``publish`` is injected).
+
+    Args:
+        cfg: cell config (planner section, catalog).
+        instance: this worker's instance name.
+        publish: ``publish(job_id, PlanJobProgress)``; None → progress is not published.
+    """
+
+    def __init__(self, cfg: CellConfig, instance: str, publish: Any = None) -> None:
+        from cellctl.planning.robot import default_robot_model
+
+        self.cfg = cfg
+        self.instance = instance
+        self.publish = publish
+        self.plans_dir = cfg.path(cfg.planner.plans_dir)
+        self.jobs_dir = self.plans_dir / "jobs"
+        self.robot = default_robot_model()
+        self._meshes: dict[str, Any] = {}
+        self._queue: queue.Queue[tuple[str, PlanJobRequest] | None] = queue.Queue()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run_jobs, name="planner-jobs", daemon=True)
+        self._thread.start()
+
+    # --- job records ----------------------------------------------------------------------
+
+    def _record_path(self, job_id: str) -> Path:
+        if not job_id.replace("-", "").isalnum():
+            raise PlanningError(f"job id {job_id!r} is invalid: expected letters, digits and '-'")
+        return self.jobs_dir / f"{job_id}.json"
+
+    def _write_record(self, job_id: str, **fields: Any) -> None:
+        from cellctl.planning.planfile import write_plan  # atomic JSON write
+
+        rec = {"job_id": job_id, "instance": self.instance, "pid": os.getpid(), "host": socket.gethostname(), **fields}
+        try:
+            write_plan(rec, self._record_path(job_id))
+        except CellError as err:  # a record is a convenience; the job goes on
+            log.warning("cannot write job record %s: %s", job_id, err)
+
+    def job_state(self, job_id: str) -> PlanJobReply:
+        """State of a job from its record; running jobs of a dead worker on this host are failed."""
+        from cellctl.planning.planfile import read_plan
+
+        try:
+            rec = read_plan(self._record_path(job_id))
+        except CellError as err:
+            return PlanJobReply(job_id=job_id, state="failed", reason=f"unknown job {job_id!r}: {err}")
+        state = rec.get("state", "failed")
+        if state in ("queued", "running") and rec.get("host") == socket.gethostname() and not _pid_alive(int(rec["pid"])):
+            return PlanJobReply(
+                job_id=job_id, state="failed", reason=f"planner worker {rec.get('instance')} (pid {rec['pid']}) died"
+            )
+        return PlanJobReply(job_id=job_id, state=state, plan_id=rec.get("plan_id"), reason=rec.get("reason"))
+
+    # --- ops ----------------------------------------------------------------------------
+
+    def on_jobs(self, req: PlanJobRequest | PlanJobQuery, _payload: bytes | None) -> PlanJobReply:
+        if isinstance(req, PlanJobQuery):
+            return self.job_state(req.job_id)
+        from cellctl.geometry.catalog import load_catalog
+
+        try:
+            names = load_catalog(self.cfg.path(self.cfg.catalog), verify_meshes=False).names
+        except ConfigError as err:
+            raise PlanningError(f"cannot read the bin catalog: {err}") from err
+        if req.bin_type not in names:
+            raise PlanningError(f"bin type {req.bin_type!r} is unknown; the catalog has {names}")
+        job_id = f"{self.instance}-{uuid.uuid4().hex[:8]}"
+        self._write_record(job_id, state="queued", request=req.model_dump(mode="json"))
+        self._queue.put((job_id, req))
+        self._progress(job_id, "queued", 0.0, "queued")
+        return PlanJobReply(job_id=job_id, state="queued")
+
+    def _mesh(self, bin_type: str) -> Any:
+        from cellctl.planning.mesh import load_catalog_mesh
+
+        with self._lock:
+            if bin_type not in self._meshes:
+                self._meshes[bin_type] = load_catalog_mesh(self.cfg.path(self.cfg.catalog), bin_type)
+            return self._meshes[bin_type]
+
+    def on_lookup(self, req: PlanLookupRequest, _payload: bytes | None) -> PlanLookupReply:
+        from cellctl.planning.adjust import lookup_plan
+
+        tol = self.cfg.planner.tolerance
+        mesh = self._mesh(req.bin_type)
+        res = lookup_plan(
+            self.plans_dir, req.bin_type, req.surface, req.bin_pose.matrix(), mesh, self.robot,
+            tol.translation_mm, tol.rotation_deg,
+        )
+        return PlanLookupReply(
+            hit=res.hit,
+            reason=res.reason,
+            plan_id=res.plan_id,
+            viewpoints=[
+                PlannedViewpoint(
+                    index=v["index"],
+                    camera_pose=PoseMsg.from_matrix(v["T_base_cam"]),
+                    joints=[float(x) for x in v["q"]],
+                    faces=[int(f) for f in v["faces"]],
+                )
+                for v in res.viewpoints
+            ],
+            coverage=res.coverage if res.hit else None,
+            adjusted=res.adjusted,
+            translation_mm=res.translation_mm,
+            rotation_deg=res.rotation_deg,
+            mesh_faces=int(len(mesh.faces)),
+        )
+
+    # --- the job thread -------------------------------------------------------------------
+
+    def _progress(self, job_id: str, stage: str, frac: float, state: str, message: str | None = None,
+                  plan_id: str | None = None) -> None:
+        if self.publish is None:
+            return
+        try:
+            self.publish(job_id, PlanJobProgress(job_id=job_id, stage=stage, fraction=frac, state=state,
+                                                 message=message, plan_id=plan_id))
+        except Exception as err:  # noqa: BLE001 - progress is best effort, the job goes on
+            log.debug("progress publish failed: %s", err)
+
+    def _run_jobs(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            job_id, req = item
+            self.run_job(job_id, req)
+
+    def run_job(self, job_id: str, req: PlanJobRequest) -> None:
+        """Plan one job (blocking), write the plan into the cache and the job record."""
+        from cellctl.geometry.transforms import invert
+        from cellctl.planning.pipeline import PlanParams, make_plan
+        from cellctl.planning.planfile import plan_path, write_plan
+
+        self._write_record(job_id, state="running", request=req.model_dump(mode="json"))
+        last = [0.0]
+
+        def progress(stage: str, frac: float, msg: str) -> None:
+            now = time.monotonic()
+            if frac in (0.0, 1.0) or now - last[0] > 0.2:  # rate-limit the bus traffic
+                last[0] = now
+                self._progress(job_id, stage, frac, "running", msg or None)
+
+        try:
+            params = PlanParams(surface=req.surface, seed_pct=req.seed_pct, mode=req.mode, seed=req.seed)
+            mesh = self._mesh(req.bin_type)
+            T_bin_base = invert(req.bin_pose.matrix())
+            plan = make_plan(mesh, T_bin_base, params, self.robot, bin_type=req.bin_type, progress=progress)
+            plan["job_id"] = job_id
+            write_plan(plan, plan_path(self.plans_dir, plan))
+        except Exception as err:  # noqa: BLE001 - a failed job must not kill the worker
+            reason = f"{type(err).__name__}: {err}"
+            log.warning("job %s failed: %s", job_id, reason)
+            self._write_record(job_id, state="failed", reason=reason)
+            self._progress(job_id, "failed", 1.0, "failed", reason)
+            return
+        reason = plan.get("reason")
+        self._write_record(job_id, state="done", plan_id=plan["plan_id"], reason=reason)
+        self._progress(job_id, "done", 1.0, "done", reason, plan_id=plan["plan_id"])
+        log.info("job %s done: plan %s, %d viewpoints", job_id, plan["plan_id"], len(plan["viewpoints"]))
+
+    def close(self) -> None:
+        self._queue.put(None)
+        self._thread.join(timeout=1.0)
+
+
+def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event) -> None:
+    """Serve planner jobs and lookups until ``stop_event`` is set (blocking).
+
+    Raises:
+        ConfigError: unknown backend or no Zenoh router reachable.
+    """
+    from cellctl.bus import keys
+    from cellctl.bus.codec import encode
+    from cellctl.bus.session import open_session
+    from cellctl.workers._server import WorkerServer
+
+    name = backend or "local"
+    if name not in BACKENDS:
+        raise ConfigError(f"planner backend {name!r} is unknown; expected one of {list(BACKENDS)}")
+    instance = f"p{os.getpid()}-{uuid.uuid4().hex[:4]}"
+    session = open_session(cfg, "client")
+    try:
+
+        def publish(job_id: str, msg: PlanJobProgress) -> None:
+            session.put(keys.planner_job_progress(cfg.cell_id, job_id), encode(msg))
+
+        service = PlannerService(cfg, instance, publish)
+        server = WorkerServer(session, cfg.cell_id, "planner", instance=instance)
+        server.serve("jobs", (PlanJobRequest, PlanJobQuery), service.on_jobs, key=keys.planner_jobs(cfg.cell_id))
+        server.serve("lookup", PlanLookupRequest, service.on_lookup)
+        server.announce()
+        log.info("planner %s serving %s", instance, keys.planner_jobs(cfg.cell_id))
+        try:
+            stop_event.wait()
+        finally:
+            server.close()
+            service.close()
+    finally:
+        session.close()
