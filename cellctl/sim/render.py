@@ -172,7 +172,9 @@ class SimRenderer:
         if key not in self._rays:
             if len(self._rays) > 8:
                 self._rays.clear()
-            u, v = np.meshgrid(np.arange(K.width) + 0.5, np.arange(K.height) + 0.5)
+            # OpenCV convention (Intrinsics, cv2): integer pixel coordinates are pixel centres;
+            # "+ 0.5" here shifts the image by half a pixel and biases every board pose (vision).
+            u, v = np.meshgrid(np.arange(K.width, dtype=np.float64), np.arange(K.height, dtype=np.float64))
             d = np.stack([(u - K.cx) / K.fx, (v - K.cy) / K.fy, np.ones_like(u)], -1).reshape(-1, 3)
             d /= np.linalg.norm(d, axis=1, keepdims=True)
             self._rays[key] = d.astype(np.float32)
