@@ -17,9 +17,9 @@ Presets:
   StepLR schedule divides the rate by 10⁴ after 20 epochs, so later epochs cannot learn
   (notes/vision.md §8): early stopping (patience 5 on validation loss) ends them.
 * ``default`` — phase 1 AdamW lr 3e-3, cosine decay, up to 40 epochs on cached features
-  (wd 1e-4, batch 64); phase 2 AdamW lr 1e-3, cosine decay, up to 15 epochs on the cached
-  deeper stages, patience 4. See docs/decisions.md "## Classifier" for the measured
-  comparison.
+  (wd 1e-4, batch 64); phase 2 AdamW lr 1e-3, cosine decay, up to 6 epochs (batch 64) on the
+  cached deeper stages, patience 3; two cached views per image (plain + one augmented).
+  See docs/decisions.md "## Classifier" for the measured comparison.
 
 The best epoch (lowest validation loss, over both phases) is the one kept. Outputs beside
 ``out`` (e.g. ``models/classifier/external.pt``): ``external.json`` (model card),
@@ -101,8 +101,9 @@ PRESETS: dict[str, Preset] = {
     ),
     "default": Preset(
         name="default",
+        cache_views=2,
         head=Phase(epochs=40, lr=3e-3, optimizer="adamw", lr_step=0, batch=64, patience=8),
-        finetune=Phase(epochs=15, lr=1e-3, optimizer="adamw", lr_step=0, patience=4, cached=True),
+        finetune=Phase(epochs=6, lr=1e-3, optimizer="adamw", lr_step=0, batch=64, patience=3, cached=True),
     ),
 }
 
