@@ -22,22 +22,33 @@ DEFAULT_INTRINSICS = "models/calibration/intrinsics.json"
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("identify", help="identify the bin type and pose in an image file (ChArUco)")
     p.add_argument("image", help="image file (PNG/JPEG)")
-    p.add_argument("--intrinsics", required=True,
-                   help="JSON/YAML file (Intrinsics fields, or the output of `cellctl calibrate intrinsics`) "
-                        "or 'fx,fy,cx,cy' in pixels")
-    p.add_argument("--camera-pose", default=None, metavar='"x y z qx qy qz qw"',
-                   help="camera optical frame in the robot base frame (m, quaternion xyzw); default identity")
+    p.add_argument(
+        "--intrinsics",
+        required=True,
+        help="JSON/YAML file (Intrinsics fields, or the output of `cellctl calibrate intrinsics`) "
+        "or 'fx,fy,cx,cy' in pixels",
+    )
+    p.add_argument(
+        "--camera-pose",
+        default=None,
+        metavar='"x y z qx qy qz qw"',
+        help="camera optical frame in the robot base frame (m, quaternion xyzw); default identity",
+    )
     p.add_argument("--catalog", default=None, help="bin catalog YAML (default: the config's catalog)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--draw", default=None, metavar="PNG", help="write the image with corners and board axes")
     add_config_arguments(p)
     p.set_defaults(func=run_identify)
 
-    c = sub.add_parser("calibrate", help="camera calibration: hand-eye (over the bus) and intrinsics (from images)")
+    c = sub.add_parser(
+        "calibrate", help="camera calibration: hand-eye (over the bus) and intrinsics (from images)"
+    )
     csub = c.add_subparsers(dest="what", metavar="WHAT", required=True)
     he = csub.add_parser("hand-eye", help="move the arm around the board in view and solve T_flange_cam")
     he.add_argument("--views", type=int, default=12, help="arm poses to try (default 12)")
-    he.add_argument("--distance", type=float, default=None, help="camera-board distance in m (default: current)")
+    he.add_argument(
+        "--distance", type=float, default=None, help="camera-board distance in m (default: current)"
+    )
     he.add_argument("--seed", type=int, default=0)
     he.add_argument("--catalog", default=None, help="bin catalog YAML (default: the config's catalog)")
     he.add_argument("--out", default=DEFAULT_HAND_EYE, help=f"result JSON (default {DEFAULT_HAND_EYE})")
@@ -99,7 +110,9 @@ def parse_camera_pose(text: str | None) -> Any:
     except ValueError:
         v = []
     if len(v) != 7:
-        raise CellError(f"--camera-pose {text!r}: expected 7 numbers 'x y z qx qy qz qw' (metres, quaternion xyzw)")
+        raise CellError(
+            f"--camera-pose {text!r}: expected 7 numbers 'x y z qx qy qz qw' (metres, quaternion xyzw)"
+        )
     q = np.asarray(v[3:])
     if not np.isfinite(v).all() or np.linalg.norm(q) < 1e-9:
         raise CellError(f"--camera-pose {text!r}: the quaternion {v[3:]} is not a rotation")
@@ -124,8 +137,15 @@ def _draw(path: str, image: Any, intr: Any, ident: Any) -> None:
     rvec = cv2.Rodrigues(ident.T_cam_board[:3, :3])[0]
     length = 0.5 * min(ident.board_size_m)
     cv2.drawFrameAxes(out, intr.K(), np.asarray(intr.dist, float), rvec, ident.T_cam_board[:3, 3], length, 2)
-    cv2.putText(out, f"{ident.bin_type}  {ident.n_corners} corners  {ident.reproj_rms_px:.2f} px",
-                (10, 30), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 255, 255), 2)
+    cv2.putText(
+        out,
+        f"{ident.bin_type}  {ident.n_corners} corners  {ident.reproj_rms_px:.2f} px",
+        (10, 30),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.8,
+        (0, 255, 255),
+        2,
+    )
     if not cv2.imwrite(path, out):
         raise CellError(f"--draw {path!r}: cannot write the image there")
 
@@ -160,7 +180,10 @@ def run_identify(args: argparse.Namespace) -> int:
         return 0
     p, q = d["T_base_bin"]["position"], d["T_base_bin"]["orientation"]
     print(f"bin type      {ident.bin_type}")
-    print(f"T_base_bin    xyz {p[0]:+.4f} {p[1]:+.4f} {p[2]:+.4f} m   q(xyzw) {q[0]:+.5f} {q[1]:+.5f} {q[2]:+.5f} {q[3]:+.5f}")
+    print(
+        f"T_base_bin    xyz {p[0]:+.4f} {p[1]:+.4f} {p[2]:+.4f} m   "
+        f"q(xyzw) {q[0]:+.5f} {q[1]:+.5f} {q[2]:+.5f} {q[3]:+.5f}"
+    )
     print(f"distance      {ident.distance_m:.3f} m")
     print(f"corners       {ident.n_corners} (markers {ident.marker_ids})")
     print(f"reprojection  {ident.reproj_rms_px:.3f} px RMS, {ident.reproj_max_px:.3f} px max")
@@ -189,8 +212,14 @@ def run_hand_eye(args: argparse.Namespace) -> int:
     catalog = _catalog(args, cfg)
     with open_session(cfg, "client") as session:
         result, views, skipped = collect_hand_eye(session, cfg, catalog, args.views, args.distance, args.seed)
-    data = {"type": "cellctl/HandEyeCalibration", "stamp": now_iso(), "method": "park-martin",
-            **result.to_dict(), "views": [v.index for v in views], "skipped": skipped}
+    data = {
+        "type": "cellctl/HandEyeCalibration",
+        "stamp": now_iso(),
+        "method": "park-martin",
+        **result.to_dict(),
+        "views": [v.index for v in views],
+        "skipped": skipped,
+    }
     out = _write_json(args.out, cfg, data)
     r = result.to_dict()
     print(json.dumps({k: r[k] for k in ("T_flange_cam", "n_views", "residual_mm", "residual_deg")}, indent=2))

@@ -30,7 +30,14 @@ from cellctl.vision.board import BoardSpec, board_centre
 from cellctl.vision.identify import identify
 from cellctl.vision.render import RenderSettings, random_view, render_boards
 
-__all__ = ["DISTANCES_M", "bench_pose", "configured_intrinsics", "measure", "pinhole_renderer", "twin_renderer"]
+__all__ = [
+    "DISTANCES_M",
+    "bench_pose",
+    "configured_intrinsics",
+    "measure",
+    "pinhole_renderer",
+    "twin_renderer",
+]
 
 DISTANCES_M = (0.5, 1.0, 1.5, 2.0)
 D435_FX_PER_WIDTH = 910.0 / 1280.0
@@ -76,7 +83,11 @@ def pinhole_renderer(spec: Any, intr: Intrinsics) -> RenderFn:
 
 
 def twin_renderer(
-    catalog: Any, bin_type: str, intr: Intrinsics, board: Any | None = None, supersample: int = 3,
+    catalog: Any,
+    bin_type: str,
+    intr: Intrinsics,
+    board: Any | None = None,
+    supersample: int = 3,
 ) -> RenderFn:
     """The twin's ray-traced cell (cellctl.sim.render): the bin with its board in the cabin.
 
@@ -100,8 +111,10 @@ def twin_renderer(
     from cellctl.vision.render import board_outline, project
 
     if board is not None:
-        types = [t.model_copy(update={"board": board, "tag_T_bin": None}) if t.name == bin_type else t
-                 for t in catalog]
+        types = [
+            t.model_copy(update={"board": board, "tag_T_bin": None}) if t.name == bin_type else t
+            for t in catalog
+        ]
         catalog = Catalog(types, catalog.root)
     renderer = SimRenderer(catalog)
     spec = catalog.get(bin_type).board
@@ -112,8 +125,14 @@ def twin_renderer(
         exposure = float(rng.uniform(0.85, 1.15))
         seed = int(rng.integers(1 << 30))
         T_bin_cam = T_bin_board @ invert(T)
-        out = renderer.render_bin_view(bin_type, T_bin_cam, intr, dirty=False, seed=seed,
-                                       params=RenderParams(noise_sigma=sigma, exposure=exposure))
+        out = renderer.render_bin_view(
+            bin_type,
+            T_bin_cam,
+            intr,
+            dirty=False,
+            seed=seed,
+            params=RenderParams(noise_sigma=sigma, exposure=exposure),
+        )
         img = np.ascontiguousarray(out.rgb[..., ::-1])
         if supersample <= 1:
             return img
@@ -124,12 +143,27 @@ def twin_renderer(
         if x1 <= x0 or y1 <= y0:
             return img
         f = int(supersample)
-        roi = Intrinsics(width=(x1 - x0) * f, height=(y1 - y0) * f, fx=intr.fx * f, fy=intr.fy * f,
-                         cx=f * (intr.cx - x0) + (f - 1) / 2.0, cy=f * (intr.cy - y0) + (f - 1) / 2.0)
-        hi = renderer.render_bin_view(bin_type, T_bin_cam, roi, dirty=False, seed=seed,
-                                      params=RenderParams(noise_sigma=0.0, exposure=exposure))
-        patch = cv2.resize(np.ascontiguousarray(hi.rgb[..., ::-1]).astype(np.float32), (x1 - x0, y1 - y0),
-                           interpolation=cv2.INTER_AREA)
+        roi = Intrinsics(
+            width=(x1 - x0) * f,
+            height=(y1 - y0) * f,
+            fx=intr.fx * f,
+            fy=intr.fy * f,
+            cx=f * (intr.cx - x0) + (f - 1) / 2.0,
+            cy=f * (intr.cy - y0) + (f - 1) / 2.0,
+        )
+        hi = renderer.render_bin_view(
+            bin_type,
+            T_bin_cam,
+            roi,
+            dirty=False,
+            seed=seed,
+            params=RenderParams(noise_sigma=0.0, exposure=exposure),
+        )
+        patch = cv2.resize(
+            np.ascontiguousarray(hi.rgb[..., ::-1]).astype(np.float32),
+            (x1 - x0, y1 - y0),
+            interpolation=cv2.INTER_AREA,
+        )
         patch += rng.normal(0.0, sigma, patch.shape[:2])[..., None].astype(np.float32)
         img[y0:y1, x0:x1] = np.clip(np.rint(patch), 0, 255).astype(np.uint8)
         return img
@@ -141,13 +175,19 @@ def _pct(x: list[float]) -> dict[str, float | None]:
     if not x:
         return {"p50": None, "p95": None, "max": None}
     a = np.asarray(x)
-    return {"p50": round(float(np.percentile(a, 50)), 4), "p95": round(float(np.percentile(a, 95)), 4),
-            "max": round(float(a.max()), 4)}
+    return {
+        "p50": round(float(np.percentile(a, 50)), 4),
+        "p95": round(float(np.percentile(a, 95)), 4),
+        "max": round(float(a.max()), 4),
+    }
 
 
 def _errors(spec: Any, T_true: np.ndarray, T_est: np.ndarray) -> tuple[float, float, float]:
     c = board_centre(spec)
-    dt = float(np.linalg.norm((T_true[:3, :3] @ c + T_true[:3, 3]) - (T_est[:3, :3] @ c + T_est[:3, 3]))) * 1000
+    dt = (
+        float(np.linalg.norm((T_true[:3, :3] @ c + T_true[:3, 3]) - (T_est[:3, :3] @ c + T_est[:3, 3])))
+        * 1000
+    )
     T_board_bin = invert(np.asarray(getattr(spec, "T_bin_board", np.eye(4)), dtype=np.float64))
     db = pose_error(T_true @ T_board_bin, T_est @ T_board_bin)[0] * 1000
     dr = float(np.degrees(pose_error(T_true, T_est)[1]))
@@ -155,8 +195,14 @@ def _errors(spec: Any, T_true: np.ndarray, T_est: np.ndarray) -> tuple[float, fl
 
 
 def measure(
-    spec: Any, intr: Intrinsics, n: int, seed: int, distances: tuple[float, ...] = DISTANCES_M,
-    focal_error: float = 0.005, progress: bool = True, render: RenderFn | None = None,
+    spec: Any,
+    intr: Intrinsics,
+    n: int,
+    seed: int,
+    distances: tuple[float, ...] = DISTANCES_M,
+    focal_error: float = 0.005,
+    progress: bool = True,
+    render: RenderFn | None = None,
     extras: dict[str, RenderFn] | None = None,
 ) -> dict[str, Any]:
     """Render and identify ``n`` views per distance; percentiles of the errors.
@@ -225,18 +271,47 @@ def measure(
                 code = getattr(err, "code", "error")
                 fails_f[code] = fails_f.get(code, 0) + 1
             bar.update(1)
-        rows.append({"distance_m": d, "n": n, "identified": len(acc["t"]), "trans_mm": _pct(acc["t"]),
-                     "rot_deg": _pct(acc["r"]), "bin_origin_mm": _pct(acc["b"]), "not_identified": fails})
-        rows_f.append({"distance_m": d, "n": n, "identified": len(acc["tf"]), "trans_mm": _pct(acc["tf"]),
-                       "rot_deg": _pct(acc["rf"]), "bin_origin_mm": _pct(acc["bf"]), "not_identified": fails_f})
+        rows.append(
+            {
+                "distance_m": d,
+                "n": n,
+                "identified": len(acc["t"]),
+                "trans_mm": _pct(acc["t"]),
+                "rot_deg": _pct(acc["r"]),
+                "bin_origin_mm": _pct(acc["b"]),
+                "not_identified": fails,
+            }
+        )
+        rows_f.append(
+            {
+                "distance_m": d,
+                "n": n,
+                "identified": len(acc["tf"]),
+                "trans_mm": _pct(acc["tf"]),
+                "rot_deg": _pct(acc["rf"]),
+                "bin_origin_mm": _pct(acc["bf"]),
+                "not_identified": fails_f,
+            }
+        )
         for name in extras:
             a = acc_x[name]
-            rows_x[name].append({"distance_m": d, "n": n, "identified": len(a["t"]), "trans_mm": _pct(a["t"]),
-                                 "rot_deg": _pct(a["r"]), "bin_origin_mm": _pct(a["b"]),
-                                 "not_identified": fails_x[name]})
+            rows_x[name].append(
+                {
+                    "distance_m": d,
+                    "n": n,
+                    "identified": len(a["t"]),
+                    "trans_mm": _pct(a["t"]),
+                    "rot_deg": _pct(a["r"]),
+                    "bin_origin_mm": _pct(a["b"]),
+                    "not_identified": fails_x[name],
+                }
+            )
     bar.close()
-    out = {"distances": rows, "focal_error_0_5pct": {"distances": rows_f},
-           "ms_per_identification": round(float(np.mean(times)), 2) if times else None}
+    out = {
+        "distances": rows,
+        "focal_error_0_5pct": {"distances": rows_f},
+        "ms_per_identification": round(float(np.mean(times)), 2) if times else None,
+    }
     for name in extras:
         out[name] = {"distances": rows_x[name]}
     return out
@@ -244,6 +319,7 @@ def measure(
 
 def _targets(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The issue's targets: ≤ 2 mm and ≤ 0.2° p95 at ≤ 1 m; ≤ 5 mm p95 at 2 m (all views identified)."""
+
     def ok(r: dict[str, Any], mm: float, deg: float | None) -> bool:
         if r["identified"] < r["n"] or r["trans_mm"]["p95"] is None:
             return False
@@ -258,9 +334,13 @@ def _targets(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _spec_dict(spec: Any) -> dict[str, Any]:
-    return {"squares": [int(spec.squares_x), int(spec.squares_y)], "square_m": float(spec.square_m),
-            "marker_m": float(spec.marker_m), "dictionary": str(spec.dictionary),
-            "size_m": [round(spec.squares_x * spec.square_m, 4), round(spec.squares_y * spec.square_m, 4)]}
+    return {
+        "squares": [int(spec.squares_x), int(spec.squares_y)],
+        "square_m": float(spec.square_m),
+        "marker_m": float(spec.marker_m),
+        "dictionary": str(spec.dictionary),
+        "size_m": [round(spec.squares_x * spec.square_m, 4), round(spec.squares_y * spec.square_m, 4)],
+    }
 
 
 def _figure(out: dict[str, Any], path: Any) -> None:
@@ -270,7 +350,10 @@ def _figure(out: dict[str, Any], path: Any) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    series = [("catalog board", out["distances"]), ("catalog board, fx +0.5 %", out["focal_error_0_5pct"]["distances"])]
+    series = [
+        ("catalog board", out["distances"]),
+        ("catalog board, fx +0.5 %", out["focal_error_0_5pct"]["distances"]),
+    ]
     if "pinhole_reference" in out:
         series.append(("catalog board, exact pinhole render", out["pinhole_reference"]["distances"]))
     if "twin_1spp" in out:
@@ -278,14 +361,24 @@ def _figure(out: dict[str, Any], path: Any) -> None:
     if "alternative_board" in out:
         alt = out["alternative_board"]
         series.append((f"{alt['board']['square_m'] * 1000:.0f} mm squares", alt["distances"]))
-        series.append((f"{alt['board']['square_m'] * 1000:.0f} mm squares, fx +0.5 %",
-                       alt["focal_error_0_5pct"]["distances"]))
+        series.append(
+            (
+                f"{alt['board']['square_m'] * 1000:.0f} mm squares, fx +0.5 %",
+                alt["focal_error_0_5pct"]["distances"],
+            )
+        )
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
     for label, rows in series:
         d = [r["distance_m"] for r in rows]
-        ax[0].plot(d, [r["trans_mm"]["p95"] if r["trans_mm"]["p95"] is not None else np.nan for r in rows], "o-",
-                   label=label)
-        ax[1].plot(d, [r["rot_deg"]["p95"] if r["rot_deg"]["p95"] is not None else np.nan for r in rows], "o-")
+        ax[0].plot(
+            d,
+            [r["trans_mm"]["p95"] if r["trans_mm"]["p95"] is not None else np.nan for r in rows],
+            "o-",
+            label=label,
+        )
+        ax[1].plot(
+            d, [r["rot_deg"]["p95"] if r["rot_deg"]["p95"] is not None else np.nan for r in rows], "o-"
+        )
         ax[2].plot(d, [r["identified"] / max(r["n"], 1) for r in rows], "o-")
     ax[0].plot([0.5, 1.0], [2, 2], "k--", lw=1)
     ax[0].plot([2.0], [5], "kv")
@@ -294,8 +387,10 @@ def _figure(out: dict[str, Any], path: Any) -> None:
     ax[1].set(xlabel="distance (m)", ylabel="rotation error p95 (deg)", yscale="log")
     ax[2].set(xlabel="distance (m)", ylabel="identified fraction", ylim=(0, 1.05))
     ax[0].legend(fontsize=7)
-    fig.suptitle(f"cellctl bench pose — {out['bin_type']}, {out['renderer_name']} renderer, seed {out['seed']}, "
-                 f"n={out['distances'][0]['n']}/distance (dashed: targets)")
+    fig.suptitle(
+        f"cellctl bench pose — {out['bin_type']}, {out['renderer_name']} renderer, seed {out['seed']}, "
+        f"n={out['distances'][0]['n']}/distance (dashed: targets)"
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -344,9 +439,12 @@ def bench_pose(args: argparse.Namespace) -> dict[str, Any]:
         "board": _spec_dict(spec),
         "intrinsics": intr.model_dump(),
         "renderer_name": "twin" if twin else "pinhole",
-        "renderer": ("twin: cellctl.sim.render ray tracer, bin + board in the cabin; board region area-sampled "
-                     "3x3 per pixel (sensor integration)" if twin else
-                     "pinhole homography of the board texture, 3x supersampled (cellctl.vision.render)"),
+        "renderer": (
+            "twin: cellctl.sim.render ray tracer, bin + board in the cabin; board region area-sampled "
+            "3x3 per pixel (sensor integration)"
+            if twin
+            else "pinhole homography of the board texture, 3x supersampled (cellctl.vision.render)"
+        ),
         "targets_met": _targets(main["distances"]),
     }
     for name in ("pinhole_reference", "twin_1spp"):
@@ -357,15 +455,27 @@ def bench_pose(args: argparse.Namespace) -> dict[str, Any]:
         if hasattr(spec, "model_copy"):
             big = spec.model_copy(update={"square_m": 0.06, "marker_m": 0.045})
         else:
-            big = BoardSpec(squares_x=7, squares_y=5, square_m=0.06, marker_m=0.045, dictionary=str(spec.dictionary),
-                            first_id=int(spec.first_id), T_bin_board=np.asarray(spec.T_bin_board, dtype=np.float64))
+            big = BoardSpec(
+                squares_x=7,
+                squares_y=5,
+                square_m=0.06,
+                marker_m=0.045,
+                dictionary=str(spec.dictionary),
+                first_id=int(spec.first_id),
+                T_bin_board=np.asarray(spec.T_bin_board, dtype=np.float64),
+            )
         alt_render = twin_renderer(catalog, bin_type, intr, board=big) if twin else None
         alt = measure(big, intr, n, seed, render=alt_render)
-        out["alternative_board"] = {"board": _spec_dict(big), "distances": alt["distances"],
-                                    "focal_error_0_5pct": alt["focal_error_0_5pct"],
-                                    "targets_met": _targets(alt["distances"])}
+        out["alternative_board"] = {
+            "board": _spec_dict(big),
+            "distances": alt["distances"],
+            "focal_error_0_5pct": alt["focal_error_0_5pct"],
+            "targets_met": _targets(alt["distances"]),
+        }
     out["wall_s"] = round(time.perf_counter() - t0, 1)
-    fig = Path(args.out).with_suffix(".png") if getattr(args, "out", None) else cfg.path("logs/bench/pose.png")
+    fig = (
+        Path(args.out).with_suffix(".png") if getattr(args, "out", None) else cfg.path("logs/bench/pose.png")
+    )
     fig.parent.mkdir(parents=True, exist_ok=True)
     _figure(out, fig)
     out["figure"] = str(fig)

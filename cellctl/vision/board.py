@@ -134,7 +134,8 @@ def make_board(spec: Any) -> Any:
     size = int(dic.bytesList.shape[0])
     if first < 0 or first + n > size:
         raise ConfigError(
-            f"board ids {first}..{first + n - 1} do not fit dictionary {spec.dictionary!r} (ids 0..{size - 1})"
+            f"board ids {first}..{first + n - 1} do not fit dictionary {spec.dictionary!r} "
+            f"(ids 0..{size - 1})"
         )
     ids = np.arange(first, first + n, dtype=np.int32)
     board = cv2.aruco.CharucoBoard(
@@ -208,7 +209,7 @@ def boards_from_catalog(catalog: Any) -> list[KnownBoard]:
     if len(dicts) > 1:
         raise ConfigError(f"all catalog boards must share one ArUco dictionary, got {sorted(dicts)}")
     for i, a in enumerate(out):
-        for b in out[i + 1:]:
+        for b in out[i + 1 :]:
             lo = max(a.id_range[0], b.id_range[0])
             hi = min(a.id_range[1], b.id_range[1])
             if lo <= hi:

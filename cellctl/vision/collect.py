@@ -49,8 +49,12 @@ class HandEyeView:
     n_corners: int
 
 
-def look_at(eye: NDArray[np.float64], target: NDArray[np.float64], roll_rad: float = 0.0,
-            up: tuple[float, float, float] = (0.0, 0.0, 1.0)) -> NDArray[np.float64]:
+def look_at(
+    eye: NDArray[np.float64],
+    target: NDArray[np.float64],
+    roll_rad: float = 0.0,
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0),
+) -> NDArray[np.float64]:
     """``T_base_cam`` of an optical frame (+z forward, +y down) at ``eye`` looking at ``target``."""
     z = np.asarray(target, float) - np.asarray(eye, float)
     z /= np.linalg.norm(z)
@@ -63,8 +67,13 @@ def look_at(eye: NDArray[np.float64], target: NDArray[np.float64], roll_rad: flo
 
 
 def observation_poses(
-    T_base_board: NDArray[np.float64], centre_board: NDArray[np.float64], n: int, distance_m: float,
-    rng: np.random.Generator, cone_deg: float = 25.0, roll_deg: float = 30.0,
+    T_base_board: NDArray[np.float64],
+    centre_board: NDArray[np.float64],
+    n: int,
+    distance_m: float,
+    rng: np.random.Generator,
+    cone_deg: float = 25.0,
+    roll_deg: float = 30.0,
 ) -> list[NDArray[np.float64]]:
     """Camera poses on a spherical cap in front of the board, all looking at its centre.
 
@@ -88,8 +97,14 @@ def observation_poses(
 
 
 def _capture(session: Any, cfg: Any) -> tuple[NDArray[np.uint8], Intrinsics]:
-    meta, raw = request(session, keys.camera_capture(cfg.cell_id), CaptureRequest(format="png"), CaptureReply,
-                        timeout=cfg.supervisor.timeouts.capture, role="camera")
+    meta, raw = request(
+        session,
+        keys.camera_capture(cfg.cell_id),
+        CaptureRequest(format="png"),
+        CaptureReply,
+        timeout=cfg.supervisor.timeouts.capture,
+        role="camera",
+    )
     if raw is None:
         raise CellError("camera capture reply carried no image payload")
     img = cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_COLOR)
@@ -99,13 +114,24 @@ def _capture(session: Any, cfg: Any) -> tuple[NDArray[np.uint8], Intrinsics]:
 
 
 def _state(session: Any, cfg: Any) -> RobotState:
-    st, _ = request(session, keys.robot_op(cfg.cell_id, "state"), RobotStateRequest(), RobotState,
-                    timeout=cfg.supervisor.timeouts.default, role="robot")
+    st, _ = request(
+        session,
+        keys.robot_op(cfg.cell_id, "state"),
+        RobotStateRequest(),
+        RobotState,
+        timeout=cfg.supervisor.timeouts.default,
+        role="robot",
+    )
     return st
 
 
 def collect_hand_eye(
-    session: Any, cfg: Any, catalog: Any, n_views: int = 12, distance_m: float | None = None, seed: int = 0,
+    session: Any,
+    cfg: Any,
+    catalog: Any,
+    n_views: int = 12,
+    distance_m: float | None = None,
+    seed: int = 0,
     progress: bool = True,
 ) -> tuple[HandEyeResult, list[HandEyeView], list[str]]:
     """Move the arm through ``n_views`` poses around the board in view, then solve ``T_flange_cam``.
@@ -141,8 +167,14 @@ def collect_hand_eye(
     skipped: list[str] = []
     for k, T_base_cam in enumerate(tqdm(poses, desc="hand-eye views", unit="pose", disable=not progress)):
         try:
-            request(session, keys.robot_op(cfg.cell_id, "move"), MoveRequest(camera_pose=PoseMsg.from_matrix(T_base_cam)),
-                    MoveReply, timeout=cfg.supervisor.timeouts.move, role="robot")
+            request(
+                session,
+                keys.robot_op(cfg.cell_id, "move"),
+                MoveRequest(camera_pose=PoseMsg.from_matrix(T_base_cam)),
+                MoveReply,
+                timeout=cfg.supervisor.timeouts.move,
+                role="robot",
+            )
         except WorkerFailed as err:  # unreachable / collision: try the next pose
             skipped.append(f"pose {k}: {err}")
             continue
@@ -153,14 +185,24 @@ def collect_hand_eye(
         except IdentificationError as err:
             skipped.append(f"pose {k}: {err}")
             continue
-        views.append(HandEyeView(k, st.flange_pose.matrix(), ident.T_cam_board, ident.reproj_rms_px, ident.n_corners))
+        views.append(
+            HandEyeView(k, st.flange_pose.matrix(), ident.T_cam_board, ident.reproj_rms_px, ident.n_corners)
+        )
         log.info("hand-eye view %d: %d corners, %.3f px", k, ident.n_corners, ident.reproj_rms_px)
     try:  # back to where the operator left the arm
-        request(session, keys.robot_op(cfg.cell_id, "move"), MoveRequest(joints=list(st0.joints)), MoveReply,
-                timeout=cfg.supervisor.timeouts.move, role="robot")
+        request(
+            session,
+            keys.robot_op(cfg.cell_id, "move"),
+            MoveRequest(joints=list(st0.joints)),
+            MoveReply,
+            timeout=cfg.supervisor.timeouts.move,
+            role="robot",
+        )
     except WorkerFailed as err:
         log.warning("could not return to the start pose: %s", err)
     if len(views) < 3:
-        raise CellError(f"hand-eye: only {len(views)} usable views of {n_views} (need ≥ 3); skipped: {skipped}")
+        raise CellError(
+            f"hand-eye: only {len(views)} usable views of {n_views} (need ≥ 3); skipped: {skipped}"
+        )
     result = solve_hand_eye([v.T_base_flange for v in views], [v.T_cam_board for v in views])
     return result, views, skipped

@@ -104,7 +104,9 @@ def _rot_from_quat(q: NDArray[np.float64]) -> NDArray[np.float64]:
     return matrix_from_quaternion(q)
 
 
-def fuse(identifications: Sequence[Identification], settings: FuseSettings | None = None) -> FusedIdentification:
+def fuse(
+    identifications: Sequence[Identification], settings: FuseSettings | None = None
+) -> FusedIdentification:
     """Fuse several identifications of the same bin (different camera poses) into one pose.
 
     Args:
@@ -185,8 +187,16 @@ def fuse(identifications: Sequence[Identification], settings: FuseSettings | Non
     lever = float(np.linalg.norm(invert(T_bin_board)[:3, 3] - spec_centre))  # board centre ↔ bin origin, m
     sig_bin = float(np.hypot(sig_t, np.radians(sig_r) * lever * 1000.0))
     return FusedIdentification(
-        bin_type=types[0], T_base_bin=T_base_bin, T_base_board=T_base_board, views=views, used=used,
-        rejected=rejected, residual_mm=res_mm, residual_deg=res_deg, sigma_trans_mm=sig_t, sigma_rot_deg=sig_r,
+        bin_type=types[0],
+        T_base_bin=T_base_bin,
+        T_base_board=T_base_board,
+        views=views,
+        used=used,
+        rejected=rejected,
+        residual_mm=res_mm,
+        residual_deg=res_deg,
+        sigma_trans_mm=sig_t,
+        sigma_rot_deg=sig_r,
         sigma_bin_origin_mm=sig_bin,
     )
 
@@ -195,4 +205,3 @@ def _centre_from_view(v: Identification) -> NDArray[np.float64]:
     """Board centre in the board frame (metres) from the view's board size."""
     w, h = v.board_size_m
     return np.array([w / 2.0, h / 2.0, 0.0])
-

@@ -129,11 +129,19 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_cam_board: Sequence[Arr
         )
     al = np.array(alphas)
     axes = al / np.linalg.norm(al, axis=1, keepdims=True)
-    spread = float(np.degrees(max(np.arccos(np.clip(abs(axes[i] @ axes[j]), 0.0, 1.0))
-                                  for i in range(len(axes)) for j in range(i + 1, len(axes)))))
+    spread = float(
+        np.degrees(
+            max(
+                np.arccos(np.clip(abs(axes[i] @ axes[j]), 0.0, 1.0))
+                for i in range(len(axes))
+                for j in range(i + 1, len(axes))
+            )
+        )
+    )
     if spread < 5.0:
         raise CellError(
-            f"hand-eye: all relative rotations share one axis (spread {spread:.1f}° < 5°); the rotation about "
+            f"hand-eye: all relative rotations share one axis (spread {spread:.1f}° < 5°); "
+            "the rotation about "
             "that axis is unobservable — add views rotated about another axis"
         )
     H = np.array(betas).T @ al  # Σ β αᵀ (3×3)
@@ -159,6 +167,10 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_cam_board: Sequence[Arr
         float(np.degrees(np.arccos(np.clip((np.trace(R_mean.T @ b[:3, :3]) - 1) / 2, -1, 1)))) for b in boards
     ]
     return HandEyeResult(
-        T_flange_cam=X, T_base_board=transform_from(R_mean, p_mean), residual_mm=res_mm, residual_deg=res_deg,
-        n_views=n, axis_spread_deg=spread,
+        T_flange_cam=X,
+        T_base_board=transform_from(R_mean, p_mean),
+        residual_mm=res_mm,
+        residual_deg=res_deg,
+        n_views=n,
+        axis_spread_deg=spread,
     )

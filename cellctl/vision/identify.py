@@ -158,7 +158,9 @@ def detector_parameters() -> Any:
 
 def _gray(image: Any, intr: Intrinsics) -> NDArray[np.uint8]:
     if not isinstance(image, np.ndarray):
-        raise not_identified("bad image", f"image must be a numpy array (BGR or grey), got {type(image).__name__}")
+        raise not_identified(
+            "bad image", f"image must be a numpy array (BGR or grey), got {type(image).__name__}"
+        )
     if image.ndim == 3 and image.shape[2] == 3:
         gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     elif image.ndim == 3 and image.shape[2] == 4:
@@ -200,8 +202,14 @@ def _rot_deg(R: NDArray[np.float64]) -> float:
 
 
 def _pose_covariance(
-    obj: NDArray[np.float64], img: NDArray[np.float64], rvec: NDArray[np.float64], tvec: NDArray[np.float64],
-    K: NDArray[np.float64], dist: NDArray[np.float64], centre: NDArray[np.float64], sigma_floor: float,
+    obj: NDArray[np.float64],
+    img: NDArray[np.float64],
+    rvec: NDArray[np.float64],
+    tvec: NDArray[np.float64],
+    K: NDArray[np.float64],
+    dist: NDArray[np.float64],
+    centre: NDArray[np.float64],
+    sigma_floor: float,
 ) -> tuple[NDArray[np.float64], float, float]:
     """Covariance of (board-centre position, rotation vector) from the PnP Jacobian.
 
@@ -273,8 +281,10 @@ def identify(
     dp = detector_parameters()
     mcorners, mids, _rejected = cv2.aruco.ArucoDetector(dic, dp).detectMarkers(gray)
     if mids is None or len(mids) == 0:
-        raise not_identified("no markers", f"no markers detected in the {gray.shape[1]}×{gray.shape[0]} image"
-                             + _quality_hint(gray))
+        raise not_identified(
+            "no markers",
+            f"no markers detected in the {gray.shape[1]}×{gray.shape[0]} image" + _quality_hint(gray),
+        )
     ids = [int(i) for i in mids.ravel()]
 
     # --- bin type from the id ranges --------------------------------------------------------
@@ -289,7 +299,8 @@ def identify(
         if unknown and not known:
             ranges = ", ".join(f"{k.bin_type} {k.id_range[0]}..{k.id_range[1]}" for k in boards)
             raise not_identified(
-                "unknown id range", f"unknown id range: ids {unknown} belong to no catalog board (known: {ranges})"
+                "unknown id range",
+                f"unknown id range: ids {unknown} belong to no catalog board (known: {ranges})",
             )
         raise not_identified(
             "too few markers",
@@ -315,8 +326,9 @@ def identify(
         )
     cid = [int(i) for i in cids.ravel()]
     if kb.board.checkCharucoCornersCollinear(cids):
-        raise not_identified("collinear", f"collinear corners: ids {sorted(cid)} lie on one line; "
-                                          "the pose is not determined")
+        raise not_identified(
+            "collinear", f"collinear corners: ids {sorted(cid)} lie on one line; the pose is not determined"
+        )
     obj, img = kb.board.matchImagePoints(ccorners, cids)
     obj = obj.reshape(-1, 3).astype(np.float64)
     img = img.reshape(-1, 2).astype(np.float64)
@@ -355,7 +367,8 @@ def identify(
     if rms > st.max_reproj_px:
         raise not_identified(
             "reprojection",
-            f"reprojection error {rms:.2f} px RMS > {st.max_reproj_px} px over {n} corners of board {name!r}: "
+            f"reprojection error {rms:.2f} px RMS > {st.max_reproj_px} px over {n} corners "
+            f"of board {name!r}: "
             "wrong intrinsics, motion blur or a bent board?",
         )
     R = cv2.Rodrigues(rvec)[0]
@@ -382,6 +395,9 @@ def identify(
         distance_m=float(np.linalg.norm(R @ centre + tvec.ravel())),
         elapsed_ms=(time.perf_counter() - t0) * 1000.0,
         image_size=(int(gray.shape[1]), int(gray.shape[0])),
-        board_size_m=(float(kb.spec.squares_x * kb.spec.square_m), float(kb.spec.squares_y * kb.spec.square_m)),
+        board_size_m=(
+            float(kb.spec.squares_x * kb.spec.square_m),
+            float(kb.spec.squares_y * kb.spec.square_m),
+        ),
         cov_board=cov,
     )

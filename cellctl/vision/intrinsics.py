@@ -180,12 +180,23 @@ def calibrate_intrinsics(
     )
     d = [float(x) for x in np.asarray(dist).ravel()[:5]]
     intr = Intrinsics(
-        width=size[0], height=size[1], fx=float(K[0, 0]), fy=float(K[1, 1]), cx=float(K[0, 2]), cy=float(K[1, 2]),
+        width=size[0],
+        height=size[1],
+        fx=float(K[0, 0]),
+        fy=float(K[1, 1]),
+        cx=float(K[0, 2]),
+        cy=float(K[1, 2]),
         dist=d + [0.0] * (5 - len(d)),
     )
     sd = np.asarray(std_in).ravel()
     return IntrinsicsResult(
-        intrinsics=intr, rms_px=float(rms), per_view_rms_px=[float(x) for x in np.asarray(per_view).ravel()],
-        views=[v.name for v in views], skipped=skipped, std_fx=float(sd[0]), std_fy=float(sd[1]),
-        std_cx=float(sd[2]), std_cy=float(sd[3]),
+        intrinsics=intr,
+        rms_px=float(rms),
+        per_view_rms_px=[float(x) for x in np.asarray(per_view).ravel()],
+        views=[v.name for v in views],
+        skipped=skipped,
+        std_fx=float(sd[0]),
+        std_fy=float(sd[1]),
+        std_cx=float(sd[2]),
+        std_cy=float(sd[3]),
     )

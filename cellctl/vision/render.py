@@ -56,7 +56,9 @@ class RenderSettings:
     background: float = 0.45
 
 
-def project(intr: Intrinsics, T_cam_obj: NDArray[np.float64], pts_obj: NDArray[np.float64]) -> NDArray[np.float64]:
+def project(
+    intr: Intrinsics, T_cam_obj: NDArray[np.float64], pts_obj: NDArray[np.float64]
+) -> NDArray[np.float64]:
     """Pinhole projection (no distortion) of object points (N, 3) → pixels (N, 2)."""
     P = (T_cam_obj[:3, :3] @ np.asarray(pts_obj, dtype=np.float64).T).T + T_cam_obj[:3, 3]
     return np.column_stack([intr.fx * P[:, 0] / P[:, 2] + intr.cx, intr.fy * P[:, 1] / P[:, 2] + intr.cy])
@@ -77,7 +79,14 @@ def _texture(key: tuple[int, int, float, float, str, int, bool], px_per_square: 
 
     class _S:  # a hashable key back into a spec-like object
         squares_x, squares_y, square_m, marker_m, dictionary, first_id, legacy_pattern = (
-            sx, sy, sq, mk, dic, first, legacy)
+            sx,
+            sy,
+            sq,
+            mk,
+            dic,
+            first,
+            legacy,
+        )
 
     board = make_board(_S)
     margin = px_per_square // 2
@@ -87,8 +96,13 @@ def _texture(key: tuple[int, int, float, float, str, int, bool], px_per_square: 
 
 def _spec_key(spec: Any) -> tuple[int, int, float, float, str, int, bool]:
     return (
-        int(spec.squares_x), int(spec.squares_y), float(spec.square_m), float(spec.marker_m),
-        str(spec.dictionary), int(spec.first_id), bool(getattr(spec, "legacy_pattern", False)),
+        int(spec.squares_x),
+        int(spec.squares_y),
+        float(spec.square_m),
+        float(spec.marker_m),
+        str(spec.dictionary),
+        int(spec.first_id),
+        bool(getattr(spec, "legacy_pattern", False)),
     )
 
 
@@ -117,7 +131,9 @@ def render_boards(
     rng = rng if rng is not None else np.random.default_rng(0)
     f = max(1, int(s.supersample))
     W, H = intr.width * f, intr.height * f
-    Ks = np.array([[intr.fx * f, 0, intr.cx * f + (f - 1) / 2], [0, intr.fy * f, intr.cy * f + (f - 1) / 2], [0, 0, 1]])
+    Ks = np.array(
+        [[intr.fx * f, 0, intr.cx * f + (f - 1) / 2], [0, intr.fy * f, intr.cy * f + (f - 1) / 2], [0, 0, 1]]
+    )
     # Background: a smooth low-contrast texture (a steel bin side), generated small and upscaled.
     bg = rng.normal(0.0, 1.0, (max(4, intr.height // 40), max(4, intr.width // 40))).astype(np.float32)
     bg = cv2.resize(cv2.GaussianBlur(bg, (0, 0), 1.0), (W, H), interpolation=cv2.INTER_CUBIC)
@@ -127,7 +143,9 @@ def render_boards(
         outline = board_outline(spec, 0.5)
         Pc = (T[:3, :3] @ outline.T).T + T[:3, 3]
         if np.any(Pc[:, 2] <= 0.02):
-            raise CellError(f"board is (partly) behind the camera: outline z = {Pc[:, 2].round(3).tolist()} m")
+            raise CellError(
+                f"board is (partly) behind the camera: outline z = {Pc[:, 2].round(3).tolist()} m"
+            )
         if T[2, 2] <= 0.0:
             raise CellError(f"board is seen from its back: board +z in camera = {T[:3, 2].round(3).tolist()}")
         # Texture resolution just above the largest projected square (supersampled pixels).
@@ -140,9 +158,7 @@ def render_boards(
         S = np.array([[sc, 0, (0.5 - margin) * sc], [0, sc, (0.5 - margin) * sc], [0, 0, 1]])
         Hm = Ks @ np.column_stack([T[:3, 0], T[:3, 1], T[:3, 3]]) @ S
         # Replicated border for the albedo, coverage from a warped mask: edges blend correctly.
-        albedo = cv2.warpPerspective(
-            tex, Hm, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
-        )
+        albedo = cv2.warpPerspective(tex, Hm, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         # Coverage: the projected outline (quiet zone included) filled at 1/16-pixel precision;
         # the supersampling turns its hard edge into partial coverage.
         corners_s = (Ks @ Pc.T).T
@@ -153,9 +169,9 @@ def render_boards(
         radiance = mask * board_rad + (1.0 - mask) * radiance
     # Box filter down to the final resolution (anti-aliasing).
     img = cv2.resize(radiance.astype(np.float32), (intr.width, intr.height), interpolation=cv2.INTER_AREA)
-    yy, xx = np.mgrid[0:intr.height, 0:intr.width].astype(np.float32)
+    yy, xx = np.mgrid[0 : intr.height, 0 : intr.width].astype(np.float32)
     ang = rng.uniform(0, 2 * np.pi)
-    ramp = (np.cos(ang) * (xx / intr.width - 0.5) + np.sin(ang) * (yy / intr.height - 0.5))
+    ramp = np.cos(ang) * (xx / intr.width - 0.5) + np.sin(ang) * (yy / intr.height - 0.5)
     img = img * (1.0 - s.light_gradient * (ramp + 0.5)) * s.exposure * 255.0
     if s.blur_sigma > 0:
         img = cv2.GaussianBlur(img, (0, 0), s.blur_sigma)
@@ -216,10 +232,14 @@ def random_view(
 ) -> NDArray[np.float64]:
     """A random :func:`view_of_board`: tilt uniform in [0, max], axis uniform, roll and offset uniform."""
     return view_of_board(
-        spec, intr, distance_m,
+        spec,
+        intr,
+        distance_m,
         tilt_deg=float(rng.uniform(0.0, max_tilt_deg)),
         tilt_axis_deg=float(rng.uniform(0.0, 360.0)),
         roll_deg=float(rng.uniform(-max_roll_deg, max_roll_deg)),
-        offset_px=(float(rng.uniform(-1, 1) * max_offset_frac * intr.width),
-                   float(rng.uniform(-1, 1) * max_offset_frac * intr.height)),
+        offset_px=(
+            float(rng.uniform(-1, 1) * max_offset_frac * intr.width),
+            float(rng.uniform(-1, 1) * max_offset_frac * intr.height),
+        ),
     )

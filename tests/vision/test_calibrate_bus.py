@@ -63,7 +63,9 @@ class SimArmCamera:
 
     def _state(self, req: RobotStateRequest, _: bytes | None) -> RobotState:
         with self.lock:
-            return RobotState(joints=[0.0] * 6, flange_pose=PoseMsg.from_matrix(self.flange), camera_pose=self._pose())
+            return RobotState(
+                joints=[0.0] * 6, flange_pose=PoseMsg.from_matrix(self.flange), camera_pose=self._pose()
+            )
 
     def _capture(self, req: CaptureRequest, _: bytes | None) -> tuple[CaptureReply, bytes]:
         with self.lock:
@@ -104,13 +106,43 @@ def test_cli_writes_calibration(cfg, sim, tmp_path) -> None:
 
     out = tmp_path / "he.json"
     bins = tmp_path / "bins.yaml"
-    bins.write_text(yaml.safe_dump({"bins": {"bench_bin": {
-        "mesh": "models/bins/none.ply", "mesh_sha256": "0" * 64, "height_m": 1.0, "top_hole_radius_m": 0.25,
-        "board": {"squares_x": 7, "squares_y": 5, "square_m": 0.06, "marker_m": 0.045, "first_id": 0,
-                  "T_bin_board": np.eye(4).tolist()}}}}))
+    bins.write_text(
+        yaml.safe_dump(
+            {
+                "bins": {
+                    "bench_bin": {
+                        "mesh": "models/bins/none.ply",
+                        "mesh_sha256": "0" * 64,
+                        "height_m": 1.0,
+                        "top_hole_radius_m": 0.25,
+                        "board": {
+                            "squares_x": 7,
+                            "squares_y": 5,
+                            "square_m": 0.06,
+                            "marker_m": 0.045,
+                            "first_id": 0,
+                            "T_bin_board": np.eye(4).tolist(),
+                        },
+                    }
+                }
+            }
+        )
+    )
     ep = cfg.bus.connect[0]
-    rc = main(["calibrate", "hand-eye", "--views", "6", "--out", str(out), "--catalog", str(bins),
-               "--set", f'bus.connect=["{ep}"]'])
+    rc = main(
+        [
+            "calibrate",
+            "hand-eye",
+            "--views",
+            "6",
+            "--out",
+            str(out),
+            "--catalog",
+            str(bins),
+            "--set",
+            f'bus.connect=["{ep}"]',
+        ]
+    )
     assert rc == 0
     data = json.loads(out.read_text())
     assert data["type"] == "cellctl/HandEyeCalibration" and data["method"] == "park-martin"

@@ -10,8 +10,8 @@ import pytest
 import yaml
 
 from cellctl.cli import main
-from cellctl.errors import CellError
 from cellctl.cli.vision import parse_camera_pose, parse_intrinsics
+from cellctl.errors import CellError
 from cellctl.geometry.transforms import pose_error, transform_from_pose
 from cellctl.vision.bench import measure
 from cellctl.vision.render import render_boards, view_of_board
@@ -23,10 +23,28 @@ from .scenes import INTR, SPEC_B, T_BIN_BOARD
 def catalog_file(tmp_path):
     """A bins.yaml in the twin's catalog format holding SPEC_B."""
     bins = tmp_path / "bins.yaml"
-    bins.write_text(yaml.safe_dump({"bins": {"tall_bin": {
-        "mesh": "models/bins/none.ply", "mesh_sha256": "0" * 64, "height_m": 1.0, "top_hole_radius_m": 0.25,
-        "board": {"squares_x": 7, "squares_y": 5, "square_m": 0.06, "marker_m": 0.045, "first_id": 17,
-                  "T_bin_board": T_BIN_BOARD.tolist()}}}}))
+    bins.write_text(
+        yaml.safe_dump(
+            {
+                "bins": {
+                    "tall_bin": {
+                        "mesh": "models/bins/none.ply",
+                        "mesh_sha256": "0" * 64,
+                        "height_m": 1.0,
+                        "top_hole_radius_m": 0.25,
+                        "board": {
+                            "squares_x": 7,
+                            "squares_y": 5,
+                            "square_m": 0.06,
+                            "marker_m": 0.045,
+                            "first_id": 17,
+                            "T_bin_board": T_BIN_BOARD.tolist(),
+                        },
+                    }
+                }
+            }
+        )
+    )
     return bins
 
 
@@ -36,8 +54,21 @@ def test_identify_cli_json_and_draw(tmp_path, catalog_file, capsys) -> None:
     cv2.imwrite(str(img_path), render_boards([(SPEC_B, T)], INTR, rng=np.random.default_rng(0)))
     pose = "0.5 0.1 1.2 0.0 0.0 0.7071068 0.7071068"
     draw = tmp_path / "drawn.png"
-    rc = main(["identify", str(img_path), "--intrinsics", "910,910,640,360", "--camera-pose", pose, "--json",
-               "--catalog", str(catalog_file), "--draw", str(draw)])
+    rc = main(
+        [
+            "identify",
+            str(img_path),
+            "--intrinsics",
+            "910,910,640,360",
+            "--camera-pose",
+            pose,
+            "--json",
+            "--catalog",
+            str(catalog_file),
+            "--draw",
+            str(draw),
+        ]
+    )
     assert rc == 0
     d = json.loads(capsys.readouterr().out)
     assert d["identified"] and d["bin_type"] == "tall_bin" and d["n_corners"] == 24
@@ -52,10 +83,23 @@ def test_identify_cli_json_and_draw(tmp_path, catalog_file, capsys) -> None:
 def test_identify_cli_not_identified(tmp_path, catalog_file, capsys) -> None:
     img_path = tmp_path / "blank.png"
     cv2.imwrite(str(img_path), np.full((720, 1280, 3), 80, np.uint8))
-    rc = main(["identify", str(img_path), "--intrinsics", "910,910,640,360", "--json", "--catalog", str(catalog_file)])
+    rc = main(
+        [
+            "identify",
+            str(img_path),
+            "--intrinsics",
+            "910,910,640,360",
+            "--json",
+            "--catalog",
+            str(catalog_file),
+        ]
+    )
     assert rc == 1
     d = json.loads(capsys.readouterr().out)
-    assert d == {"identified": False, "code": "no markers", "reason": d["reason"]} and "no markers" in d["reason"]
+    assert (
+        d == {"identified": False, "code": "no markers", "reason": d["reason"]}
+        and "no markers" in d["reason"]
+    )
     rc = main(["identify", str(img_path), "--intrinsics", "910,910,640,360", "--catalog", str(catalog_file)])
     assert rc == 2 and "no markers detected" in capsys.readouterr().err
 
@@ -64,8 +108,11 @@ def test_cli_argument_parsing(tmp_path) -> None:
     k = parse_intrinsics("900, 905, 641.5, 359", 1280, 720)
     assert (k.fx, k.fy, k.cx, k.cy, k.width) == (900, 905, 641.5, 359, 1280)
     f = tmp_path / "intr.json"
-    f.write_text(json.dumps({"intrinsics": {"fx": 911.0, "fy": 912.0, "cx": 640.0, "cy": 360.0,
-                                            "dist": [0.01, 0, 0, 0, 0]}}))
+    f.write_text(
+        json.dumps(
+            {"intrinsics": {"fx": 911.0, "fy": 912.0, "cx": 640.0, "cy": 360.0, "dist": [0.01, 0, 0, 0, 0]}}
+        )
+    )
     assert parse_intrinsics(str(f), 1280, 720).dist[0] == 0.01
     with pytest.raises(CellError, match="neither an existing file nor four numbers"):
         parse_intrinsics("910,910", 1280, 720)

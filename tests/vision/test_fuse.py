@@ -21,8 +21,14 @@ def _views(n: int, distance: float, seed: int, spec=SPEC_A):
     rng = np.random.default_rng(seed)
     out = []
     for k in range(n):
-        T_cam_board = view_of_board(spec, INTR, distance, 25.0 + 5 * rng.uniform(), 360.0 * k / n + rng.uniform(0, 30),
-                                    roll_deg=rng.uniform(-10, 10))
+        T_cam_board = view_of_board(
+            spec,
+            INTR,
+            distance,
+            25.0 + 5 * rng.uniform(),
+            360.0 * k / n + rng.uniform(0, 30),
+            roll_deg=rng.uniform(-10, 10),
+        )
         T_base_cam = T_BASE_BOARD @ invert(T_cam_board)
         img = render_boards([(spec, T_cam_board)], INTR, rng=rng)
         out.append((img, T_base_cam))
@@ -32,7 +38,9 @@ def _views(n: int, distance: float, seed: int, spec=SPEC_A):
 def _centre_err_mm(T_base_bin: np.ndarray) -> float:
     c = board_centre(SPEC_A)
     T = T_base_bin @ SPEC_A.T_bin_board
-    return float(np.linalg.norm(T[:3, :3] @ c + T[:3, 3] - (T_BASE_BOARD[:3, :3] @ c + T_BASE_BOARD[:3, 3])) * 1000)
+    return float(
+        np.linalg.norm(T[:3, :3] @ c + T[:3, 3] - (T_BASE_BOARD[:3, :3] @ c + T_BASE_BOARD[:3, 3])) * 1000
+    )
 
 
 def test_fusion_reduces_error(catalog) -> None:
@@ -69,7 +77,7 @@ def test_outlier_view_is_rejected(catalog) -> None:
 
 
 def test_single_view_passes_through(catalog) -> None:
-    (img, T), = _views(1, 1.0, 3)
+    ((img, T),) = _views(1, 1.0, 3)
     ident = identify(img, INTR, T, catalog)
     f = fuse([ident])
     np.testing.assert_allclose(f.T_base_bin, ident.T_base_bin, atol=1e-9)
@@ -79,7 +87,7 @@ def test_single_view_passes_through(catalog) -> None:
 def test_fuse_refuses_empty_and_mixed(catalog) -> None:
     with pytest.raises(IdentificationError, match="got 0 identifications"):
         fuse([])
-    (ia, Ta), = _views(1, 1.0, 4)
-    (ib, Tb), = _views(1, 1.0, 4, spec=SPEC_B)
+    ((ia, Ta),) = _views(1, 1.0, 4)
+    ((ib, Tb),) = _views(1, 1.0, 4, spec=SPEC_B)
     with pytest.raises(IdentificationError, match=r"views disagree on the bin type: \['bin_a', 'bin_b'\]"):
         fuse([identify(ia, INTR, Ta, catalog), identify(ib, INTR, Tb, catalog)])

@@ -20,7 +20,9 @@ T_BASE_CAM = transform_from_xyz_rpy((0.4, -0.2, 0.9), (-np.pi / 2, 0.1, -0.3))
 
 def _centre_error_mm(T_true: np.ndarray, T_est: np.ndarray, spec: BoardSpec) -> float:
     c = board_centre(spec)
-    return float(np.linalg.norm((T_true[:3, :3] @ c + T_true[:3, 3]) - (T_est[:3, :3] @ c + T_est[:3, 3])) * 1000)
+    return float(
+        np.linalg.norm((T_true[:3, :3] @ c + T_true[:3, 3]) - (T_est[:3, :3] @ c + T_est[:3, 3])) * 1000
+    )
 
 
 @pytest.mark.parametrize(
@@ -65,9 +67,19 @@ def test_works_with_the_twin_catalog() -> None:
     T_bin_board = transform_from_xyz_rpy((-0.21, -0.4, -0.15), (np.pi / 2, 0.0, 0.0))
     types = [
         catalog_mod.BinType(
-            name=name, mesh=f"models/bins/{name}.ply", mesh_sha256="0" * 64, height_m=1.0, top_hole_radius_m=0.25,
-            board=catalog_mod.BoardSpec(squares_x=7, squares_y=5, square_m=0.06, marker_m=0.045, first_id=first,
-                                        T_bin_board=T_bin_board.tolist()),
+            name=name,
+            mesh=f"models/bins/{name}.ply",
+            mesh_sha256="0" * 64,
+            height_m=1.0,
+            top_hole_radius_m=0.25,
+            board=catalog_mod.BoardSpec(
+                squares_x=7,
+                squares_y=5,
+                square_m=0.06,
+                marker_m=0.045,
+                first_id=first,
+                T_bin_board=T_bin_board.tolist(),
+            ),
         )
         for name, first in (("small", 0), ("large", 17))
     ]
@@ -109,7 +121,11 @@ def test_two_boards(catalog) -> None:
     Tb = view_of_board(SPEC_B, INTR, 1.3, 10.0, 0.0, offset_px=(300.0, 0.0))
     err = _reason(render_boards([(SPEC_A, Ta), (SPEC_B, Tb)], INTR, rng=np.random.default_rng(4)), catalog)
     assert err.code == "two boards"
-    assert "markers from two boards" in str(err) and "bin_a: ids [0, 1," in str(err) and "bin_b: ids [17," in str(err)
+    assert (
+        "markers from two boards" in str(err)
+        and "bin_a: ids [0, 1," in str(err)
+        and "bin_b: ids [17," in str(err)
+    )
 
 
 def test_unknown_id_range(catalog) -> None:
@@ -132,8 +148,9 @@ def _occlude_all_but(img: np.ndarray, spec: BoardSpec, T: np.ndarray, x0, y0, x1
 
 def test_partial_board_too_few_corners(catalog) -> None:
     T = view_of_board(SPEC_A, INTR, 1.0, 20.0, 30.0)
-    img = _occlude_all_but(render_boards([(SPEC_A, T)], INTR, rng=np.random.default_rng(6)), SPEC_A, T,
-                           -0.5, -0.5, 3.0, 3.0)
+    img = _occlude_all_but(
+        render_boards([(SPEC_A, T)], INTR, rng=np.random.default_rng(6)), SPEC_A, T, -0.5, -0.5, 3.0, 3.0
+    )
     err = _reason(img, catalog)
     assert err.code == "too few corners"
     assert str(err).startswith("only 4 corners (need ≥ 6)")
@@ -141,8 +158,9 @@ def test_partial_board_too_few_corners(catalog) -> None:
 
 def test_collinear_corners(catalog) -> None:
     T = view_of_board(SPEC_A, INTR, 1.0, 20.0, 30.0)
-    img = _occlude_all_but(render_boards([(SPEC_A, T)], INTR, rng=np.random.default_rng(6)), SPEC_A, T,
-                           -0.5, -0.5, 7.5, 2.0)
+    img = _occlude_all_but(
+        render_boards([(SPEC_A, T)], INTR, rng=np.random.default_rng(6)), SPEC_A, T, -0.5, -0.5, 7.5, 2.0
+    )
     err = _reason(img, catalog)
     assert err.code == "collinear"
     assert str(err).startswith("collinear corners: ids [0, 1, 2, 3, 4, 5]")
@@ -167,7 +185,8 @@ def test_reprojection_threshold(catalog) -> None:
 
 def test_bad_images(catalog) -> None:
     assert "is 640×480 px but the intrinsics are for 1280×720" in str(
-        _reason(np.zeros((480, 640, 3), np.uint8), catalog))
+        _reason(np.zeros((480, 640, 3), np.uint8), catalog)
+    )
     assert "dtype float32" in str(_reason(np.zeros((720, 1280), np.float32), catalog))
     assert "numpy array" in str(_reason(b"png bytes", catalog))
 

@@ -18,8 +18,15 @@ def _views(n: int, seed: int) -> list[tuple[str, np.ndarray]]:
     out = []
     for k in range(n):
         spec = SPEC_A if k % 2 else SPEC_B  # any catalog board may be used
-        T = view_of_board(spec, INTR, rng.uniform(0.55, 0.9), rng.uniform(25, 45), 360.0 * k / n,
-                          roll_deg=rng.uniform(-20, 20), offset_px=(rng.uniform(-250, 250), rng.uniform(-120, 120)))
+        T = view_of_board(
+            spec,
+            INTR,
+            rng.uniform(0.55, 0.9),
+            rng.uniform(25, 45),
+            360.0 * k / n,
+            roll_deg=rng.uniform(-20, 20),
+            offset_px=(rng.uniform(-250, 250), rng.uniform(-120, 120)),
+        )
         out.append((f"view{k:02d}.png", render_boards([(spec, T)], INTR, rng=rng)))
     return out
 
@@ -41,7 +48,9 @@ def test_too_few_views_says_why(catalog, tmp_path) -> None:
         cv2.imwrite(str(tmp_path / name), img)
     loaded = load_images(tmp_path)
     assert [n for n, _ in loaded] == ["blank.png", "view00.png", "view01.png", "view02.png"]
-    with pytest.raises(CellError, match=r"needs ≥ 6 usable board views, got 3; skipped: \['blank.png: no markers"):
+    with pytest.raises(
+        CellError, match=r"needs ≥ 6 usable board views, got 3; skipped: \['blank.png: no markers"
+    ):
         calibrate_intrinsics(loaded, catalog)
 
 
