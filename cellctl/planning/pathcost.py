@@ -18,8 +18,9 @@ from numpy.typing import NDArray
 
 from cellctl.planning.collision import CollisionWorld
 
-__all__ = ["JointPlanner", "PathCosts", "path_cost_matrix", "verify_edge"]
+__all__ = ["EdgeCache", "JointPlanner", "PathCosts", "path_cost_matrix"]
 
+PLANNER_RANGE_RAD = 0.5  # RRT extension length (joint space), rad
 UNREACHABLE_COST = 1.0e3  # rad; a pair no planner connected is avoided by the tour, not fatal
 
 
@@ -98,9 +99,13 @@ class JointPlanner:
         ss.setStartAndGoalStates(s0, s1)
         if planner == "rrtstar":
             ss.setOptimizationObjective(ob.PathLengthOptimizationObjective(si))
-            ss.setPlanner(og.RRTstar(si))
+            pl = og.RRTstar(si)
         else:
-            ss.setPlanner(og.RRTConnect(si))
+            pl = og.RRTConnect(si)
+        # OMPL's default range is 20 % of the space extent (~6 rad here): every extension is a
+        # long, mostly colliding motion check; short steps solve the narrow passages near the bin
+        pl.setRange(PLANNER_RANGE_RAD)
+        ss.setPlanner(pl)
         ss.solve(float(budget_s))
         if not ss.haveExactSolutionPath():
             ss.clear()
@@ -131,33 +136,9 @@ class PathCosts:
     planned: int = 0
     failed: int = 0
     paths: dict[tuple[int, int], NDArray[np.float64]] = field(default_factory=dict)
-    lazy: NDArray[np.bool_] | None = None
 
 
 LAZY_FACTOR = 1.5  # estimated detour of a colliding pair relative to the straight joint distance
-
-
-def verify_edge(
-    pc: PathCosts, Q: NDArray[np.float64], i: int, j: int, planner: JointPlanner, budget_s: float, simplify_s: float
-) -> bool:
-    """Plan a lazily estimated pair now (RRTConnect); update ``pc`` in place.
-
-    Returns:
-        True if a path was found (its length replaces the estimate).
-    """
-    a, b = min(i, j), max(i, j)
-    if pc.lazy is None or not pc.lazy[a, b]:
-        return pc.D[a, b] < UNREACHABLE_COST
-    ok, length, path = planner.plan(Q[a], Q[b], "rrtconnect", budget_s, simplify_s)
-    pc.planned += 1
-    pc.lazy[a, b] = pc.lazy[b, a] = False
-    if ok:
-        pc.D[a, b] = pc.D[b, a] = length
-        pc.paths[(a, b)] = path
-    else:
-        pc.D[a, b] = pc.D[b, a] = UNREACHABLE_COST + float(np.linalg.norm(Q[b] - Q[a]))
-        pc.failed += 1
-    return ok
 
 
 def path_cost_matrix(
@@ -168,7 +149,6 @@ def path_cost_matrix(
     budget_s: float = 1.0,
     simplify_s: float = 0.2,
     max_step: float = 0.02,
-    lazy: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> PathCosts:
     """Pairwise path costs between configurations ``Q`` (n, 6).
@@ -178,8 +158,6 @@ def path_cost_matrix(
             ``budget_s`` for every pair).
         budget_s: planner time limit per query, s.
         simplify_s: simplification time limit per planned path, s.
-        lazy: fast mode only: do not plan colliding pairs now; give them the estimate
-            ``LAZY_FACTOR`` × straight distance and mark them in ``PathCosts.lazy``.
     """
     n = len(Q)
     D = np.zeros((n, n))
@@ -197,14 +175,6 @@ def path_cost_matrix(
         straight[ju[free], iu[free]] = True
         D[iu[free], ju[free]] = direct[free]
         todo = np.flatnonzero(~free)
-        if lazy:
-            # lazy evaluation: colliding pairs get an optimistic estimate now; only the pairs
-            # the tour actually uses are planned later (see :func:`verify_edge`)
-            D[iu[todo], ju[todo]] = LAZY_FACTOR * direct[todo]
-            out.lazy = np.zeros((n, n), dtype=bool)
-            out.lazy[iu[todo], ju[todo]] = True
-            out.lazy[ju[todo], iu[todo]] = True
-            todo = todo[:0]
         algo = "rrtconnect"
     elif mode == "paper":
         todo = np.arange(len(iu))
@@ -233,3 +203,114 @@ def path_cost_matrix(
     return out
 
 
+
+
+class EdgeCache:
+    """Fast mode's lazily evaluated path costs between viewpoint configurations.
+
+    Keys are global node ids (index into the reachable configurations; −1 = start). A pair's
+    straight motion is checked once (batched); a colliding pair costs ``LAZY_FACTOR`` × its
+    straight distance until :meth:`verify` plans it with RRTConnect. Results survive
+    re-selection, so nothing is planned twice.
+
+    Args:
+        Q: (n, 6) reachable configurations, rad.
+        q_start: (6,) start configuration, rad.
+        world: collision world.
+        budget_s, simplify_s: RRTConnect and simplification limits per pair, s.
+    """
+
+    def __init__(
+        self, Q: NDArray[np.float64], q_start: NDArray[np.float64], world: CollisionWorld, budget_s: float,
+        simplify_s: float, max_step: float = 0.02,
+    ) -> None:
+        self.Q = np.asarray(Q, dtype=np.float64)
+        self.q_start = np.asarray(q_start, dtype=np.float64)
+        self.world = world
+        self.budget_s, self.simplify_s, self.max_step = budget_s, simplify_s, max_step
+        self.state: dict[tuple[int, int], tuple[str, float]] = {}  # straight|lazy|planned|failed
+        self.paths: dict[tuple[int, int], NDArray[np.float64]] = {}
+        self.planner = JointPlanner(world, max_step)
+        self.planned = self.failed = self.straight_checked = 0
+
+    def q(self, node: int) -> NDArray[np.float64]:
+        return self.q_start if node < 0 else self.Q[node]
+
+    def matrix(self, nodes: list[int]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """Cost matrix over ``nodes`` and the mask of still-estimated (lazy) entries."""
+        n = len(nodes)
+        iu, ju = np.triu_indices(n, 1)
+        keys = [(min(nodes[i], nodes[j]), max(nodes[i], nodes[j])) for i, j in zip(iu, ju, strict=True)]
+        unknown = [k for k in keys if k not in self.state]
+        if unknown:
+            A = np.array([self.q(a) for a, _ in unknown])
+            B = np.array([self.q(b) for _, b in unknown])
+            free = self.world.motion_free(A, B, self.max_step)
+            self.straight_checked += len(unknown)
+            for k, f, a, b in zip(unknown, free, A, B, strict=True):
+                d = float(np.linalg.norm(b - a))
+                self.state[k] = ("straight", d) if f else ("lazy", LAZY_FACTOR * d)
+        D = np.zeros((n, n))
+        lazy = np.zeros((n, n), dtype=bool)
+        for i, j, k in zip(iu, ju, keys, strict=True):
+            kind, c = self.state[k]
+            D[i, j] = D[j, i] = c
+            lazy[i, j] = lazy[j, i] = kind == "lazy"
+        return D, lazy
+
+    def verify(self, a: int, b: int) -> bool:
+        """Plan pair (a, b) if it is still an estimate; True if it is connected."""
+        k = (min(a, b), max(a, b))
+        kind, _ = self.state[k]
+        if kind == "lazy":
+            ok, length, path = self.planner.plan(self.q(k[0]), self.q(k[1]), "rrtconnect", self.budget_s, self.simplify_s)
+            self.planned += 1
+            if ok:
+                self.state[k] = ("planned", length)
+                self.paths[k] = path
+            else:
+                self.failed += 1
+                self.state[k] = ("failed", UNREACHABLE_COST + float(np.linalg.norm(self.q(k[1]) - self.q(k[0]))))
+        return self.state[k][0] != "failed"
+
+    def isolated(self, nodes: list[int]) -> list[int]:
+        """Nodes not connected to the start by known motions, with ≥ 2 failed links towards it.
+
+        Connected = joined through straight or planned pairs (union-find). A group of
+        viewpoints can be mutually reachable yet cut off from the start (e.g. under the bin,
+        between its legs); the tour cannot use any of them.
+        """
+        parent = {n: n for n in nodes}
+
+        def find(x: int) -> int:
+            while parent[x] != x:
+                parent[x] = parent[parent[x]]
+                x = parent[x]
+            return x
+
+        for i, a in enumerate(nodes):
+            for b in nodes[i + 1 :]:
+                kind = self.state.get((min(a, b), max(a, b)), ("?", 0.0))[0]
+                if kind in ("straight", "planned"):
+                    parent[find(a)] = find(b)
+        root = find(-1) if -1 in parent else None
+        main = [n for n in nodes if find(n) == root]
+        out = []
+        for a in nodes:
+            if find(a) == root:
+                continue
+            fails = sum(self.state.get((min(a, b), max(a, b)), ("?", 0.0))[0] == "failed" for b in main)
+            group_fails = sum(
+                self.state.get((min(x, b), max(x, b)), ("?", 0.0))[0] == "failed"
+                for x in nodes if find(x) == find(a) for b in main
+            )
+            if fails >= 1 or group_fails >= 2:
+                out.append(a)
+        return out
+
+    def path(self, a: int, b: int) -> NDArray[np.float64] | None:
+        """Planned waypoints a → b (None for straight motions)."""
+        p = self.paths.get((min(a, b), max(a, b)))
+        if p is None:
+            return None
+        return p if a < b else p[::-1]

@@ -35,6 +35,9 @@ __all__ = ["PlanParams", "ProgressFn", "base_pose_from_xyz_yaw", "make_plan"]
 ProgressFn = Callable[[str, float, str], None]
 """``progress(stage, fraction 0..1, message)``."""
 
+MAX_TOUR_ROUNDS = 12  # fast mode: plan-the-tour's-edges / re-order rounds
+MAX_SELECT_ROUNDS = 4  # fast mode: re-select after dropping viewpoints no motion connects
+
 STAGES = ("generate_filter", "reachability", "visibility", "selection", "distance_matrix", "ordering")
 
 
@@ -73,8 +76,8 @@ class PlanParams:
     margin: float = 0.005
     camera: CameraModel = field(default_factory=CameraModel)
     paper_budget_s: float = 1.0
-    fallback_budget_s: float = 0.25
-    simplify_s: float = 0.1
+    fallback_budget_s: float = 0.2
+    simplify_s: float = 0.05
     cover_time_limit_s: float = 5.0
     q_start: tuple[float, ...] | None = None
 
@@ -143,7 +146,7 @@ class _Stages:
 
     def update(self, done: int, total: int, message: str = "") -> None:
         frac = 0.0 if total <= 0 else min(1.0, done / total)
-        if self._bar is not None:
+        if self._bar is not None and int(100 * frac) != self._bar.n:
             self._bar.n = int(100 * frac)
             self._bar.refresh()
         if self.progress:
@@ -177,7 +180,7 @@ def make_plan(
     """
     from cellctl.planning.collision import CollisionWorld
     from cellctl.planning.filters import camera_collision_filter, distance_filter, height_filter, occlusion_filter
-    from cellctl.planning.pathcost import JointPlanner, path_cost_matrix, verify_edge
+    from cellctl.planning.pathcost import UNREACHABLE_COST, EdgeCache, JointPlanner, path_cost_matrix
     from cellctl.planning.raycast import RayCaster
     from cellctl.planning.reach import reachability
     from cellctl.planning.seeds import sample_seeds
@@ -311,71 +314,99 @@ def make_plan(
         return finish("no face of the surface is properly visible from any reachable viewpoint")
 
     # --- selection ----------------------------------------------------------------------------
-    st.start("selection", "selection")
-    ga = greedy_area(C, a)
-    counts["greedy"] = len(ga)
-    st.update(1, 3)
-    sa = simulated_annealing(C, a, ga, params.sa_pct, rng, iterations=params.sa_iterations)
-    sel = sa.selected
-    counts["annealed"] = len(sel)
-    st.update(2, 3)
-    n_opt, proven, t_cover = min_set_cover(C, params.cover_time_limit_s)
-    counts["optimal_cover"] = n_opt
-    stage_counts["optimal_cover_proven"] = int(proven)
-    area["visible_selected_m2"] = visible_area(C, a, sel)
-    area["loss_pct"] = 100.0 * (1.0 - area["visible_selected_m2"] / area["visible_all_m2"])
-    area["greedy_loss_pct"] = 100.0 * (1.0 - visible_area(C, a, ga) / area["visible_all_m2"])
-    st.end()
-    plan["times_s"]["exact_cover_s"] = t_cover
-
-    # --- path costs + tour ----------------------------------------------------------------
-    st.start("distance_matrix", "distance matrix")
-    nodes = np.vstack([q_start[None], reached.q[sel]])
-    pc = path_cost_matrix(
-        nodes,
-        world,
-        params.mode,
-        budget_s=params.paper_budget_s if params.mode == "paper" else params.fallback_budget_s,
-        simplify_s=params.simplify_s,
-        lazy=params.mode == "fast",
-        progress=lambda d, t: st.update(d, t),
-    )
-    stage_counts["matrix_pairs"] = len(nodes) * (len(nodes) - 1) // 2
-    stage_counts["matrix_straight"] = int(np.triu(pc.straight, 1).sum())
-    st.end()
-    st.start("ordering", "ant colony")
-    order = two_opt(pc.D, ant_colony(pc.D, rng))
-    st.end()
-    if pc.lazy is not None:
-        # plan only the tour's estimated edges; re-order while some turned out longer/impossible
-        jp = JointPlanner(world)
-        for _round in range(6):
-            st.start("distance_matrix", "tour edges")
-            edges = [(int(a), int(b)) for a, b in zip(order[:-1], order[1:], strict=True)]
-            todo = [(a, b) for a, b in edges if pc.lazy[a, b]]
-            for k, (a, b) in enumerate(todo):
-                verify_edge(pc, nodes, a, b, jp, params.fallback_budget_s, params.simplify_s)
-                st.update(k + 1, len(todo))
+    jp_cache = None
+    if params.mode == "fast":
+        jp_cache = EdgeCache(reached.q, q_start, world, params.fallback_budget_s, params.simplify_s)
+    allowed = np.ones(C.shape[1], dtype=bool)
+    dropped: list[int] = []
+    for _attempt in range(MAX_SELECT_ROUNDS):
+        # --- selection (over the viewpoints still allowed) ---------------------------------
+        st.start("selection", "selection")
+        cols = np.flatnonzero(allowed)
+        Cs = C[:, cols]
+        ga = cols[greedy_area(Cs, a)]
+        st.update(1, 3)
+        sa = simulated_annealing(Cs, a, np.searchsorted(cols, ga), params.sa_pct, rng, iterations=params.sa_iterations)
+        sel = cols[sa.selected]
+        st.end()
+        if params.mode == "paper":
+            # --- full matrix, every pair by RRT* with the fixed budget -----------------------
+            st.start("distance_matrix", "distance matrix")
+            nodes_q = np.vstack([q_start[None], reached.q[sel]])
+            pc = path_cost_matrix(
+                nodes_q, world, "paper", budget_s=params.paper_budget_s, simplify_s=params.simplify_s,
+                progress=lambda d, t: st.update(d, t),
+            )
+            stage_counts["matrix_pairs"] = len(nodes_q) * (len(nodes_q) - 1) // 2
+            stage_counts["matrix_planned"] = pc.planned
+            stage_counts["matrix_failed"] = pc.failed
             st.end()
-            if not todo:
-                break
             st.start("ordering", "ant colony")
             order = two_opt(pc.D, ant_colony(pc.D, rng))
             st.end()
-        still = [(int(a), int(b)) for a, b in zip(order[:-1], order[1:], strict=True) if pc.lazy[a, b]]
-        stage_counts["tour_unverified_edges"] = len(still)
-    stage_counts["matrix_planned"] = pc.planned
-    stage_counts["matrix_failed"] = pc.failed
-    plan["tour_cost"] = path_cost(pc.D, order)
+            D = pc.D
+
+            def edge_path(i: int, j: int, pc=pc) -> NDArray[np.float64] | None:  # noqa: ANN001
+                p = pc.paths.get((min(i, j), max(i, j)))
+                return None if p is None else (p if i < j else p[::-1])
+
+            break
+        # --- fast: straight lines now, plan only the edges the tour uses ----------------------
+        nodes = [-1, *[int(k) for k in sel]]
+        st.start("distance_matrix", "distance matrix")
+        D, lazy = jp_cache.matrix(nodes)
+        st.end()
+        st.start("ordering", "ant colony")
+        order = two_opt(D, ant_colony(D, rng))
+        st.end()
+        for _round in range(MAX_TOUR_ROUNDS):
+            edges = [(int(x), int(y)) for x, y in zip(order[:-1], order[1:], strict=True) if lazy[x, y]]
+            if not edges:
+                break
+            st.start("distance_matrix", "tour edges")
+            for k, (x, y) in enumerate(edges):
+                jp_cache.verify(nodes[x], nodes[y])
+                st.update(k + 1, len(edges))
+            D, lazy = jp_cache.matrix(nodes)
+            st.end()
+            st.start("ordering", "2-opt repair")
+            order = two_opt(D, order)  # repair the ant tour around edges that got dearer
+            st.end()
+        bad = jp_cache.isolated(nodes)
+        stage_counts["matrix_pairs"] = len(nodes) * (len(nodes) - 1) // 2
+        stage_counts["matrix_straight"] = int(np.sum(~lazy[np.triu_indices(len(nodes), 1)] & (D[np.triu_indices(len(nodes), 1)] < UNREACHABLE_COST)))
+        stage_counts["matrix_planned"] = jp_cache.planned
+        stage_counts["matrix_failed"] = jp_cache.failed
+        stage_counts["tour_unverified_edges"] = int(sum(lazy[x, y] for x, y in zip(order[:-1], order[1:], strict=True)))
+
+        def edge_path(i: int, j: int, nodes=nodes) -> NDArray[np.float64] | None:  # noqa: ANN001
+            return jp_cache.path(nodes[i], nodes[j])
+
+        if not bad:
+            break
+        # viewpoints no motion could connect are not reachable after all: drop them, re-select
+        allowed[bad] = False
+        dropped += bad
+    stage_counts["dropped_unconnected"] = len(dropped)
+    counts["reachable"] = int(allowed.sum())
+    counts["greedy"] = len(ga)
+    counts["annealed"] = len(sel)
+    st.start("selection", "exact cover")
+    n_opt, proven, t_cover = min_set_cover(C[:, allowed], params.cover_time_limit_s)
+    st.end()
+    counts["optimal_cover"] = n_opt
+    stage_counts["optimal_cover_proven"] = int(proven)
+    plan["times_s"]["exact_cover_s"] = t_cover
+    area["visible_selected_m2"] = visible_area(C, a, sel)
+    area["loss_pct"] = 100.0 * (1.0 - area["visible_selected_m2"] / area["visible_all_m2"])
+    area["greedy_loss_pct"] = 100.0 * (1.0 - visible_area(C, a, ga) / area["visible_all_m2"])
+    plan["tour_cost"] = path_cost(D, order)
 
     vps = []
     for rank, node in enumerate(order[1:]):
         k = int(sel[node - 1])
         prev = int(order[rank])
-        key = (min(prev, int(node)), max(prev, int(node)))
-        path = pc.paths.get(key)
-        if path is not None and key[0] != prev:
-            path = path[::-1]
+        path = edge_path(prev, int(node))
         T_bin_cam = reached.T[k]
         vps.append(
             {
@@ -388,7 +419,7 @@ def make_plan(
                 "faces": surf_faces[C[:, k]].tolist(),
                 "seed_face": int(vp.seed_face[reached.index[k]]),
                 "approach": path[1:-1].tolist() if path is not None else [],
-                "cost_from_prev": float(pc.D[prev, node]),
+                "cost_from_prev": float(D[prev, node]),
             }
         )
     plan["viewpoints"] = vps

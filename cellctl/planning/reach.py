@@ -132,8 +132,9 @@ def reachability(
     All IK candidates (every roll, every branch) of the viewpoints of one rank are checked in
     one batch. Then one IK branch is preferred for the whole plan — the branch most viewpoints
     can use — and each viewpoint takes its free candidate of that branch closest to the
-    branch's median configuration (other branches only when it has none), so consecutive
-    viewpoints are usually joined by short, collision-free straight joint motions.
+    branch's median configuration (the wrist-flipped twin of the branch only when it has
+    none; viewpoints reachable only with another arm shape count as unreachable), so
+    consecutive viewpoints are usually joined by short, collision-free joint motions.
 
     Args:
         vp: filtered viewpoints (bin frame).
@@ -181,6 +182,14 @@ def reachability(
                 done += 1
                 continue
             Qi, ri, bi = Qc[m], rc[m], br[m]
+            # only the preferred arm shape (shoulder + elbow); a wrist flip is allowed at a
+            # penalty. Other shapes need the arm to swing through singular/crowded regions,
+            # which is rarely possible next to the bin (measured: most such motions fail).
+            same = (bi >> 1) == (preferred >> 1)
+            if not same.any():
+                done += 1
+                continue
+            Qi, ri, bi = Qi[same], ri[same], bi[same]
             key = np.linalg.norm(Qi - centre, axis=1) + 100.0 * (bi != preferred)
             for s in np.argsort(key, kind="stable"):
                 if accept is None or accept(i, Qi[s]):
