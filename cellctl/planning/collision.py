@@ -36,7 +36,7 @@ class CollisionWorld:
         mesh: BinMesh,
         robot: RobotModel,
         T_bin_base: ArrayLike,
-        margin: float = 0.01,
+        margin: float = 0.005,
         floor_z: float | None = None,
     ) -> None:
         from cellctl.sim.collision import CollisionWorld as SimWorld
