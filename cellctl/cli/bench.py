@@ -15,6 +15,7 @@ from cellctl.cli import add_config_arguments
 # name -> (module:function, help). Add yours here.
 BENCHES: dict[str, tuple[str, str]] = {
     "bus": ("cellctl.bus.bench:bench_bus", "command→ack and status latency on loopback"),
+    "cycle": ("cellctl.supervisor.bench:bench_cycle", "supervisor overhead per viewpoint, cycle time, cycles/hour"),
     "classify": ("cellctl.classify.bench:bench_classify", "classifier latency/throughput/accuracy per variant"),
     "pose": ("cellctl.vision.bench:bench_pose", "ChArUco bin-pose accuracy vs ground truth at 0.5-2 m"),
     "sim": ("cellctl.sim.bench:bench_sim", "twin: IK per pose, collision check per configuration, render per frame"),

@@ -115,12 +115,16 @@ class StepRun:
         payload: bytes | None = None,
         timeout: float | None = None,
         key: str | None = None,
+        account: str | None = None,
     ) -> tuple[M, bytes | None]:
         """Request ``op`` from the ``role`` worker, recorded in the cycle log.
 
         Raises:
             Cancelled: before sending, or when the reply arrives after cancellation.
             WorkerUnavailable / WorkerTimeout / WorkerFailed: see :mod:`cellctl.bus.rpc`.
+
+        ``account`` names the timing bucket (default: this step); background calls use their
+        own so overlapping time is not subtracted from the step's wall time.
         """
         self.checkpoint()
         k = key or keys.worker_op(self.ctx.cfg.cell_id, role, op)
@@ -137,7 +141,8 @@ class StepRun:
         dt = time.perf_counter() - t0
         log.debug("%s/%s in %.1f ms", role, op, dt * 1e3)
         # Time inside worker requests, per calling step: what the supervisor did not spend itself.
-        self.ctx.rpc_seconds[self.name] = self.ctx.rpc_seconds.get(self.name, 0.0) + dt
+        name = account or self.name
+        self.ctx.rpc_seconds[name] = self.ctx.rpc_seconds.get(name, 0.0) + dt
         self.ctx.rpc_count += 1
         self.ctx.log.write_message(f"{k}/reply", reply)
         self.checkpoint()
