@@ -11,7 +11,9 @@ viewpoints look along −normal from 0.3–0.8 m; internal ones radiate from the
 A *dirty* draw seeds powder (amount U(0.2, 1)) and aims near one of its clumps on the
 requested surface (offset up to 10 cm, so powder is not always centred); a *clean* draw seeds
 none. A view is kept only if at least half of its pixels show the requested surface. The
-label then comes from the rendered visible-powder mask (see :mod:`cellctl.classify.synth`).
+label then comes from the rendered powder mask, restricted to pixels the powder visibly
+changes (a second render of the dirty view without powder, same light and noise seed; see
+:mod:`cellctl.classify.synth`).
 
 Images are rendered at low resolution (``size`` px wide, the D435's 16:9 aspect): the
 classifier input is 128 px and the ray-traced render at 256×144 takes ~25 ms instead of
@@ -35,7 +37,7 @@ MIN_SURFACE_FRACTION = 0.5
 
 def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: Any) -> Callable:
     """A ``draw(rng, dirty) -> Sample`` function rendering with :class:`cellctl.sim.render.SimRenderer`."""
-    from cellctl.classify.synth import Sample
+    from cellctl.classify.synth import MIN_CONTRAST, Sample
     from cellctl.config import load_config
     from cellctl.geometry.catalog import EXTERNAL, INTERNAL, load_catalog
     from cellctl.geometry.transforms import rotation_about, transform_from
@@ -137,13 +139,23 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
             )
             if float((out.surface == tag).mean()) < MIN_SURFACE_FRACTION:
                 continue
+            visible = out.powder_mask.copy()
+            if dirty and visible.any():
+                # Same view, light and sensor-noise seed without powder: the difference is
+                # exactly what the powder does to the image.
+                bare = renderer.render_bin_view(
+                    name, T_bin_cam, intr, dirty=False, powder_amount=0.0, seed=pseed, params=rp
+                )
+                diff = np.abs(out.rgb.astype(np.int16) - bare.rgb.astype(np.int16)).max(axis=2)
+                visible &= diff >= MIN_CONTRAST
             return Sample(
                 out.rgb,
-                out.powder_mask.astype(np.float32),
+                visible.astype(np.float32),
                 {
                     "bin": name,
                     "powder_amount": round(amount, 3),
                     "powder_seed": pseed,
+                    "powder_in_view": round(float(out.powder_mask.mean()), 5),
                     **pdict,
                     "eye_bin": [round(float(v), 3) for v in T_bin_cam[:3, 3]],
                 },

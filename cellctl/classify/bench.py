@@ -108,7 +108,8 @@ def bench_classify(args: argparse.Namespace) -> dict[str, Any]:
 
         def q_proba(ims: list[np.ndarray]) -> np.ndarray:
             with torch.inference_mode():
-                return torch.softmax(q(base.tensor(ims)), 1)[:, 1].double().numpy()
+                logits = q(base.tensor(ims)).double()
+                return torch.sigmoid((logits[:, 1] - logits[:, 0]) / base.temperature).numpy()
 
         p50, p95 = _timings(q_proba, images, max(10, n // 5))
         p = np.concatenate([q_proba(images[s : s + 32]) for s in range(0, len(images), 32)])

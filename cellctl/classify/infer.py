@@ -74,6 +74,7 @@ class SurfaceModel:
         model_id: str,
         card: dict[str, Any] | None,
         variant: str,
+        temperature: float = 1.0,
     ) -> None:
         self.net = net
         self.surface = surface
@@ -86,6 +87,7 @@ class SurfaceModel:
         self.model_id = model_id
         self.card = card
         self.variant = variant
+        self.temperature = float(temperature)
 
     @classmethod
     def load(cls, path: Path | str, *, surface: str | None = None, variant: str = "fp32") -> SurfaceModel:
@@ -160,6 +162,7 @@ class SurfaceModel:
             model_id=model_id,
             card=card,
             variant=variant,
+            temperature=float(blob.get("temperature", 1.0)),
         )
 
     def tensor(self, images: list[NDArray[np.uint8]]) -> torch.Tensor:
@@ -172,8 +175,9 @@ class SurfaceModel:
         out = []
         with torch.inference_mode():
             for s in range(0, len(images), batch):
-                logits = self.net(self.tensor(images[s : s + batch]))
-                out.append(torch.softmax(logits.float(), 1)[:, 1].double().numpy())
+                logits = self.net(self.tensor(images[s : s + batch])).double()
+                z = (logits[:, 1] - logits[:, 0]) / self.temperature
+                out.append(torch.sigmoid(z).numpy())
         return np.concatenate(out) if out else np.zeros(0)
 
     def predict(self, images: list[NDArray[np.uint8]]) -> list[Prediction]:

@@ -8,10 +8,13 @@ Sources:
 * ``procedural`` — :mod:`cellctl.classify.texture` (steel + powder images with exact masks);
   used by the tests and when no renderer is available.
 
-Label rule (both sources): a pixel shows powder when its powder opacity is ≥ 0.5; an image is
-**dirty** when at least :data:`MIN_VISIBLE_FRACTION` of its pixels show powder, **clean** when
-none do. Images in between (a few powder pixels: too little to call either way) are discarded
-and drawn again, so every stored label is true by construction.
+Label rule (both sources): a pixel shows powder when its powder opacity is ≥ 0.5 and (twin)
+the powder changes the pixel by at least :data:`MIN_CONTRAST` grey levels against the same
+render without powder (same light, same sensor noise), so powder washed out by glare or lost
+in the dark does not count as visible. An image is **dirty** when at least
+:data:`MIN_VISIBLE_FRACTION` of its pixels show powder, **clean** when no powder lies in view
+at all. Images in between (a few visible powder pixels, or powder in view but not visible) are
+discarded and drawn again, so every stored label is true by construction.
 
 Half the draws are clean (no powder seeded) and half dirty (powder amount varied). Lighting,
 exposure and camera noise are varied per image from a seeded RNG. ``shifted=True`` draws from
@@ -39,12 +42,21 @@ from tqdm import tqdm
 from cellctl.classify.collect import LABELS, check_surface
 from cellctl.errors import ClassifierError
 
-__all__ = ["MIN_VISIBLE_FRACTION", "POWDER_ALPHA", "Sample", "label_from_mask", "synth_dataset"]
+__all__ = [
+    "MIN_CONTRAST",
+    "MIN_VISIBLE_FRACTION",
+    "POWDER_ALPHA",
+    "Sample",
+    "label_from_mask",
+    "synth_dataset",
+]
 
 MIN_VISIBLE_FRACTION = 0.003
 """Smallest fraction of the frame showing powder for a *dirty* label (0.3 %: ~50 px at 128²)."""
 POWDER_ALPHA = 0.5
 """Powder opacity at which a pixel counts as showing powder."""
+MIN_CONTRAST = 12
+"""Grey levels (8-bit, any channel) by which powder must change a pixel to count as visible."""
 
 
 @dataclass(frozen=True)
@@ -56,12 +68,22 @@ class Sample:
     params: dict[str, Any]
 
 
-def label_from_mask(powder: NDArray[np.floating], min_fraction: float = MIN_VISIBLE_FRACTION) -> str | None:
-    """``"dirty"``, ``"clean"`` or ``None`` (ambiguous: discard) from a visible-powder opacity map."""
+def label_from_mask(
+    powder: NDArray[np.floating], min_fraction: float = MIN_VISIBLE_FRACTION, present: float | None = None
+) -> str | None:
+    """``"dirty"``, ``"clean"`` or ``None`` (ambiguous: discard) from a visible-powder map.
+
+    Args:
+        powder: per-pixel visible powder opacity (or 0/1 visibility) of the image.
+        min_fraction: smallest visible fraction for *dirty*.
+        present: fraction of pixels where powder lies in view at all, visible or not (e.g.
+            washed out by glare). An image with powder present but not visible enough is
+            ambiguous, never *clean*.
+    """
     frac = float((np.asarray(powder) >= POWDER_ALPHA).mean())
     if frac >= min_fraction:
         return "dirty"
-    if frac == 0.0:
+    if frac == 0.0 and not present:
         return "clean"
     return None
 
@@ -158,7 +180,7 @@ def synth_dataset(
     ):
         for _ in range(max_tries):
             s = draw(rng, dirty)
-            label = label_from_mask(s.powder)
+            label = label_from_mask(s.powder, present=s.params.get("powder_in_view"))
             if label is not None:
                 break
             discarded += 1

@@ -17,11 +17,13 @@ Presets:
   StepLR schedule divides the rate by 10⁴ after 20 epochs, so later epochs cannot learn
   (notes/vision.md §8): early stopping (patience 5 on validation loss) ends them.
 * ``default`` — phase 1 AdamW lr 3e-3, cosine decay, up to 40 epochs on cached features
-  (wd 1e-4, batch 64); phase 2 AdamW lr 1e-3, cosine decay, up to 6 epochs (batch 64) on the
-  cached deeper stages, patience 3; two cached views per image (plain + one augmented).
+  (wd 1e-4, batch 64); phase 2 AdamW lr 3e-4, cosine decay, up to 5 epochs (batch 64) on the
+  cached deeper stages, patience 2; two cached views per image (plain + one augmented).
   See docs/decisions.md "## Classifier" for the measured comparison.
 
-The best epoch (lowest validation loss, over both phases) is the one kept. Outputs beside
+The best epoch (highest validation accuracy, ties to the lower loss, over both phases) is the
+one kept; then a temperature is fitted on validation (:func:`fit_temperature`) and the
+decision threshold is chosen on the calibrated validation scores. Outputs beside
 ``out`` (e.g. ``models/classifier/external.pt``): ``external.json`` (model card),
 ``external.csv`` (per-epoch metrics), ``external.png`` (accuracy curves like paper Fig. 16).
 """
@@ -103,7 +105,7 @@ PRESETS: dict[str, Preset] = {
         name="default",
         cache_views=2,
         head=Phase(epochs=40, lr=3e-3, optimizer="adamw", lr_step=0, batch=64, patience=8),
-        finetune=Phase(epochs=6, lr=1e-3, optimizer="adamw", lr_step=0, batch=64, patience=3, cached=True),
+        finetune=Phase(epochs=5, lr=3e-4, optimizer="adamw", lr_step=0, batch=64, patience=2, cached=True),
     ),
 }
 
@@ -160,6 +162,36 @@ def _predict(
             x, _ = data.batch(np.arange(s, min(s + bs, len(data))), None, mean, std)
             out.append(torch.softmax(model(x), 1)[:, 1].numpy())
     return np.concatenate(out) if out else np.zeros(0)
+
+
+def _margins(
+    model: nn.Module, data: _Images, mean: torch.Tensor, std: torch.Tensor, bs: int = 64
+) -> np.ndarray:
+    """Logit margins ``z = logit_dirty − logit_clean`` (``p_dirty = sigmoid(z / T)``)."""
+    model.eval()
+    out = []
+    with torch.inference_mode():
+        for s in range(0, len(data), bs):
+            x, _ = data.batch(np.arange(s, min(s + bs, len(data))), None, mean, std)
+            logits = model(x).double()
+            out.append((logits[:, 1] - logits[:, 0]).numpy())
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def fit_temperature(z: np.ndarray, y: np.ndarray) -> float:
+    """Temperature ``T`` minimising the NLL of ``sigmoid(z / T)`` (grid over 0.2–50, log-spaced).
+
+    Temperature scaling keeps the ranking (AUC) and only makes ``p_dirty`` honest, so that a
+    threshold and an ``uncertain`` band chosen on validation data mean the same on new data.
+    """
+    y = y.astype(np.float64)
+    best_t, best_nll = 1.0, np.inf
+    for t in np.exp(np.linspace(np.log(0.2), np.log(50.0), 241)):
+        q = z / t
+        nll = float(np.mean(np.logaddexp(0.0, -q) * y + np.logaddexp(0.0, q) * (1 - y)))
+        if nll < best_nll:
+            best_t, best_nll = float(t), nll
+    return best_t
 
 
 def _features(
@@ -330,7 +362,7 @@ def train(
     backbone_sha = sha256_file(backbone_src) if Path(backbone_src).is_file() else None
     rows: list[dict[str, Any]] = []
     loss_fn = nn.CrossEntropyLoss()
-    best: dict[str, Any] = {"val_loss": math.inf, "state": None, "epoch": -1, "phase": None}
+    best: dict[str, Any] = {"val_acc": -1.0, "val_loss": math.inf, "state": None, "epoch": -1, "phase": None}
 
     def record(
         phase: str, epoch: int, tl: float, ta: float, vl: float, vacc: float, lr: float, dt: float
@@ -348,9 +380,14 @@ def train(
                 "seconds": round(dt, 2),
             }
         )
-        improved = vl < best["val_loss"] - 1e-5
+        # Keep the epoch with the best validation accuracy, the lower loss breaking ties
+        # (loss alone prefers an under-fitted head whose errors are merely less confident).
+        improved = vacc > best["val_acc"] + 1e-9 or (
+            abs(vacc - best["val_acc"]) <= 1e-9 and vl < best["val_loss"]
+        )
         if improved:
             best.update(
+                val_acc=vacc,
                 val_loss=vl,
                 epoch=len(rows),
                 phase=phase,
@@ -496,10 +533,12 @@ def train(
     model.eval()
 
     # --- threshold on val, metrics on test ---
-    pv = _predict(model, va, mean, std)
+    zv = _margins(model, va, mean, std)
+    temperature = fit_temperature(zv, va.y)
+    pv = 1.0 / (1.0 + np.exp(-zv / temperature))
     threshold = choose_threshold(pv, va.y, target_false_clean)
     band = 1.5
-    pt = _predict(model, te, mean, std)
+    pt = 1.0 / (1.0 + np.exp(-_margins(model, te, mean, std) / temperature))
     test_m = metrics(pt, te.y, threshold, band)
     val_m = metrics(pv, va.y, threshold, band)
     train_s = time.perf_counter() - t0
@@ -513,6 +552,7 @@ def train(
         "labels": list(LABELS),
         "threshold": threshold,
         "uncertain_logit_band": band,
+        "temperature": temperature,
     }
     save_model(model, out, meta)
     sha = sha256_file(out)
@@ -540,7 +580,12 @@ def train(
             "augmentation": "reflect pad-crop 1/16, h/v flip, brightness/contrast x0.8-1.2, noise sigma 0-4",
         },
         "seed": seed,
-        "best_epoch": {"global_epoch": best["epoch"], "phase": best["phase"], "val_loss": best["val_loss"]},
+        "best_epoch": {
+            "global_epoch": best["epoch"],
+            "phase": best["phase"],
+            "val_acc": best["val_acc"],
+            "val_loss": best["val_loss"],
+        },
         "metrics": {"val": val_m, "test": test_m},
         "train_seconds": round(train_s, 1),
         "torch": torch.__version__,

@@ -46,3 +46,14 @@ def test_metrics_confusion_and_uncertain_band() -> None:
     assert m["false_clean_rate"] == 0.5 and m["accuracy"] == 0.5
     assert list(is_uncertain(p, 0.5, 1.0)) == [False, True, True, False]
     assert m["uncertain_fraction"] == 0.5 and m["accuracy_certain"] == 1.0
+
+
+def test_temperature_fit_recovers_the_scale() -> None:
+    """Margins sharpened ×4 are scaled back to about T = 4 (calibration keeps the ranking)."""
+    from cellctl.classify.train import fit_temperature
+
+    rng = np.random.default_rng(0)
+    z_true = rng.normal(0, 2, 4000)
+    y = (rng.random(4000) < 1 / (1 + np.exp(-z_true))).astype(int)
+    t = fit_temperature(4 * z_true, y)
+    assert 3.4 < t < 4.7
