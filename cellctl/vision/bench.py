@@ -27,7 +27,7 @@ from cellctl.errors import IdentificationError
 from cellctl.geometry.transforms import invert, pose_error
 from cellctl.messages import Intrinsics
 from cellctl.vision.board import BoardSpec, board_centre
-from cellctl.vision.identify import identify
+from cellctl.vision.identify import Identification, identify
 from cellctl.vision.render import RenderSettings, random_view, render_boards
 
 __all__ = [
@@ -171,6 +171,24 @@ def twin_renderer(
     return render
 
 
+def _fused_stats(spec: Any, views: list[Any], k: int) -> dict[str, Any]:
+    """Fuse consecutive groups of ``k`` views (board at the base origin) and summarise the errors."""
+    from cellctl.vision.fuse import fuse
+
+    t, r, b = [], [], []
+    groups = [views[i : i + k] for i in range(0, len(views) - k + 1, k)]
+    for g in groups:
+        ok = [v for v in g if v is not None]
+        if not ok:
+            continue
+        f = fuse(ok)
+        dt, dr, db = _errors(spec, np.eye(4), f.T_base_board)
+        t.append(dt)
+        r.append(dr)
+        b.append(db)
+    return {"n": len(groups), "identified": len(t), "trans_mm": _pct(t), "rot_deg": _pct(r), "bin_origin_mm": _pct(b)}
+
+
 def _pct(x: list[float]) -> dict[str, float | None]:
     if not x:
         return {"p50": None, "p95": None, "max": None}
@@ -204,6 +222,7 @@ def measure(
     progress: bool = True,
     render: RenderFn | None = None,
     extras: dict[str, RenderFn] | None = None,
+    fuse_views: int = 3,
 ) -> dict[str, Any]:
     """Render and identify ``n`` views per distance; percentiles of the errors.
 
@@ -218,6 +237,9 @@ def measure(
         render: ``render(T_cam_board, rng) -> BGR image``; default: :func:`pinhole_renderer`.
         extras: ``name → render``: also render each view this way and identify it with the true
             intrinsics; reported under ``name`` (e.g. an exact pinhole reference).
+        fuse_views: consecutive views of a distance are grouped by this many and fused
+            (:func:`cellctl.vision.fuse`), as when the arm observes from 2-3 poses; reported under
+            ``fused_<k>_views`` (a group counts as identified when ≥ 1 of its views is).
     """
     from tqdm import tqdm
 
@@ -227,7 +249,7 @@ def measure(
     catalog = {"bench": spec}
     biased = intr.model_copy(update={"fx": intr.fx * (1 + focal_error), "fy": intr.fy * (1 + focal_error)})
     rng = np.random.default_rng(seed)
-    rows, rows_f = [], []
+    rows, rows_f, rows_fused, rows_fused_f = [], [], [], []
     rows_x: dict[str, list[dict[str, Any]]] = {k: [] for k in extras}
     times: list[float] = []
     bar = tqdm(total=n * len(distances), desc="bench pose", unit="view", disable=not progress)
@@ -237,6 +259,8 @@ def measure(
         fails_f: dict[str, int] = {}
         acc_x: dict[str, dict[str, list[float]]] = {k: {"t": [], "r": [], "b": []} for k in extras}
         fails_x: dict[str, dict[str, int]] = {k: {} for k in extras}
+        views: list[Identification | None] = []
+        views_f: list[Identification | None] = []
         for _ in range(n):
             T = random_view(spec, intr, d, rng)
             img = render(T, rng)
@@ -252,7 +276,10 @@ def measure(
                     fails_x[name][code] = fails_x[name].get(code, 0) + 1
             t0 = time.perf_counter()
             try:
-                ident = identify(img, intr, None, catalog)
+                # Camera pose in a base frame where the board sits at the origin: the views of a
+                # distance then see one static board from different arm poses (for fusion).
+                ident = identify(img, intr, invert(T), catalog)
+                views.append(ident)
                 times.append((time.perf_counter() - t0) * 1000)
                 dt, dr, db = _errors(spec, T, ident.T_cam_board)
                 acc["t"].append(dt)
@@ -261,8 +288,10 @@ def measure(
             except IdentificationError as err:
                 code = getattr(err, "code", "error")
                 fails[code] = fails.get(code, 0) + 1
+                views.append(None)
             try:
-                ident_f = identify(img, biased, None, catalog)
+                ident_f = identify(img, biased, invert(T), catalog)
+                views_f.append(ident_f)
                 dt, dr, db = _errors(spec, T, ident_f.T_cam_board)
                 acc["tf"].append(dt)
                 acc["rf"].append(dr)
@@ -270,6 +299,7 @@ def measure(
             except IdentificationError as err:
                 code = getattr(err, "code", "error")
                 fails_f[code] = fails_f.get(code, 0) + 1
+                views_f.append(None)
             bar.update(1)
         rows.append(
             {
@@ -293,6 +323,8 @@ def measure(
                 "not_identified": fails_f,
             }
         )
+        rows_fused.append({"distance_m": d, **_fused_stats(spec, views, fuse_views)})
+        rows_fused_f.append({"distance_m": d, **_fused_stats(spec, views_f, fuse_views)})
         for name in extras:
             a = acc_x[name]
             rows_x[name].append(
@@ -310,6 +342,7 @@ def measure(
     out = {
         "distances": rows,
         "focal_error_0_5pct": {"distances": rows_f},
+        f"fused_{fuse_views}_views": {"distances": rows_fused, "focal_error_0_5pct": {"distances": rows_fused_f}},
         "ms_per_identification": round(float(np.mean(times)), 2) if times else None,
     }
     for name in extras:
@@ -358,6 +391,8 @@ def _figure(out: dict[str, Any], path: Any) -> None:
         series.append(("catalog board, exact pinhole render", out["pinhole_reference"]["distances"]))
     if "twin_1spp" in out:
         series.append(("catalog board, twin 1 ray/pixel", out["twin_1spp"]["distances"]))
+    if "fused_3_views" in out:
+        series.append(("catalog board, 3 views fused", out["fused_3_views"]["distances"]))
     if "alternative_board" in out:
         alt = out["alternative_board"]
         series.append((f"{alt['board']['square_m'] * 1000:.0f} mm squares", alt["distances"]))
@@ -366,6 +401,9 @@ def _figure(out: dict[str, Any], path: Any) -> None:
                 f"{alt['board']['square_m'] * 1000:.0f} mm squares, fx +0.5 %",
                 alt["focal_error_0_5pct"]["distances"],
             )
+        )
+        series.append(
+            (f"{alt['board']['square_m'] * 1000:.0f} mm squares, 3 views fused", alt["fused_3_views"]["distances"])
         )
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
     for label, rows in series:
@@ -446,6 +484,8 @@ def bench_pose(args: argparse.Namespace) -> dict[str, Any]:
             else "pinhole homography of the board texture, 3x supersampled (cellctl.vision.render)"
         ),
         "targets_met": _targets(main["distances"]),
+        "fused_3_views": main["fused_3_views"],
+        "targets_met_fused_3_views": _targets(main["fused_3_views"]["distances"]),
     }
     for name in ("pinhole_reference", "twin_1spp"):
         if name in main:
@@ -471,6 +511,8 @@ def bench_pose(args: argparse.Namespace) -> dict[str, Any]:
             "distances": alt["distances"],
             "focal_error_0_5pct": alt["focal_error_0_5pct"],
             "targets_met": _targets(alt["distances"]),
+            "fused_3_views": alt["fused_3_views"],
+            "targets_met_fused_3_views": _targets(alt["fused_3_views"]["distances"]),
         }
     out["wall_s"] = round(time.perf_counter() - t0, 1)
     fig = (

@@ -132,3 +132,7 @@ def test_bench_measure_core() -> None:
     # A 0.5 % focal error moves the board ~0.5 % of its distance along the ray (~5 mm at 1 m).
     assert 3.0 < f["trans_mm"]["p50"] < 7.0
     assert out["ms_per_identification"] > 0
+    fused = out["fused_3_views"]["distances"][0]
+    assert fused["n"] == 1 and fused["identified"] == 1
+    # Three views of the same board: the fused pose beats the median single view.
+    assert fused["trans_mm"]["p50"] < row["trans_mm"]["p50"]
