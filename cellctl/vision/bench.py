@@ -186,7 +186,13 @@ def _fused_stats(spec: Any, views: list[Any], k: int) -> dict[str, Any]:
         t.append(dt)
         r.append(dr)
         b.append(db)
-    return {"n": len(groups), "identified": len(t), "trans_mm": _pct(t), "rot_deg": _pct(r), "bin_origin_mm": _pct(b)}
+    return {
+        "n": len(groups),
+        "identified": len(t),
+        "trans_mm": _pct(t),
+        "rot_deg": _pct(r),
+        "bin_origin_mm": _pct(b),
+    }
 
 
 def _pct(x: list[float]) -> dict[str, float | None]:
@@ -342,7 +348,10 @@ def measure(
     out = {
         "distances": rows,
         "focal_error_0_5pct": {"distances": rows_f},
-        f"fused_{fuse_views}_views": {"distances": rows_fused, "focal_error_0_5pct": {"distances": rows_fused_f}},
+        f"fused_{fuse_views}_views": {
+            "distances": rows_fused,
+            "focal_error_0_5pct": {"distances": rows_fused_f},
+        },
         "ms_per_identification": round(float(np.mean(times)), 2) if times else None,
     }
     for name in extras:
@@ -403,7 +412,10 @@ def _figure(out: dict[str, Any], path: Any) -> None:
             )
         )
         series.append(
-            (f"{alt['board']['square_m'] * 1000:.0f} mm squares, 3 views fused", alt["fused_3_views"]["distances"])
+            (
+                f"{alt['board']['square_m'] * 1000:.0f} mm squares, 3 views fused",
+                alt["fused_3_views"]["distances"],
+            )
         )
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.2))
     for label, rows in series:

@@ -134,5 +134,4 @@ def test_bench_measure_core() -> None:
     assert out["ms_per_identification"] > 0
     fused = out["fused_3_views"]["distances"][0]
     assert fused["n"] == 1 and fused["identified"] == 1
-    # Three views of the same board: the fused pose beats the median single view.
-    assert fused["trans_mm"]["p50"] < row["trans_mm"]["p50"]
+    assert fused["trans_mm"]["p50"] < 2.0 and fused["rot_deg"]["p50"] < 0.3
