@@ -238,4 +238,11 @@ def run_intrinsics(args: argparse.Namespace) -> int:
     out = _write_json(args.out, cfg, data)
     print(json.dumps({k: data[k] for k in ("intrinsics", "rms_px", "fx_rel_std_pct")}, indent=2))
     print(f"wrote {out}", file=sys.stderr)
+    k = res.intrinsics
+    print(
+        "to use it, set in the cell config: "
+        f"camera: {{fx: {k.fx:.3f}, fy: {k.fy:.3f}, cx: {k.cx:.3f}, cy: {k.cy:.3f}}}"
+        + (f"  (distortion {[round(x, 5) for x in k.dist]} is in the file)" if any(k.dist) else ""),
+        file=sys.stderr,
+    )
     return 0

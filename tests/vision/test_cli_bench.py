@@ -135,3 +135,30 @@ def test_bench_measure_core() -> None:
     fused = out["fused_3_views"]["distances"][0]
     assert fused["n"] == 1 and fused["identified"] == 1
     assert fused["trans_mm"]["p50"] < 2.0 and fused["rot_deg"]["p50"] < 0.3
+
+
+def test_calibrate_intrinsics_cli(tmp_path, catalog_file, capsys) -> None:
+    rng = np.random.default_rng(3)
+    imgs = tmp_path / "views"
+    imgs.mkdir()
+    for k in range(8):
+        T = view_of_board(
+            SPEC_B,
+            INTR,
+            rng.uniform(0.55, 0.8),
+            rng.uniform(25, 45),
+            45.0 * k,
+            offset_px=(rng.uniform(-200, 200), rng.uniform(-100, 100)),
+        )
+        cv2.imwrite(str(imgs / f"v{k}.png"), render_boards([(SPEC_B, T)], INTR, rng=rng))
+    out = tmp_path / "intr.json"
+    rc = main(
+        ["calibrate", "intrinsics", "--images", str(imgs), "--catalog", str(catalog_file), "--out", str(out)]
+    )
+    assert rc == 0
+    data = json.loads(out.read_text())
+    assert data["type"] == "cellctl/IntrinsicsCalibration" and len(data["views"]) == 8
+    assert abs(data["intrinsics"]["fx"] / INTR.fx - 1) < 0.003
+    assert "camera: {fx: " in capsys.readouterr().err
+    # The file feeds `cellctl identify --intrinsics FILE` directly.
+    assert parse_intrinsics(str(out), 1280, 720).fx == data["intrinsics"]["fx"]
