@@ -266,8 +266,8 @@ def identify(
 
     Raises:
         IdentificationError: the bin cannot be identified; the message says why and ``.code``
-            is one of ``bad image``, ``no markers``, ``unknown id range``, ``two boards``,
-            ``too few corners``, ``collinear``, ``ambiguous``, ``reprojection``.
+            is one of ``bad image``, ``no markers``, ``too few markers``, ``unknown id range``,
+            ``two boards``, ``too few corners``, ``collinear``, ``ambiguous``, ``reprojection``.
     """
     t0 = time.perf_counter()
     st = settings or IdentifySettings()
