@@ -54,7 +54,7 @@ from cellctl.classify.evaluate import choose_threshold, metrics
 from cellctl.classify.nets import backbone_parameters, build_model, describe, head_module, lite0_imagenet_path
 from cellctl.errors import ClassifierError
 
-__all__ = ["PRESETS", "Phase", "Preset", "save_model", "sha256_file", "train"]
+__all__ = ["PRESETS", "Phase", "Preset", "calibrate", "fit_temperature", "save_model", "sha256_file", "train"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -90,6 +90,9 @@ class Preset:
     cache_views: int = 3
     arch: str = "lite0"
 
+
+UNCERTAIN_LOGIT_BAND = 1.5
+"""Images within this many logits of the threshold are flagged ``uncertain`` (p 0.18–0.82 at 0.5)."""
 
 CACHE_SPLIT = {"lite0": 9, "resnet18": 4}
 """First trainable stage of the cached fine-tune: Lite0 blocks 8-15 + head conv (stride-16
@@ -179,14 +182,16 @@ def _margins(
 
 
 def fit_temperature(z: np.ndarray, y: np.ndarray) -> float:
-    """Temperature ``T`` minimising the NLL of ``sigmoid(z / T)`` (grid over 0.2–50, log-spaced).
+    """Temperature ``T`` minimising the NLL of ``sigmoid(z / T)`` (grid over 1–50, log-spaced).
 
     Temperature scaling keeps the ranking (AUC) and only makes ``p_dirty`` honest, so that a
     threshold and an ``uncertain`` band chosen on validation data mean the same on new data.
+    ``T`` is never below 1: on a validation set the model separates perfectly the NLL keeps
+    falling as ``T`` → 0, which would only make the model look more certain than it is.
     """
     y = y.astype(np.float64)
     best_t, best_nll = 1.0, np.inf
-    for t in np.exp(np.linspace(np.log(0.2), np.log(50.0), 241)):
+    for t in np.exp(np.linspace(0.0, np.log(50.0), 201)):
         q = z / t
         nll = float(np.mean(np.logaddexp(0.0, -q) * y + np.logaddexp(0.0, q) * (1 - y)))
         if nll < best_nll:
@@ -278,6 +283,78 @@ def _provenance(folder: Path) -> list[dict[str, Any]] | None:
         return json.loads(p.read_text()) if p.is_file() else None
     except json.JSONDecodeError:
         return None
+
+
+def _calibrate(
+    model: nn.Module, va: _Images, te: _Images, mean: torch.Tensor, std: torch.Tensor, target: float
+) -> tuple[float, float, float, dict[str, Any], dict[str, Any]]:
+    """Temperature and threshold from validation; metrics on validation and test."""
+    zv = _margins(model, va, mean, std)
+    temperature = fit_temperature(zv, va.y)
+    pv = 1.0 / (1.0 + np.exp(-zv / temperature))
+    threshold = choose_threshold(pv, va.y, target)
+    band = UNCERTAIN_LOGIT_BAND
+    pt = 1.0 / (1.0 + np.exp(-_margins(model, te, mean, std) / temperature))
+    return (
+        temperature,
+        threshold,
+        band,
+        metrics(pv, va.y, threshold, band),
+        metrics(pt, te.y, threshold, band),
+    )
+
+
+def calibrate(
+    model_path: Path | str, data: Path | str, *, target_false_clean: float = 0.01, threads: int | None = None
+) -> dict[str, Any]:
+    """Refit the temperature and the decision threshold of a trained model; rewrite weights + card.
+
+    Uses the validation split the model card records (same data folder and seed), so the
+    test split stays untouched; test metrics are recomputed with the new threshold.
+
+    Raises:
+        ClassifierError: no card beside the weights, or a data folder that is not the one the
+            model was trained on.
+    """
+    path = Path(model_path)
+    card_path = path.with_suffix(".json")
+    if not card_path.is_file():
+        raise ClassifierError(f"model card {str(card_path)!r} is missing; calibrate needs the training split")
+    card = json.loads(card_path.read_text())
+    root = Path(card["data"]["root"])
+    if root != Path(data).resolve():
+        raise ClassifierError(f"{path.name} was trained on {str(root)!r}, not {str(Path(data).resolve())!r}")
+    torch.set_num_threads(threads or os.cpu_count() or 1)
+    blob = torch.load(path, map_location="cpu", weights_only=True)
+    model = build_model(blob["arch"], pretrained=False)
+    model.load_state_dict(
+        {k: (v.float() if v.is_floating_point() else v) for k, v in blob["state_dict"].items()}
+    )
+    model.eval()
+    split = split_dataset(data, blob["surface"], seed=int(card["data"]["split_seed"]))
+    size = int(blob["input_size"])
+    va, te = _Images(split.val, size, "val"), _Images(split.test, size, "test")
+    mean = torch.tensor(blob["mean"]).view(1, 3, 1, 1)
+    std = torch.tensor(blob["std"]).view(1, 3, 1, 1)
+    temperature, threshold, band, val_m, test_m = _calibrate(model, va, te, mean, std, target_false_clean)
+    blob.update(threshold=threshold, temperature=temperature, uncertain_logit_band=band)
+    tmp = path.with_suffix(".pt.tmp")
+    torch.save(blob, tmp)
+    os.replace(tmp, path)
+    sha = sha256_file(path)
+    card.update(
+        model_id=f"{blob['surface']}-{blob['arch']}-{sha[:12]}",
+        sha256=sha,
+        bytes=path.stat().st_size,
+        threshold=threshold,
+        temperature=temperature,
+        uncertain_logit_band=band,
+        metrics={"val": val_m, "test": test_m},
+        calibrated=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+    )
+    card["decision"]["target_false_clean"] = target_false_clean
+    card_path.write_text(json.dumps(card, indent=2) + "\n")
+    return card
 
 
 def train(
@@ -533,14 +610,7 @@ def train(
     model.eval()
 
     # --- threshold on val, metrics on test ---
-    zv = _margins(model, va, mean, std)
-    temperature = fit_temperature(zv, va.y)
-    pv = 1.0 / (1.0 + np.exp(-zv / temperature))
-    threshold = choose_threshold(pv, va.y, target_false_clean)
-    band = 1.5
-    pt = 1.0 / (1.0 + np.exp(-_margins(model, te, mean, std) / temperature))
-    test_m = metrics(pt, te.y, threshold, band)
-    val_m = metrics(pv, va.y, threshold, band)
+    temperature, threshold, band, val_m, test_m = _calibrate(model, va, te, mean, std, target_false_clean)
     train_s = time.perf_counter() - t0
 
     meta = {

@@ -75,6 +75,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--variant", choices=("fp32", "fused"), default="fp32")
     e.add_argument("--target-false-clean", type=float, default=0.01)
     e.add_argument("--png", default=None, help="write a ROC + score histogram PNG here")
+    e.add_argument(
+        "--recalibrate",
+        action="store_true",
+        help="first refit temperature + threshold (for --target-false-clean) on the model's validation "
+        "split and rewrite the weights and card (DATA must be the training folder)",
+    )
     e.add_argument("--json", action="store_true", help="print JSON only")
     e.add_argument("--out", default=None, help="also write the JSON report here")
     add_config_arguments(e)
@@ -145,6 +151,16 @@ def run_train(args: argparse.Namespace) -> int:
 
 def run_eval(args: argparse.Namespace) -> int:
     from cellctl.classify.evaluate import evaluate_folder
+
+    if args.recalibrate:
+        from cellctl.classify.train import calibrate
+
+        card = calibrate(_model_path(args), args.data, target_false_clean=args.target_false_clean)
+        print(
+            f"recalibrated {card['model_id']}: temperature {card['temperature']:.3f}, "
+            f"threshold {card['threshold']:.4f}",
+            file=sys.stderr,
+        )
 
     report = evaluate_folder(
         _model_path(args),

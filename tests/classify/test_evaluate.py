@@ -57,3 +57,13 @@ def test_temperature_fit_recovers_the_scale() -> None:
     y = (rng.random(4000) < 1 / (1 + np.exp(-z_true))).astype(int)
     t = fit_temperature(4 * z_true, y)
     assert 3.4 < t < 4.7
+    assert fit_temperature(-z_true, y) == 1.0  # never sharpens
+
+
+def test_threshold_sits_midway_in_logit_space() -> None:
+    """Separable scores: threshold between the top clean and the lowest dirty score."""
+    p = np.array([0.001, 0.01, 0.2, 0.3, 0.9])
+    y = np.array([0, 0, 1, 1, 1])
+    t = choose_threshold(p, y, 0.0)
+    assert 0.01 < t < 0.2
+    assert abs(np.log(t / (1 - t)) - (np.log(0.01 / 0.99) + np.log(0.2 / 0.8)) / 2) < 1e-9
