@@ -57,7 +57,7 @@ def test_temperature_fit_recovers_the_scale() -> None:
     y = (rng.random(4000) < 1 / (1 + np.exp(-z_true))).astype(int)
     t = fit_temperature(4 * z_true, y)
     assert 3.4 < t < 4.7
-    assert fit_temperature(-z_true, y) == 1.0  # never sharpens
+    assert fit_temperature(np.array([-5.0, 5.0]), np.array([0, 1])) == 1.0  # separable: never sharpens
 
 
 def test_threshold_sits_midway_in_logit_space() -> None:
