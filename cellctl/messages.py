@@ -500,6 +500,9 @@ class PlanLookupRequest(WireMessage):
     bin_type: str
     bin_pose: PoseMsg = Field(description="measured bin pose in the robot base frame")
     surface: Literal["external", "internal"] = "external"
+    all_reachable: bool = Field(
+        default=False, description="data collection: every reachable viewpoint (paper §IV-B2), not only the tour"
+    )
 
 
 class PlanLookupReply(WireMessage):
