@@ -63,7 +63,17 @@ def adjust_plan(
     from cellctl.planning.reach import wrap_towards
 
     world = CollisionWorld(mesh, robot, invert(T_base_bin), margin=float(plan["params"].get("margin", 0.005)))
-    src = plan["reachable"] if use_all else plan["viewpoints"]
+    src = plan["viewpoints"]
+    if use_all:
+        # every reachable viewpoint, visited nearest-neighbour in joint space from the start
+        src = list(plan["reachable"])
+        q = np.asarray(plan["q_start"], dtype=np.float64)
+        ordered = []
+        while src:
+            k = int(np.argmin([np.linalg.norm(np.asarray(v["q"]) - q) for v in src]))
+            ordered.append(src.pop(k))
+            q = np.asarray(ordered[-1]["q"])
+        src = ordered
     out: list[dict[str, Any]] = []
     Q = []
     for k, vp in enumerate(src):

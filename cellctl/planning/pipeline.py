@@ -388,6 +388,7 @@ def make_plan(
         allowed[bad] = False
         dropped += bad
     stage_counts["dropped_unconnected"] = len(dropped)
+    plan["reachable"] = [r for k, r in enumerate(plan["reachable"]) if allowed[k]]
     counts["reachable"] = int(allowed.sum())
     counts["greedy"] = len(ga)
     counts["annealed"] = len(sel)

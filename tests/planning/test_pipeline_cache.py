@@ -100,6 +100,9 @@ def test_lookup_hit_adjust_and_misses(ext_plan, box, robot, T_bin_base, tmp_path
     else:  # only a collision/IK re-check may refuse a pose within tolerance
         assert "cannot be adjusted" in near.reason
 
+    every = lookup_plan(tmp_path, "box", "external", T_base_bin, box, robot, 20.0, 2.0, use_all=True)
+    assert every.hit and len(every.viewpoints) == ext_plan["counts"]["reachable"] > len(same.viewpoints)
+
     far = lookup_plan(tmp_path, "box", "external", _moved(T_base_bin, 0.05, 0.0), box, robot, 20.0, 2.0)
     assert not far.hit and "tolerance is 20 mm" in far.reason and abs(far.translation_mm - 50.0) < 0.5
 

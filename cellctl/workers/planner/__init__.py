@@ -148,7 +148,7 @@ class PlannerService:
         mesh = self._mesh(req.bin_type)
         res = lookup_plan(
             self.plans_dir, req.bin_type, req.surface, req.bin_pose.matrix(), mesh, self.robot,
-            tol.translation_mm, tol.rotation_deg,
+            tol.translation_mm, tol.rotation_deg, use_all=req.all_reachable,
         )
         return PlanLookupReply(
             hit=res.hit,
