@@ -50,6 +50,7 @@ class JointPlanner:
             bounds.setHigh(i, float(robot.q_max[i]))
         self.space.setBounds(bounds)
         self.queries = 0
+        self.fallbacks = 0  # RRT* queries that RRTConnect had to decide
 
     def _setup(self):  # noqa: ANN202 - ompl SimpleSetup
         from ompl import base as ob
@@ -74,7 +75,13 @@ class JointPlanner:
         return ss, si, mv
 
     def plan(
-        self, q_a: NDArray[np.float64], q_b: NDArray[np.float64], planner: str, budget_s: float, simplify_s: float
+        self,
+        q_a: NDArray[np.float64],
+        q_b: NDArray[np.float64],
+        planner: str,
+        budget_s: float,
+        simplify_s: float,
+        fallback: bool = False,
     ) -> tuple[bool, float, NDArray[np.float64]]:
         """Plan ``q_a → q_b``.
 
@@ -83,6 +90,8 @@ class JointPlanner:
                 the whole budget, as in the paper).
             budget_s: planning time limit, s.
             simplify_s: time limit of the path simplification, s (0: none).
+            fallback: RRT* only: when the budget ends without an exact solution, let
+                RRTConnect (same budget) decide feasibility (see PlanParams.paper_fallback).
 
         Returns:
             ``(found, length_rad, path (K, 6))``.
@@ -109,6 +118,9 @@ class JointPlanner:
         ss.solve(float(budget_s))
         if not ss.haveExactSolutionPath():
             ss.clear()
+            if planner == "rrtstar" and fallback:
+                self.fallbacks += 1
+                return self.plan(q_a, q_b, "rrtconnect", budget_s, simplify_s)
             return False, float("inf"), np.zeros((0, 6))
         if simplify_s > 0:
             ss.simplifySolution(float(simplify_s))
@@ -135,6 +147,7 @@ class PathCosts:
     straight: NDArray[np.bool_]
     planned: int = 0
     failed: int = 0
+    fallbacks: int = 0
     paths: dict[tuple[int, int], NDArray[np.float64]] = field(default_factory=dict)
 
 
@@ -149,6 +162,7 @@ def path_cost_matrix(
     budget_s: float = 1.0,
     simplify_s: float = 0.2,
     max_step: float = 0.02,
+    fallback: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> PathCosts:
     """Pairwise path costs between configurations ``Q`` (n, 6).
@@ -188,7 +202,7 @@ def path_cost_matrix(
         progress(done, len(iu))
     for k in todo:
         i, j = int(iu[k]), int(ju[k])
-        ok, length, path = planner.plan(Q[i], Q[j], algo, budget_s, simplify_s)
+        ok, length, path = planner.plan(Q[i], Q[j], algo, budget_s, simplify_s, fallback=fallback)
         out.planned += 1
         if ok:
             D[i, j] = length
@@ -199,6 +213,7 @@ def path_cost_matrix(
         done += 1
         if progress:
             progress(done, len(iu))
+    out.fallbacks = planner.fallbacks
     D += D.T
     return out
 
