@@ -370,6 +370,7 @@ def train(
     target_false_clean: float = 0.01,
     max_epochs: tuple[int | None, int | None] = (None, None),
     threads: int | None = None,
+    init_from: Path | str | None = None,
 ) -> dict[str, Any]:
     """Train a surface model and write weights, card, CSV and PNG.
 
@@ -386,6 +387,8 @@ def train(
         target_false_clean: false-clean rate the decision threshold is chosen for (on val).
         max_epochs: caps for (phase 1, phase 2), e.g. for tests.
         threads: torch CPU threads (default: all cores).
+        init_from: start from this trained weights file (same arch and surface) instead of the
+            ImageNet backbone, e.g. to continue training on more data.
 
     Returns:
         The model card (also written as JSON).
@@ -436,6 +439,20 @@ def train(
             str(imagenet_weights) if imagenet_weights else "random init (no offline ResNet18 weights)"
         )
     model = build_model(ps.arch, pretrained=pretrained)
+    if init_from is not None:
+        # Continue from a trained model of this surface (retraining on new or more data).
+        blob = torch.load(Path(init_from), map_location="cpu", weights_only=True)
+        if blob.get("arch") != ps.arch or blob.get("surface") != surface:
+            raise ClassifierError(
+                f"--init-from {str(init_from)!r} is a {blob.get('arch')} model for {blob.get('surface')!r}; "
+                f"expected {ps.arch} for {surface!r}"
+            )
+        model.load_state_dict(
+            {k: (v.float() if v.is_floating_point() else v) for k, v in blob["state_dict"].items()}
+        )
+        backbone_src = (
+            f"{backbone_src}, then init from {Path(init_from).name} ({sha256_file(init_from)[:12]})"
+        )
     backbone_sha = sha256_file(backbone_src) if Path(backbone_src).is_file() else None
     rows: list[dict[str, Any]] = []
     loss_fn = nn.CrossEntropyLoss()

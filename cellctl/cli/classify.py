@@ -58,6 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     t.add_argument("--max-epochs", type=int, nargs=2, default=None, metavar=("HEAD", "FINETUNE"))
     t.add_argument("--threads", type=int, default=None)
+    t.add_argument("--init-from", default=None, help="continue from this trained weights file (same surface)")
     add_config_arguments(t)
     t.set_defaults(func=run_train)
 
@@ -139,6 +140,7 @@ def run_train(args: argparse.Namespace) -> int:
         else None,
         max_epochs=tuple(args.max_epochs) if args.max_epochs else (None, None),
         threads=args.threads,
+        init_from=args.init_from,
     )
     t = card["metrics"]["test"]
     print(
