@@ -198,3 +198,25 @@ def test_bad_camera_pose(catalog) -> None:
 
     with pytest.raises(CellError, match="T_base_cam rotation part is not a proper rotation"):
         identify(img, INTR, np.diag([1.0, 1.0, -1.0, 1.0]), catalog)
+
+
+def test_lens_distortion_is_modelled(catalog) -> None:
+    """A distorted image identified with its distortion coefficients gives the true pose."""
+    dist = [-0.12, 0.08, 0.0005, -0.0004, 0.0]
+    intr_d = INTR.model_copy(update={"dist": dist})
+    T = view_of_board(SPEC_A, INTR, 0.8, 25.0, 200.0, offset_px=(250.0, 120.0))
+    ideal = render_boards([(SPEC_A, T)], INTR, rng=np.random.default_rng(9))
+    # Distort: each pixel of the distorted image samples the ideal image at its undistorted position.
+    h, w = ideal.shape[:2]
+    uv = np.stack(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)), -1).reshape(
+        -1, 1, 2
+    )
+    und = cv2.undistortPoints(uv, INTR.K(), np.array(dist), P=INTR.K()).reshape(h, w, 2)
+    img = cv2.remap(ideal, und[..., 0], und[..., 1], cv2.INTER_LINEAR)
+    good = identify(img, intr_d, None, catalog)
+    assert _centre_error_mm(T, good.T_cam_board, SPEC_A) < 1.0
+    assert np.degrees(pose_error(T, good.T_cam_board)[1]) < 0.2
+    assert good.reproj_rms_px < 0.5
+    # Ignoring the distortion costs accuracy: the same image without it is worse.
+    bad = identify(img, INTR, None, catalog, settings=IdentifySettings(max_reproj_px=10.0))
+    assert bad.reproj_rms_px > 2 * good.reproj_rms_px
