@@ -39,3 +39,20 @@ def test_every_bin_identified_in_the_twin(twin, index) -> None:
         dt, dr = pose_error(np.eye(4), ident.T_base_bin)
         assert dt * 1000 < 3.0, f"{bt}: bin origin off by {dt * 1000:.2f} mm"
         assert np.degrees(dr) < 0.3, f"{bt}: rotation off by {np.degrees(dr):.3f} deg"
+
+
+def test_twin_images_follow_the_opencv_pixel_convention(twin) -> None:
+    """Corners detected in a twin frame sit where the pinhole model projects them (no half-pixel shift)."""
+    from cellctl.geometry.transforms import invert
+    from cellctl.vision.board import make_board
+    from cellctl.vision.render import project, view_of_board
+
+    cat, renderer, intr = twin
+    bt = cat.names[0]
+    spec = cat.get(bt).board
+    T = view_of_board(spec, intr, 0.6, 20.0, 30.0)
+    out = renderer.render_bin_view(bt, cat.get(bt).T_bin_board() @ invert(T), intr, dirty=False, seed=0)
+    ident = identify(np.ascontiguousarray(out.rgb[..., ::-1]), intr, None, cat)
+    truth = project(intr, T, make_board(spec).getChessboardCorners()[ident.corner_ids])
+    mean = (ident.image_points - truth).mean(axis=0)
+    assert np.all(np.abs(mean) < 0.15), f"mean corner offset {mean} px: renderer and intrinsics disagree"
