@@ -31,10 +31,11 @@ class CameraModel:
         max_glance_deg: maximum angle between view ray and face normal, deg (paper: 60).
     """
 
+    # defaults = the cell's camera as the twin renders it (cellctl.sim.render.D435_COLOR)
     width: int = 1280
     height: int = 720
-    fx: float = 900.0
-    fy: float = 900.0
+    fx: float = 920.0
+    fy: float = 920.0
     cx: float = 640.0
     cy: float = 360.0
     dov: tuple[float, float] = (0.175, 0.6)
