@@ -81,6 +81,9 @@ class SupervisorConfig(_Model):
     required_workers: list[str] = Field(default_factory=lambda: ["robot", "camera", "classifier"])
     on_worker_lost: Literal["abort", "hold"] = "abort"
     identify_attempts: int = Field(default=3, ge=1, le=10)
+    identify_views: int = Field(
+        default=1, ge=1, le=5, description="observation poses fused per identification (>1 when one view is not enough)"
+    )
     wait_for_plan: StrictBool = Field(default=False, description="wait for the planner job instead of replan_required")
     auto_reset: StrictBool = Field(default=False, description="Complete → Resetting → Idle without a PLC Reset")
     max_command_bytes: int = Field(default=64 * 1024, ge=256)

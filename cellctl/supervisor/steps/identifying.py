@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellctl.errors import CameraError, IdentificationError
-from cellctl.messages import CaptureReply, CaptureRequest, EventLevel
+from cellctl.errors import CameraError, IdentificationError, WorkerFailed
+from cellctl.messages import ApproachReply, ApproachRequest, CaptureReply, CaptureRequest, EventLevel
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 
@@ -23,20 +23,26 @@ def decode_image(data: bytes) -> np.ndarray:
 class Identifying(Step):
     NAME = "identifying"
     OUTCOMES = ("succeeded", "retry", "failed")
-    DESCRIPTION = "ChArUco → bin type + T_base_bin; retries from the next observation pose"
+    DESCRIPTION = "ChArUco → bin type + T_base_bin; fuses several views if configured; retries from the next pose"
 
-    def execute(self, run: StepRun) -> str:
+    def _view(self, run: StepRun, T_base_cam: np.ndarray):  # noqa: ANN202 - an Identification
         ctx = run.ctx
         reply, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
         data = image or b""
         ctx.log.image("/camera/image", data, reply.format, "camera")
         if ctx.identify is None:
             raise IdentificationError("no identifier is configured in this supervisor")
+        ident = ctx.identify(decode_image(data), reply.intrinsics, T_base_cam, ctx.catalog)
+        record = ident.to_dict() if hasattr(ident, "to_dict") else {"bin_type": ident.bin_type}
+        ctx.log.write_json("/bin/identification", "cellctl.Identification", record)
+        return ident
+
+    def execute(self, run: StepRun) -> str:
+        ctx = run.ctx
         assert ctx.approach is not None
-        T_base_cam = ctx.approach.camera_pose.matrix()
         ctx.identify_attempts += 1
         try:
-            ident = ctx.identify(decode_image(data), reply.intrinsics, T_base_cam, ctx.catalog)
+            ident = self._view(run, ctx.approach.camera_pose.matrix())
         except IdentificationError as err:
             attempts = ctx.cfg.supervisor.identify_attempts
             if ctx.identify_attempts < attempts:
@@ -45,14 +51,33 @@ class Identifying(Step):
                 ctx.observation_index += 1
                 return "retry"
             raise IdentificationError(f"bin not identified after {attempts} observation poses: {err}") from err
-        ctx.identification = ident
-        ctx.bin_type = ident.bin_type
-        ctx.T_base_bin = np.asarray(ident.T_base_bin)
+        views = [ident]
+        for k in range(1, ctx.cfg.supervisor.identify_views):
+            # Extra views from the next observation poses; a view that fails is skipped, the
+            # fused estimate uses the ones that worked.
+            idx = ctx.observation_index + k
+            try:
+                moved, _ = run.call("robot", "approach", ApproachRequest(observation_index=idx, park=False), ApproachReply)
+                views.append(self._view(run, moved.camera_pose.matrix()))
+            except (IdentificationError, WorkerFailed) as err:
+                run.event("warning", f"extra view from observation pose {idx} skipped: {err}")
+        if len(views) > 1:
+            from cellctl.vision import fuse
+
+            fused = fuse(views)
+            ctx.log.write_json("/bin/identification_fused", "cellctl.FusedIdentification", fused.to_dict())
+            bin_type, T_base_bin = fused.bin_type, np.asarray(fused.T_base_bin)
+            note = f" from {len(fused.used)} fused views (±{fused.sigma_bin_origin_mm:.1f} mm)"
+            ctx.identification = fused
+        else:
+            bin_type, T_base_bin = ident.bin_type, np.asarray(ident.T_base_bin)
+            note = ""
+            ctx.identification = ident
+        ctx.bin_type = bin_type
+        ctx.T_base_bin = T_base_bin
         from cellctl.recording import foxglove
 
-        ctx.log.write_json("/bin/pose", "foxglove.PoseInFrame", foxglove.pose_in_frame("base", ctx.T_base_bin))
-        ctx.log.write_json(
-            "/tf", "foxglove.FrameTransform", foxglove.frame_transform("base", "bin", ctx.T_base_bin)
-        )
-        run.event("info", f"identified bin {ident.bin_type!r}")
+        ctx.log.write_json("/bin/pose", "foxglove.PoseInFrame", foxglove.pose_in_frame("base", T_base_bin))
+        ctx.log.write_json("/tf", "foxglove.FrameTransform", foxglove.frame_transform("base", "bin", T_base_bin))
+        run.event("info", f"identified bin {bin_type!r}{note}")
         return "succeeded"
