@@ -120,3 +120,17 @@ def test_twin_source_renders_labelled_views(tmp_path: Path) -> None:
             assert json.loads(r["params"])["bin"]
         img = cv2.imread(str(tmp_path / surface / rows[0]["image"]))
         assert img.shape == (54, 96, 3)  # the D435's 16:9 at 96 px wide
+
+
+def test_paper_preset_runs_both_phases_live(tiny_data: Path, tmp_path: Path) -> None:
+    """Table 4 preset: SGD + StepLR head phase, then all layers on live images."""
+    from cellctl.classify.train import train
+
+    card = train(
+        tiny_data, "internal", tmp_path / "p.pt", preset="paper", input_size=64, max_epochs=(2, 1), threads=2
+    )
+    assert card["phases"]["head"]["optimizer"] == "sgd" and card["phases"]["head"]["lr_step"] == 5
+    assert card["phases"]["finetune"]["unfreeze"] == 1.0 and not card["phases"]["finetune"]["cached"]
+    rows = list(csv.DictReader(open(tmp_path / "p.csv")))
+    assert [r["phase"] for r in rows] == ["head", "head", "finetune"]
+    assert float(rows[2]["lr"]) == 1e-4
