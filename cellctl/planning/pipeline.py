@@ -38,6 +38,45 @@ ProgressFn = Callable[[str, float, str], None]
 MAX_TOUR_ROUNDS = 12  # fast mode: plan-the-tour's-edges / re-order rounds
 MAX_SELECT_ROUNDS = 4  # fast mode: re-select after dropping viewpoints no motion connects
 
+def robust_acceptor(
+    mesh: BinMesh, robot: RobotModel, T_bin_base: NDArray[np.float64], params: PlanParams
+) -> Callable[[int, NDArray[np.float64]], bool] | None:
+    """``accept(i, q)``: does configuration ``q`` survive the base parking ±robust_m / ±robust_deg off?
+
+    For each of six parking errors E (±x, ±y, ±yaw in the base frame) the camera must reach the
+    same bin-relative pose ``inv(E) · fk_cam(q)`` with an IK solution within 0.5 rad of ``q``
+    per joint (what the cache adjustment accepts) and that is collision-free with the bin at
+    its moved pose. Returns None when disabled.
+    """
+    if params.robust_m <= 0 and params.robust_deg <= 0:
+        return None
+    from cellctl.geometry.transforms import transform_from_xyz_rpy
+    from cellctl.planning.collision import CollisionWorld
+    from cellctl.planning.reach import wrap_towards
+
+    t, r = params.robust_m, np.radians(params.robust_deg)
+    errors = [transform_from_xyz_rpy(x, (0.0, 0.0, a)) for x, a in
+              (((t, 0, 0), 0.0), ((-t, 0, 0), 0.0), ((0, t, 0), 0.0), ((0, -t, 0), 0.0), ((0, 0, 0), r), ((0, 0, 0), -r))]
+    worlds = [CollisionWorld(mesh, robot, T_bin_base @ E, margin=params.margin) for E in errors]
+    inv_errors = [invert(E) for E in errors]
+
+    def accept(_i: int, q: NDArray[np.float64]) -> bool:
+        T_base_cam = robot.fk_cam(q[None])[0]
+        Qs = []
+        for Ei in inv_errors:
+            S = robot.ik_cam(Ei @ T_base_cam)
+            if len(S) == 0:
+                return False
+            S = wrap_towards(S, q, robot)
+            best = S[np.argmin(np.abs(S - q).max(axis=1))]
+            if np.abs(best - q).max() > 0.5:
+                return False
+            Qs.append(best)
+        return all(bool(w.robot_free(qq)[0]) for w, qq in zip(worlds, Qs, strict=True))
+
+    return accept
+
+
 STAGES = ("generate_filter", "reachability", "visibility", "selection", "distance_matrix", "ordering")
 
 
@@ -67,6 +106,10 @@ class PlanParams:
         simplify_s: simplification limit per planned path.
         cover_time_limit_s: HiGHS limit for the exact set-cover bound.
         q_start: the robot's current configuration (tour start); None → the robot's home.
+        robust_m, robust_deg: a viewpoint is kept only if it stays reachable (IK next to its
+            joints, same arm shape, collision-free) when the base parks this far off in x, y
+            and yaw; so a cached plan can be adjusted to the next park instead of replanned.
+            0 disables the check.
     """
 
     surface: str = "external"
@@ -86,6 +129,8 @@ class PlanParams:
     simplify_s: float = 0.05
     cover_time_limit_s: float = 5.0
     q_start: tuple[float, ...] | None = None
+    robust_m: float = 0.04
+    robust_deg: float = 2.0
 
     def check(self) -> None:
         """Raise PlanningError naming the first bad parameter."""
@@ -279,12 +324,17 @@ def make_plan(
     st.start("reachability", "reachability")
     accept = None
     planner = None
+    robust = robust_acceptor(mesh, robot, T_bin_base, params)
     if params.mode == "paper":
         planner = JointPlanner(world)
 
-        def accept(_i: int, q: NDArray[np.float64]) -> bool:
+        def accept(i: int, q: NDArray[np.float64]) -> bool:
+            if robust is not None and not robust(i, q):
+                return False
             ok, _, _ = planner.plan(q_start, q, "rrtstar", params.paper_budget_s, 0.0, fallback=params.paper_fallback)
             return ok
+    else:
+        accept = robust
 
     if not world.robot_free(q_start)[0]:
         st.end()
