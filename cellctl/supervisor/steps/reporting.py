@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from cellctl.messages import CycleOutcome
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 
 
-def dirt_map(plan, viewpoints) -> tuple[dict, float | None]:  # noqa: ANN001
+def dirt_map(plan, viewpoints, mesh=None, surface: str = "external") -> tuple[dict, float | None]:  # noqa: ANN001
     """Project each viewpoint's label onto the faces visible from it.
 
     A face seen dirty from any viewpoint is dirty; a face seen only clean is clean; a face no
-    successful viewpoint saw is unseen. Coverage = seen faces / mesh faces.
+    successful viewpoint saw is unseen. Coverage = area of the inspected surface's faces seen
+    / that surface's area when the mesh is known, else seen faces / mesh faces.
     """
     faces_by_index = {vp.index: set(vp.faces) for vp in plan.viewpoints}
     dirty: set[int] = set()
@@ -25,6 +28,13 @@ def dirt_map(plan, viewpoints) -> tuple[dict, float | None]:  # noqa: ANN001
             dirty |= f
     total = plan.mesh_faces
     coverage = len(seen) / total if total else None
+    if mesh is not None:
+        total = mesh.n_faces
+        on_surface = mesh.surface == (0 if surface == "external" else 1)
+        areas = mesh.face_areas
+        idx = np.fromiter(seen, dtype=np.int64, count=len(seen))
+        idx = idx[(idx >= 0) & (idx < total)]
+        coverage = float(areas[idx][on_surface[idx]].sum() / areas[on_surface].sum()) if on_surface.any() else None
     return {
         "faces_total": total,
         "seen_dirty": sorted(dirty),
@@ -40,6 +50,8 @@ class Reporting(Step):
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        ctx.dirt_map, ctx.coverage = dirt_map(ctx.plan, ctx.viewpoints)
+        mesh = ctx.catalog.load_mesh(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
+        surface = ctx.params.get("surface", ctx.cfg.planner.surface)
+        ctx.dirt_map, ctx.coverage = dirt_map(ctx.plan, ctx.viewpoints, mesh, surface)
         ctx.outcome = CycleOutcome.completed
         return "succeeded"
