@@ -31,7 +31,7 @@ def dirt_map(plan, viewpoints, mesh=None, surface: str = "external") -> tuple[di
     if mesh is not None:
         total = mesh.n_faces
         on_surface = mesh.surface == (0 if surface == "external" else 1)
-        areas = mesh.face_areas
+        areas = mesh.face_areas()
         idx = np.fromiter(seen, dtype=np.int64, count=len(seen))
         idx = idx[(idx >= 0) & (idx < total)]
         coverage = float(areas[idx][on_surface[idx]].sum() / areas[on_surface].sum()) if on_surface.any() else None
@@ -53,5 +53,24 @@ class Reporting(Step):
         mesh = ctx.catalog.load_mesh(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
         surface = ctx.params.get("surface", ctx.cfg.planner.surface)
         ctx.dirt_map, ctx.coverage = dirt_map(ctx.plan, ctx.viewpoints, mesh, surface)
+        if mesh is not None:
+            self._scene(ctx, mesh)
         ctx.outcome = CycleOutcome.completed
         return "succeeded"
+
+    @staticmethod
+    def _scene(ctx, mesh) -> None:  # noqa: ANN001
+        """The scan in 3D for Foxglove: bin coloured by the dirt map, one arrow per viewpoint."""
+        from cellctl.recording import foxglove
+        from cellctl.recording.dirt_map import COLOURS, face_states
+
+        states = face_states(mesh.n_faces, ctx.dirt_map)
+        rgba = np.array([COLOURS["unseen"], COLOURS["clean"], COLOURS["dirty"]])[states]
+        cams = []
+        for v in ctx.viewpoints:
+            if v.camera_pose is None:
+                continue
+            colour = COLOURS["dirty"] if v.label == "dirty" else COLOURS["clean"] if v.label == "clean" else (0.2, 0.4, 1, 1)
+            cams.append((v.camera_pose.matrix(), colour, f"{v.index}"))
+        ctx.log.write_json("/scene", "foxglove.SceneUpdate",
+                           foxglove.scene_update("base", ctx.T_base_bin, mesh.vertices, mesh.faces, rgba, cams))
