@@ -322,25 +322,22 @@ def make_plan(
 
     # --- reachability ---------------------------------------------------------------------
     st.start("reachability", "reachability")
-    accept = None
+    verify = None
     planner = None
-    robust = robust_acceptor(mesh, robot, T_bin_base, params)
+    accept = robust_acceptor(mesh, robot, T_bin_base, params)
     if params.mode == "paper":
         planner = JointPlanner(world)
 
-        def accept(i: int, q: NDArray[np.float64]) -> bool:
-            if robust is not None and not robust(i, q):
-                return False
+        def verify(_i: int, q: NDArray[np.float64]) -> bool:
             ok, _, _ = planner.plan(q_start, q, "rrtstar", params.paper_budget_s, 0.0, fallback=params.paper_fallback)
             return ok
-    else:
-        accept = robust
 
     if not world.robot_free(q_start)[0]:
         st.end()
         return finish(f"the start configuration {np.round(q_start, 3).tolist()} is in collision with the bin/floor")
     reached = reachability(
-        vp, robot, world, T_base_bin, q_start, params.n_roll, accept=accept, progress=lambda d, t: st.update(d, t)
+        vp, robot, world, T_base_bin, q_start, params.n_roll, accept=accept, verify=verify,
+        progress=lambda d, t: st.update(d, t),
     )
     counts["reachable"] = len(reached.index)
     stage_counts["reach_tried"] = reached.tried

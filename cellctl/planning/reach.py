@@ -21,6 +21,7 @@ from cellctl.planning.viewpoints import Viewpoints
 
 __all__ = ["Reached", "branch_signature", "candidates", "reachability", "roll_sequence", "wrap_towards"]
 
+MAX_ACCEPT_TRIES = 8  # solutions per viewpoint offered to ``accept``
 _WRAPPABLE = (0, 3, 4, 5)  # joints with a ±2π range: q and q ± 2π are the same geometry
 
 
@@ -125,6 +126,7 @@ def reachability(
     q_ref: NDArray[np.float64],
     n_roll: int = 12,
     accept: Callable[[int, NDArray[np.float64]], bool] | None = None,
+    verify: Callable[[int, NDArray[np.float64]], bool] | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Reached:
     """Keep, per seed direction, the first distance rank with a free IK solution.
@@ -143,7 +145,10 @@ def reachability(
         T_base_bin: (4, 4) bin pose in the base frame.
         q_ref: (6,) reference configuration (home/current), rad.
         n_roll: rolls about the optical axis to try.
-        accept: optional extra test ``accept(vp_index, q) -> bool`` on the chosen solution
+        accept: optional cheap test ``accept(vp_index, q) -> bool``; a refused solution
+            passes the turn to the viewpoint's next-best one (up to ``MAX_ACCEPT_TRIES``).
+        verify: optional expensive verdict on the first accepted solution (paper mode: a
+            motion planner finds a path to it from the start); refused → unreachable.
             (paper mode: "a motion planner finds a path to it from the start").
         progress: ``progress(done, total)`` callback.
     """
@@ -191,11 +196,12 @@ def reachability(
                 continue
             Qi, ri, bi = Qi[same], ri[same], bi[same]
             key = np.linalg.norm(Qi - centre, axis=1) + 100.0 * (bi != preferred)
-            for s in np.argsort(key, kind="stable"):
-                if accept is None or accept(i, Qi[s]):
+            for s in np.argsort(key, kind="stable")[:MAX_ACCEPT_TRIES]:
+                if accept is not None and not accept(i, Qi[s]):
+                    continue  # a cheap test (e.g. robust to parking error): try the next solution
+                if verify is None or verify(i, Qi[s]):
                     resolved[int(vp.seed[i])] = (i, Qi[s], float(ri[s]))
-                    break
-                break  # paper mode: the planner's verdict on the best goal decides
+                break  # paper mode: the planner's verdict on the first acceptable goal decides
             done += 1
             if progress:
                 progress(done, total)
