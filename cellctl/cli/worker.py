@@ -10,7 +10,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import signal
+import sys
 import threading
 
 from cellctl.bus.keys import ROLES
@@ -44,4 +46,9 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     install_stop_signals(stop)
     module.run_worker(cfg, args.backend, stop)
-    return 0
+    # The worker has closed its session and flushed its outputs. Skip interpreter
+    # finalisation: native extensions (OMPL's nanobind, Embree) crash or report leaks while
+    # tearing down, which would turn a clean stop into a non-zero exit.
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
