@@ -222,7 +222,11 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
             assert reply is not None
             msg = decode(reply.data, 64 * 1024 * 1024)
             if isinstance(msg, ErrorReply):
-                raise RecordingError(msg.reason)
+                # the log holds the supervisor's wording ("robot refused move: <reason>");
+                # answer with the worker's own reason so the replayed wording matches
+                role, _, op = key[len(prefix):].partition("/")
+                said = f"{role} refused {op}: "
+                raise RecordingError(msg.reason[len(said):] if msg.reason.startswith(said) else msg.reason)
             if msg.type == "cellctl/CaptureReply":
                 with lock:
                     img = images.popleft().json()["data"] if images else ""
