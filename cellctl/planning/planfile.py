@@ -59,6 +59,7 @@ def write_plan(plan: dict[str, Any], path: Path | str) -> Path:
                 json.dump(doc, f, separators=(",", ":"))
                 f.flush()
                 os.fsync(f.fileno())
+            os.chmod(tmp, 0o644)  # mkstemp makes 0600; plans are shared with other workers/users
             os.replace(tmp, p)
         finally:
             if os.path.exists(tmp):
