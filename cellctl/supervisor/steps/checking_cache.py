@@ -18,6 +18,8 @@ class CheckingCache(Step):
             bin_type=ctx.bin_type or "",
             bin_pose=PoseMsg.from_matrix(ctx.T_base_bin),
             surface=ctx.params.get("surface", ctx.cfg.planner.surface),
+            # data collection visits every reachable viewpoint, not only the tour
+            all_reachable=ctx.mode == "collect",
         )
         reply, _ = run.call("planner", "lookup", req, PlanLookupReply, timeout=ctx.cfg.supervisor.timeouts.default)
         if not reply.hit:
