@@ -75,7 +75,7 @@ BEHAVIOURS = (
 )
 """PackML behaviours this code provides; ``states/packml.yaml`` may name only these."""
 
-START_PARAMS = {"mode", "label", "surface", "perturb_m", "dataset"}
+START_PARAMS = {"mode", "label", "surface", "perturb_m", "seed", "dataset"}
 
 
 class _CellState(NestedState):
@@ -116,6 +116,8 @@ def validate_start_params(params: dict[str, Any]) -> dict[str, Any]:
         raise ProtocolError(f"start param surface={params['surface']!r}; expected 'external' or 'internal'")
     if "perturb_m" in params and not (isinstance(params["perturb_m"], int | float) and 0 <= params["perturb_m"] <= 0.1):
         raise ProtocolError(f"start param perturb_m={params['perturb_m']!r}; expected a number in [0, 0.1] m")
+    if "seed" in params and not isinstance(params["seed"], int):
+        raise ProtocolError(f"start param seed={params['seed']!r}; expected an integer")
     return {**params, "mode": mode}
 
 

@@ -255,3 +255,17 @@ def test_replay_verify_passes_on_a_recorded_cycle_and_catches_a_change(cfg, cell
     report = verify(path, vcfg2, timeout_s=30, identification=(fake_identify, cell.catalog_for_tests))
     assert not report.ok
     assert any("request on cell/cell1/robot/move differs" in d for d in report.differences)
+
+
+def test_collect_mode_stores_labelled_images_at_perturbed_poses(cfg, cell, plc, tmp_path) -> None:
+    with FakeCell(cfg, n_viewpoints=3) as fake:
+        plc.cmd("reset")
+        plc.wait_state("Idle")
+        ack = plc.cmd("start", mode="collect", label="dirty", perturb_m=0.01, seed=3, dataset=str(tmp_path / "ds"))
+        assert ack.accepted, ack.reason
+        plc.wait_state("Complete")
+        res = plc.results.get(timeout=5)
+    assert res.outcome == "completed" and res.verdict is None
+    assert [v.label for v in res.viewpoints] == ["dirty"] * 3
+    assert "classify" not in fake.calls
+    assert len(list((tmp_path / "ds").rglob("*.png"))) == 3

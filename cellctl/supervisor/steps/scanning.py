@@ -3,6 +3,8 @@ the image to the classifier in the background while the robot moves on (pipelini
 
 from __future__ import annotations
 
+import numpy as np
+
 from cellctl.errors import WorkerFailed
 from cellctl.messages import (
     CaptureReply,
@@ -11,6 +13,7 @@ from cellctl.messages import (
     ClassifyRequest,
     MoveReply,
     MoveRequest,
+    PoseMsg,
     ViewpointResult,
 )
 from cellctl.recording import foxglove
@@ -37,10 +40,20 @@ class Scanning(Step):
         surface = ctx.params.get("surface", ctx.cfg.planner.surface)
         collect = ctx.mode == "collect"
         settle = ctx.cfg.robot.settle_s
+        perturb = float(ctx.params.get("perturb_m", 0.0)) if collect else 0.0
+        seed = int(ctx.params.get("seed", 0))
         for k in range(ctx.next_viewpoint, len(plan.viewpoints)):
             vp = plan.viewpoints[k]
+            if perturb > 0:
+                # data collection: a seeded random offset of the camera position per viewpoint
+                rng = np.random.default_rng([seed, vp.index])
+                T = vp.camera_pose.matrix()
+                T[:3, 3] += rng.uniform(-perturb, perturb, 3)
+                move = MoveRequest(camera_pose=PoseMsg.from_matrix(T), settle_s=settle)
+            else:
+                move = MoveRequest(joints=vp.joints, settle_s=settle)
             try:
-                moved, _ = run.call("robot", "move", MoveRequest(joints=vp.joints, settle_s=settle), MoveReply)
+                moved, _ = run.call("robot", "move", move, MoveReply)
             except WorkerFailed as err:
                 # One refused viewpoint (e.g. newly in collision after adjustment) costs coverage,
                 # not the cycle; hangs and missing workers still abort.
