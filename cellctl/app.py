@@ -6,7 +6,6 @@ Nothing else constructs these; there are no module-level sessions or singletons.
 from __future__ import annotations
 
 import logging
-
 import signal
 import subprocess
 import sys
@@ -16,7 +15,6 @@ from typing import Any
 
 from cellctl.bus.session import open_session
 from cellctl.config import CellConfig
-from cellctl.errors import ConfigError
 from cellctl.recording.index import CycleIndex
 from cellctl.supervisor.supervisor import Supervisor
 
@@ -64,8 +62,9 @@ class WorkerProcesses:
 
     def start_one(self, role: str, cmd: list[str] | None = None) -> None:
         cmd = cmd or self._cmds[role]
-        self.procs[role] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, start_new_session=True,
-                                            preexec_fn=_die_with_parent)
+        self.procs[role] = subprocess.Popen(
+            cmd, stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=_die_with_parent
+        )
         log.info("started %s worker pid %d", role, self.procs[role].pid)
 
     def stop(self, timeout: float = 10.0) -> None:
@@ -86,8 +85,9 @@ class WorkerProcesses:
 class Cell:
     """A running cell: the daemon's router session, its supervisor and optional child workers."""
 
-    def __init__(self, cfg: CellConfig, supervisor: Supervisor, session: Any, index: CycleIndex,
-                 workers: WorkerProcesses | None) -> None:
+    def __init__(
+        self, cfg: CellConfig, supervisor: Supervisor, session: Any, index: CycleIndex, workers: WorkerProcesses | None
+    ) -> None:
         self.cfg = cfg
         self.supervisor = supervisor
         self.session = session
@@ -151,5 +151,3 @@ def build_cell(
         workers = WorkerProcesses(cfg, config_file, overrides or [], cfg.supervisor.spawn_workers)
         workers.start()
     return Cell(cfg, sup, session, index, workers)
-
-

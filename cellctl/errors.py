@@ -60,9 +60,7 @@ class TransitionRejected(CellError):
         self.command = command
         self.state = state
         self.allowed = allowed
-        super().__init__(
-            f"command {command!r} is not allowed in state {state!r}; allowed: {sorted(allowed) or 'none'}"
-        )
+        super().__init__(f"command {command!r} is not allowed in state {state!r}; allowed: {sorted(allowed) or 'none'}")
 
 
 class WorkerError(CellError):

@@ -124,9 +124,9 @@ class Command(WireMessage):
 
     type: Literal["cellctl/Command"] = "cellctl/Command"
     v: Literal[1] = 1
-    command: Literal[
-        "reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"
-    ] | None = None
+    command: (
+        Literal["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"] | None
+    ) = None
     cntrl_cmd: int | None = Field(default=None, description="PackTags CntrlCmd code 1..10")
     request_id: str | None = Field(default=None, max_length=128)
     params: dict[str, Any] = Field(default_factory=dict)

@@ -27,8 +27,14 @@ def test_default_config_loads() -> None:
     "text, message",
     [
         ("robot:\n  speed: 2\n", "unknown key 'robot.speed'; allowed keys here: ['backend', "),
-        ("robot:\n  speed_scale: fast\n", "key 'robot.speed_scale': Input should be a valid number, unable to parse string as a number (got 'fast')"),
-        ("camera:\n  backend: webcam\n", "key 'camera.backend': Input should be 'sim', 'opencv' or 'folder' (got 'webcam')"),
+        (
+            "robot:\n  speed_scale: fast\n",
+            "key 'robot.speed_scale': Input should be a valid number, unable to parse string as a number (got 'fast')",
+        ),
+        (
+            "camera:\n  backend: webcam\n",
+            "key 'camera.backend': Input should be 'sim', 'opencv' or 'folder' (got 'webcam')",
+        ),
         ("supervisor:\n  timeouts: {move: -1}\n", "key 'supervisor.timeouts.move': Input should be greater than 0"),
         ("supervisor:\n  required_workers: [robot, gripper]\n", "unknown worker roles ['gripper']"),
         ("cell:\n  id: 'a/b'\n", "cell id 'a/b' is invalid"),
@@ -49,7 +55,9 @@ def test_on_off_stay_strings_so_they_are_rejected_not_misread(tmp_path: Path) ->
 
 
 def test_overrides_and_relative_paths(tmp_path: Path) -> None:
-    cfg = load_config(write(tmp_path, "recording:\n  dir: out\n"), ["supervisor.auto_reset=true", "robot.speed_scale=5"])
+    cfg = load_config(
+        write(tmp_path, "recording:\n  dir: out\n"), ["supervisor.auto_reset=true", "robot.speed_scale=5"]
+    )
     assert cfg.supervisor.auto_reset is True and cfg.robot.speed_scale == 5
     assert cfg.path(cfg.recording.dir) == tmp_path / "out"
     with pytest.raises(ConfigError, match="expected KEY.PATH=VALUE"):

@@ -25,8 +25,13 @@ def _pct(xs: list[float], p: float) -> float:
 
 
 def _summary(xs: list[float]) -> dict[str, float]:
-    return {"p50_ms": round(_pct(xs, 50), 3), "p99_ms": round(_pct(xs, 99), 3), "mean_ms": round(statistics.fmean(xs), 3),
-            "max_ms": round(max(xs), 3), "n": len(xs)}
+    return {
+        "p50_ms": round(_pct(xs, 50), 3),
+        "p99_ms": round(_pct(xs, 99), 3),
+        "mean_ms": round(statistics.fmean(xs), 3),
+        "max_ms": round(max(xs), 3),
+        "n": len(xs),
+    }
 
 
 def _free_port() -> int:
@@ -43,8 +48,13 @@ def bench_bus(args: argparse.Namespace) -> dict[str, Any]:
     port = _free_port()
     ep = f'["tcp/127.0.0.1:{port}"]'
     tmp = tempfile.mkdtemp(prefix="cellctl-bench-bus-")
-    overrides = [*args.overrides, f"bus.listen={ep}", f"bus.connect={ep}", f"recording.dir={tmp}",
-                 f"recording.index={tmp}/cells.db"]
+    overrides = [
+        *args.overrides,
+        f"bus.listen={ep}",
+        f"bus.connect={ep}",
+        f"recording.dir={tmp}",
+        f"recording.index={tmp}/cells.db",
+    ]
     cfg = load_config(args.config, overrides)
     cmd = [sys.executable, "-m", "cellctl", "run"]
     for ov in overrides:
@@ -65,10 +75,14 @@ def bench_bus(args: argparse.Namespace) -> dict[str, Any]:
         with session as s:
             statuses: queue.Queue[tuple[float, Status]] = queue.Queue()
             acks: queue.Queue[tuple[float, Ack]] = queue.Queue()
-            s.declare_subscriber(keys.status(cfg.cell_id),
-                                 lambda x: statuses.put((time.perf_counter(), decode_as(Status, x.payload.to_bytes()))))
-            s.declare_subscriber(keys.cmd_ack(cfg.cell_id),
-                                 lambda x: acks.put((time.perf_counter(), decode_as(Ack, x.payload.to_bytes()))))
+            s.declare_subscriber(
+                keys.status(cfg.cell_id),
+                lambda x: statuses.put((time.perf_counter(), decode_as(Status, x.payload.to_bytes()))),
+            )
+            s.declare_subscriber(
+                keys.cmd_ack(cfg.cell_id),
+                lambda x: acks.put((time.perf_counter(), decode_as(Ack, x.payload.to_bytes()))),
+            )
             deadline = time.monotonic() + 20
             while not list(s.get(keys.status(cfg.cell_id), timeout=1.0)):
                 if time.monotonic() > deadline:

@@ -60,9 +60,7 @@ def decode(
     version = obj.get("v")
     supported = model.model_fields["v"].default
     if version != supported:
-        raise ProtocolError(
-            f"{kind} version {version!r} is not supported; this cellctl speaks version {supported}"
-        )
+        raise ProtocolError(f"{kind} version {version!r} is not supported; this cellctl speaks version {supported}")
     try:
         return model.model_validate(obj)
     except ValidationError as err:

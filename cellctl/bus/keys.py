@@ -135,5 +135,5 @@ def role_from_alive_key(cell_id: str, key: str) -> str | None:
     head = f"{prefix(cell_id)}/alive/"
     if not key.startswith(head):
         return None
-    role = key[len(head):].split("/", 1)[0]
+    role = key[len(head) :].split("/", 1)[0]
     return role if role in ROLES or role == "supervisor" else None

@@ -102,11 +102,7 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
             r = bt.top_hole_radius_m * 0.6 * np.sqrt(rng.uniform())
             a = rng.uniform(0, 2 * np.pi)
             eye = np.array([r * np.cos(a), r * np.sin(a), rng.uniform(0.0, 0.15)])
-        up = (
-            (0.0, 0.0, 1.0)
-            if abs((target - eye)[2]) < 0.95 * np.linalg.norm(target - eye)
-            else (1.0, 0.0, 0.0)
-        )
+        up = (0.0, 0.0, 1.0) if abs((target - eye)[2]) < 0.95 * np.linalg.norm(target - eye) else (1.0, 0.0, 0.0)
         T = look_at(eye, target, up)
         roll = rotation_about((0.0, 0.0, 1.0), float(rng.uniform(-np.pi, np.pi)))
         return T @ transform_from(roll, np.zeros(3))
@@ -160,8 +156,6 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
                     "eye_bin": [round(float(v), 3) for v in T_bin_cam[:3, 3]],
                 },
             )
-        raise ClassifierError(
-            f"30 sampled {surface} viewpoints in a row did not show the surface; check the catalog"
-        )
+        raise ClassifierError(f"30 sampled {surface} viewpoints in a row did not show the surface; check the catalog")
 
     return draw

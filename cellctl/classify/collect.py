@@ -56,9 +56,7 @@ def capture_path(dataset: Path | str, surface: str, label: str, cycle_id: str, k
     check_surface(surface)
     check_label(label)
     if not _NAME.match(cycle_id or ""):
-        raise ClassifierError(
-            f"cycle id {cycle_id!r} is not usable in a file name; expected letters, digits, _.-"
-        )
+        raise ClassifierError(f"cycle id {cycle_id!r} is not usable in a file name; expected letters, digits, _.-")
     if not isinstance(k, int) or k < 0:
         raise ClassifierError(f"viewpoint index {k!r} must be a non-negative integer")
     return Path(dataset) / surface / label / f"{cycle_id}_{k:03d}.png"
@@ -101,9 +99,7 @@ def store_capture(dataset: Path | str, surface: str, label: str, cycle_id: str, 
             raise ClassifierError(f"image for {path.name} cannot be re-encoded as PNG")
         data = enc.tobytes()
     else:
-        raise ClassifierError(
-            f"image for {path.name} starts {bytes(image[:8])!r}; expected PNG or JPEG bytes"
-        )
+        raise ClassifierError(f"image for {path.name} starts {bytes(image[:8])!r}; expected PNG or JPEG bytes")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".png")
     try:
@@ -116,9 +112,7 @@ def store_capture(dataset: Path | str, surface: str, label: str, cycle_id: str, 
     return path
 
 
-def store_image(
-    cfg: Any, params: Mapping[str, Any], surface: str, cycle_id: str, k: int, image: bytes
-) -> Path:
+def store_image(cfg: Any, params: Mapping[str, Any], surface: str, cycle_id: str, k: int, image: bytes) -> Path:
     """The supervisor's collect-mode hook: store one capture with the operator's label.
 
     Args:

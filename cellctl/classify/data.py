@@ -75,8 +75,7 @@ def decode_image(data: bytes, source: str = "<bytes>") -> NDArray[np.uint8]:
     img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ClassifierError(
-            f"image {source} ({len(data)} bytes, starts {bytes(data[:8])!r}) cannot be decoded; "
-            "expected PNG or JPEG"
+            f"image {source} ({len(data)} bytes, starts {bytes(data[:8])!r}) cannot be decoded; expected PNG or JPEG"
         )
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)

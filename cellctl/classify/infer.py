@@ -118,9 +118,7 @@ class SurfaceModel:
                 f"{str(p)!r} is not a cellctl classifier file (format {got!r}, expected {WEIGHTS_FORMAT!r})"
             )
         if surface is not None and blob.get("surface") != surface:
-            raise ClassifierError(
-                f"{str(p)!r} is a model for surface {blob.get('surface')!r}, expected {surface!r}"
-            )
+            raise ClassifierError(f"{str(p)!r} is a model for surface {blob.get('surface')!r}, expected {surface!r}")
         arch = blob.get("arch")
         if arch not in ARCHS:
             raise ClassifierError(f"{str(p)!r} records architecture {arch!r}; expected one of {list(ARCHS)}")
@@ -203,9 +201,7 @@ def load_surface_models(
     problems: dict[str, str] = {}
     for s in SURFACES:
         try:
-            models[s] = SurfaceModel.load(
-                Path(models_dir) / f"{s}.pt", surface=check_surface(s), variant=variant
-            )
+            models[s] = SurfaceModel.load(Path(models_dir) / f"{s}.pt", surface=check_surface(s), variant=variant)
         except ClassifierError as err:
             problems[s] = str(err)
     return models, problems

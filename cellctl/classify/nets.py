@@ -44,9 +44,7 @@ ARCHS = ("lite0", "resnet18")
 class BasicBlock(nn.Module):
     expansion = 1
 
-    def __init__(
-        self, inplanes: int, planes: int, stride: int = 1, downsample: nn.Module | None = None
-    ) -> None:
+    def __init__(self, inplanes: int, planes: int, stride: int = 1, downsample: nn.Module | None = None) -> None:
         super().__init__()
         self.conv1 = nn.Conv2d(inplanes, planes, 3, stride=stride, padding=1, bias=False)
         self.bn1 = nn.BatchNorm2d(planes)
@@ -151,15 +149,11 @@ def _same_pad(kernel: int, stride: int) -> nn.Module:
 class _SameConv(nn.Conv2d):
     """Conv2d with a static TF "SAME" pad; its only parameter is ``weight`` (+``bias``)."""
 
-    def __init__(
-        self, cin: int, cout: int, kernel: int, stride: int = 1, groups: int = 1, bias: bool = False
-    ):
+    def __init__(self, cin: int, cout: int, kernel: int, stride: int = 1, groups: int = 1, bias: bool = False):
         # Stride 1 with an odd kernel: SAME is the symmetric pad k//2, done inside the conv
         # (one op less per conv); stride 2 needs TF's asymmetric pad in front.
         sym = stride == 1 and kernel % 2 == 1
-        super().__init__(
-            cin, cout, kernel, stride=stride, padding=kernel // 2 if sym else 0, groups=groups, bias=bias
-        )
+        super().__init__(cin, cout, kernel, stride=stride, padding=kernel // 2 if sym else 0, groups=groups, bias=bias)
         self.static_padding = nn.Identity() if sym else _same_pad(kernel, stride)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -298,15 +292,11 @@ def _load_state(path: Path) -> Mapping[str, torch.Tensor]:
     try:
         sd = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises many kinds for a damaged file
-        raise ClassifierError(
-            f"weights file {str(path)!r} cannot be read as a torch state_dict: {err}"
-        ) from err
+        raise ClassifierError(f"weights file {str(path)!r} cannot be read as a torch state_dict: {err}") from err
     if isinstance(sd, dict) and "state_dict" in sd and isinstance(sd["state_dict"], dict):
         sd = sd["state_dict"]
     if not isinstance(sd, dict):
-        raise ClassifierError(
-            f"weights file {str(path)!r} holds a {type(sd).__name__}, expected a state_dict"
-        )
+        raise ClassifierError(f"weights file {str(path)!r} holds a {type(sd).__name__}, expected a state_dict")
     return sd
 
 

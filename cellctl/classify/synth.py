@@ -88,9 +88,7 @@ def label_from_mask(
     return None
 
 
-def _procedural_source(
-    surface: str, size: int, shifted: bool
-) -> Callable[[np.random.Generator, bool], Sample]:
+def _procedural_source(surface: str, size: int, shifted: bool) -> Callable[[np.random.Generator, bool], Sample]:
     from cellctl.classify.texture import Look, composite, powder_layer, steel_image
 
     look = Look.shifted() if shifted else Look()

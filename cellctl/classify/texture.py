@@ -41,9 +41,7 @@ class Look:
         )
 
 
-def fbm(
-    shape: tuple[int, int], rng: np.random.Generator, octaves: int = 4, base: int = 4
-) -> NDArray[np.float32]:
+def fbm(shape: tuple[int, int], rng: np.random.Generator, octaves: int = 4, base: int = 4) -> NDArray[np.float32]:
     """Fractal value noise in [0, 1], shape ``(H, W)``."""
     h, w = shape
     out = np.zeros((h, w), np.float32)
@@ -59,9 +57,7 @@ def fbm(
     return out / max(float(out.max()), 1e-6)
 
 
-def steel_image(
-    surface: str, size: int, rng: np.random.Generator, look: Look = Look()
-) -> NDArray[np.float32]:
+def steel_image(surface: str, size: int, rng: np.random.Generator, look: Look = Look()) -> NDArray[np.float32]:
     """A clean stainless image, RGB float32 in [0, 1], shape ``(size, size, 3)``."""
     check_surface(surface)
     s = size
@@ -79,9 +75,7 @@ def steel_image(
         base = 0.55 + 0.06 * grain + 0.12 * (fbm((s, s), rng, 3, 2) - 0.5)
         yy, xx = np.mgrid[0:s, 0:s].astype(np.float32) / s
         ang = rng.uniform(0, np.pi)
-        lobe = np.exp(
-            -(((np.cos(ang) * (xx - rng.uniform(0.2, 0.8)) + np.sin(ang) * (yy - 0.5)) / 0.25) ** 2)
-        )
+        lobe = np.exp(-(((np.cos(ang) * (xx - rng.uniform(0.2, 0.8)) + np.sin(ang) * (yy - 0.5)) / 0.25) ** 2))
         base = base + rng.uniform(0.05, 0.2) * lobe
     else:
         # Polished: dark mirror reflecting a blurred environment, a few saturated highlights.

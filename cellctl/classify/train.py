@@ -155,9 +155,7 @@ class _Images:
         return t, torch.from_numpy(self.y[idx])
 
 
-def _predict(
-    model: nn.Module, data: _Images, mean: torch.Tensor, std: torch.Tensor, bs: int = 64
-) -> np.ndarray:
+def _predict(model: nn.Module, data: _Images, mean: torch.Tensor, std: torch.Tensor, bs: int = 64) -> np.ndarray:
     model.eval()
     out = []
     with torch.inference_mode():
@@ -167,9 +165,7 @@ def _predict(
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def _margins(
-    model: nn.Module, data: _Images, mean: torch.Tensor, std: torch.Tensor, bs: int = 64
-) -> np.ndarray:
+def _margins(model: nn.Module, data: _Images, mean: torch.Tensor, std: torch.Tensor, bs: int = 64) -> np.ndarray:
     """Logit margins ``z = logit_dirty − logit_clean`` (``p_dirty = sigmoid(z / T)``)."""
     model.eval()
     out = []
@@ -327,9 +323,7 @@ def calibrate(
     torch.set_num_threads(threads or os.cpu_count() or 1)
     blob = torch.load(path, map_location="cpu", weights_only=True)
     model = build_model(blob["arch"], pretrained=False)
-    model.load_state_dict(
-        {k: (v.float() if v.is_floating_point() else v) for k, v in blob["state_dict"].items()}
-    )
+    model.load_state_dict({k: (v.float() if v.is_floating_point() else v) for k, v in blob["state_dict"].items()})
     model.eval()
     split = split_dataset(data, blob["surface"], seed=int(card["data"]["split_seed"]))
     size = int(blob["input_size"])
@@ -435,9 +429,7 @@ def train(
         backbone_src = str(imagenet_weights or lite0_imagenet_path())
     else:
         pretrained = imagenet_weights or False
-        backbone_src = (
-            str(imagenet_weights) if imagenet_weights else "random init (no offline ResNet18 weights)"
-        )
+        backbone_src = str(imagenet_weights) if imagenet_weights else "random init (no offline ResNet18 weights)"
     model = build_model(ps.arch, pretrained=pretrained)
     if init_from is not None:
         # Continue from a trained model of this surface (retraining on new or more data).
@@ -447,20 +439,14 @@ def train(
                 f"--init-from {str(init_from)!r} is a {blob.get('arch')} model for {blob.get('surface')!r}; "
                 f"expected {ps.arch} for {surface!r}"
             )
-        model.load_state_dict(
-            {k: (v.float() if v.is_floating_point() else v) for k, v in blob["state_dict"].items()}
-        )
-        backbone_src = (
-            f"{backbone_src}, then init from {Path(init_from).name} ({sha256_file(init_from)[:12]})"
-        )
+        model.load_state_dict({k: (v.float() if v.is_floating_point() else v) for k, v in blob["state_dict"].items()})
+        backbone_src = f"{backbone_src}, then init from {Path(init_from).name} ({sha256_file(init_from)[:12]})"
     backbone_sha = sha256_file(backbone_src) if Path(backbone_src).is_file() else None
     rows: list[dict[str, Any]] = []
     loss_fn = nn.CrossEntropyLoss()
     best: dict[str, Any] = {"val_acc": -1.0, "val_loss": math.inf, "state": None, "epoch": -1, "phase": None}
 
-    def record(
-        phase: str, epoch: int, tl: float, ta: float, vl: float, vacc: float, lr: float, dt: float
-    ) -> bool:
+    def record(phase: str, epoch: int, tl: float, ta: float, vl: float, vacc: float, lr: float, dt: float) -> bool:
         rows.append(
             {
                 "phase": phase,
@@ -476,9 +462,7 @@ def train(
         )
         # Keep the epoch with the best validation accuracy, the lower loss breaking ties
         # (loss alone prefers an under-fitted head whose errors are merely less confident).
-        improved = vacc > best["val_acc"] + 1e-9 or (
-            abs(vacc - best["val_acc"]) <= 1e-9 and vl < best["val_loss"]
-        )
+        improved = vacc > best["val_acc"] + 1e-9 or (abs(vacc - best["val_acc"]) <= 1e-9 and vl < best["val_loss"])
         if improved:
             best.update(
                 val_acc=vacc,
@@ -538,9 +522,7 @@ def train(
             vlog = head(fva)
             vl = float(loss_fn(vlog, yva))
             vacc = float((vlog.argmax(1) == yva).float().mean())
-        improved = record(
-            "head", ep + 1, tl / len(perm), tc / len(perm), vl, vacc, lr, time.perf_counter() - te0
-        )
+        improved = record("head", ep + 1, tl / len(perm), tc / len(perm), vl, vacc, lr, time.perf_counter() - te0)
         bar.set_postfix(val_acc=f"{vacc:.3f}", val_loss=f"{vl:.3f}")
         stale = 0 if improved else stale + 1
         if stale >= head_ph.patience:
@@ -601,10 +583,7 @@ def train(
             if ft_ph.cached:
                 with torch.inference_mode():
                     pv = torch.cat(
-                        [
-                            torch.softmax(forward_cached(hva[i : i + 128]), 1)[:, 1]
-                            for i in range(0, len(yhv), 128)
-                        ]
+                        [torch.softmax(forward_cached(hva[i : i + 128]), 1)[:, 1] for i in range(0, len(yhv), 128)]
                     ).numpy()
             else:
                 pv = _predict(model, va, mean, std)

@@ -44,7 +44,11 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     """``--config FILE`` and repeatable ``--set KEY.PATH=VALUE`` (shared by every verb)."""
     p.add_argument("--config", "-c", default=None, help="cell config YAML (default: config/cell.yaml)")
     p.add_argument(
-        "--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
         help="override a config key, e.g. --set supervisor.auto_reset=true (repeatable)",
     )
 

@@ -19,7 +19,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "classify": ("cellctl.classify.bench:bench_classify", "classifier latency/throughput/accuracy per variant"),
     "pose": ("cellctl.vision.bench:bench_pose", "ChArUco bin-pose accuracy vs ground truth at 0.5-2 m"),
     "sim": ("cellctl.sim.bench:bench_sim", "twin: IK per pose, collision check per configuration, render per frame"),
-    "plan": ("cellctl.planning.bench:bench_plan", "planner: fast vs paper mode, case-study bin, p_SP 10/40 (--n: paper RRT* budget in 0.1 s)"),
+    "plan": (
+        "cellctl.planning.bench:bench_plan",
+        "planner: fast vs paper mode, case-study bin, p_SP 10/40 (--n: paper RRT* budget in 0.1 s)",
+    ),
 }
 
 

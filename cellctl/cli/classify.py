@@ -53,9 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--arch", choices=("lite0", "resnet18"), default=None, help="backbone (default: lite0)")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--input-size", type=int, default=None, help="model input side in px (default 128)")
-    t.add_argument(
-        "--target-false-clean", type=float, default=0.01, help="threshold target on val (default 0.01)"
-    )
+    t.add_argument("--target-false-clean", type=float, default=0.01, help="threshold target on val (default 0.01)")
     t.add_argument("--max-epochs", type=int, nargs=2, default=None, metavar=("HEAD", "FINETUNE"))
     t.add_argument("--threads", type=int, default=None)
     t.add_argument("--init-from", default=None, help="continue from this trained weights file (same surface)")
@@ -70,8 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--split",
         choices=("auto", "test", "all"),
         default="auto",
-        help="test: held-out part of the training split; all: every image; auto: test if DATA is the "
-        "training folder",
+        help="test: held-out part of the training split; all: every image; auto: test if DATA is the training folder",
     )
     e.add_argument("--variant", choices=("fp32", "fused"), default="fp32")
     e.add_argument("--target-false-clean", type=float, default=0.01)
@@ -135,18 +132,14 @@ def run_train(args: argparse.Namespace) -> int:
         seed=args.seed,
         input_size=args.input_size,
         target_false_clean=args.target_false_clean,
-        imagenet_weights=cfg.path(cfg.classifier.imagenet_weights)
-        if cfg.classifier.imagenet_weights
-        else None,
+        imagenet_weights=cfg.path(cfg.classifier.imagenet_weights) if cfg.classifier.imagenet_weights else None,
         max_epochs=tuple(args.max_epochs) if args.max_epochs else (None, None),
         threads=args.threads,
         init_from=args.init_from,
     )
     t = card["metrics"]["test"]
     print(
-        json.dumps(
-            {"model_id": card["model_id"], "out": args.out, "test": t, "train_seconds": card["train_seconds"]}
-        )
+        json.dumps({"model_id": card["model_id"], "out": args.out, "test": t, "train_seconds": card["train_seconds"]})
     )
     return 0
 

@@ -70,8 +70,10 @@ def _table(rows: list[Row]) -> str:
     head = f"{'#':>2}  {'story':44} {'outcome':16} {'verdict':8} {'views':>5} {'cover':>6} {'time':>6}  ok  note"
     lines = [head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r.n:>2}  {r.story:44} {r.outcome:16} {r.verdict:8} {r.viewpoints:>5} {r.coverage:>6} "
-                     f"{r.seconds:>5.1f}s  {'✓' if r.ok else '✗'}   {r.note}")
+        lines.append(
+            f"{r.n:>2}  {r.story:44} {r.outcome:16} {r.verdict:8} {r.viewpoints:>5} {r.coverage:>6} "
+            f"{r.seconds:>5.1f}s  {'✓' if r.ok else '✗'}   {r.note}"
+        )
     return "\n".join(lines)
 
 
@@ -115,16 +117,28 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     nudged = (0.008, -0.006, math.radians(0.5))
     moved = (-0.15, 0.0, math.radians(5.0))
     stages = [
-        Stage(f"new {bt} bin → no plan", {"bin_type": bt, "bin_xyz_yaw": home, "dirty": False,
-                                          "park_offset_xy_yaw": (0.0, 0.0, 0.0)},
-              Expect("replan_required"), after="wait_plan"),
+        Stage(
+            f"new {bt} bin → no plan",
+            {"bin_type": bt, "bin_xyz_yaw": home, "dirty": False, "park_offset_xy_yaw": (0.0, 0.0, 0.0)},
+            Expect("replan_required"),
+            after="wait_plan",
+        ),
         Stage("same bin, clean → plan found, scan", {}, Expect("completed", "clean")),
-        Stage("parked 10 mm, 0.5° off → adjusted, scan", {"park_offset_xy_yaw": nudged},
-              Expect("completed", "clean", True)),
-        Stage("same place, powder on the bin → dirty", {"dirty": True, "powder_amount": 0.6, "seed": 7},
-              Expect("completed", "dirty")),
-        Stage("parked 0.15 m back, 5° off → beyond tolerance", {"park_offset_xy_yaw": moved, "dirty": False},
-              Expect("replan_required")),
+        Stage(
+            "parked 10 mm, 0.5° off → adjusted, scan",
+            {"park_offset_xy_yaw": nudged},
+            Expect("completed", "clean", True),
+        ),
+        Stage(
+            "same place, powder on the bin → dirty",
+            {"dirty": True, "powder_amount": 0.6, "seed": 7},
+            Expect("completed", "dirty"),
+        ),
+        Stage(
+            "parked 0.15 m back, 5° off → beyond tolerance",
+            {"park_offset_xy_yaw": moved, "dirty": False},
+            Expect("replan_required"),
+        ),
     ]
 
     def _terminate(signum: int, _frame: object) -> None:
@@ -140,16 +154,21 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
         progress: queue.Queue[PlanJobProgress] = queue.Queue()
         subs = [
             session.declare_subscriber(keys.status(c), lambda s: statuses.put(decode_as(Status, s.payload.to_bytes()))),
-            session.declare_subscriber(keys.result(c), lambda s: results.put(decode_as(CycleResult, s.payload.to_bytes()))),
-            session.declare_subscriber(keys.planner_job_progress(c),
-                                       lambda s: progress.put(decode_as(PlanJobProgress, s.payload.to_bytes()))),
-            session.declare_subscriber(keys.events(c), lambda s: _say(
-                "   · " + decode_as(Event, s.payload.to_bytes()).text)),
+            session.declare_subscriber(
+                keys.result(c), lambda s: results.put(decode_as(CycleResult, s.payload.to_bytes()))
+            ),
+            session.declare_subscriber(
+                keys.planner_job_progress(c), lambda s: progress.put(decode_as(PlanJobProgress, s.payload.to_bytes()))
+            ),
+            session.declare_subscriber(
+                keys.events(c), lambda s: _say("   · " + decode_as(Event, s.payload.to_bytes()).text)
+            ),
         ]
 
         def command(name: str) -> Ack:
-            (r,) = list(session.get(keys.cmd(c), payload=encode(Command(command=name, request_id=f"demo-{name}")),
-                                    timeout=10))
+            (r,) = list(
+                session.get(keys.cmd(c), payload=encode(Command(command=name, request_id=f"demo-{name}")), timeout=10)
+            )
             return decode_as(Ack, r.ok.payload.to_bytes())
 
         def wait_for(pred, timeout: float) -> Status | None:  # noqa: ANN001
@@ -164,8 +183,9 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
             return None
 
         _say("starting workers (robot, camera, classifier, planner) …")
-        st = wait_for(lambda s: all(s.workers.get(r) for r in ("robot", "camera", "classifier", "planner")),
-                      args.worker_timeout)
+        st = wait_for(
+            lambda s: all(s.workers.get(r) for r in ("robot", "camera", "classifier", "planner")), args.worker_timeout
+        )
         if st is None:
             _say(f"workers did not come up within {args.worker_timeout:g} s: {cell.supervisor.status.workers}")
             return 1
@@ -217,8 +237,9 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
                     from cellctl.recording.dirt_map import draw_dirt_map
 
                     mesh = load_catalog(cfg.path(cfg.catalog)).load_mesh(res.bin.type or bt)
-                    png = draw_dirt_map(mesh, res.dirt_map, out / f"dirt-map-cycle{i}.png",
-                                        f"cycle {i}: verdict {res.verdict}")
+                    png = draw_dirt_map(
+                        mesh, res.dirt_map, out / f"dirt-map-cycle{i}.png", f"cycle {i}: verdict {res.verdict}"
+                    )
                     row.note = (row.note + f" map: {png.name}").strip()
                 except Exception as err:  # a picture must not fail the story
                     _say(f"   (dirt map not drawn: {err})")

@@ -47,7 +47,10 @@ def run_states(args: argparse.Namespace) -> int:
         print(mermaid(packml, cycle), end="")
         return 0
     for name, spec in packml.states.items():
-        print(f"{spec.code:2d} {name:13} {'acting' if spec.acting else 'wait':6} commands: {packml.allowed_commands(name)}")
+        print(
+            f"{spec.code:2d} {name:13} {'acting' if spec.acting else 'wait':6} "
+            f"commands: {packml.allowed_commands(name)}"
+        )
     print(f"Execute ⊃ cycle (initial {cycle.initial}):")
     for st in cycle.states.values():
         print(f"   {st.name:15} step={st.step:15} " + ", ".join(f"{o}→{d}" for o, d in st.on.items()))

@@ -59,10 +59,14 @@ def run_cmd(args: argparse.Namespace) -> int:
     cmd = Command(command=args.command, request_id=f"cli-{time.time_ns()}", params=_parse_params(args.param))
     with open_session(cfg, "client") as s:
         statuses: queue.Queue[Status] = queue.Queue()
-        sub = s.declare_subscriber(keys.status(cfg.cell_id), lambda smp: statuses.put(decode_as(Status, smp.payload.to_bytes())))
+        sub = s.declare_subscriber(
+            keys.status(cfg.cell_id), lambda smp: statuses.put(decode_as(Status, smp.payload.to_bytes()))
+        )
         acks: queue.Queue[Ack] = queue.Queue()
         if args.put:
-            asub = s.declare_subscriber(keys.cmd_ack(cfg.cell_id), lambda smp: acks.put(decode_as(Ack, smp.payload.to_bytes())))
+            asub = s.declare_subscriber(
+                keys.cmd_ack(cfg.cell_id), lambda smp: acks.put(decode_as(Ack, smp.payload.to_bytes()))
+            )
             time.sleep(0.1)  # let the subscription reach the router before the put
             s.put(keys.cmd(cfg.cell_id), encode(cmd))
             try:
@@ -76,7 +80,9 @@ def run_cmd(args: argparse.Namespace) -> int:
         else:
             replies = list(s.get(keys.cmd(cfg.cell_id), payload=encode(cmd), timeout=args.timeout))
             if not replies:
-                raise WorkerUnavailable(f"no cellctl daemon serves {keys.cmd(cfg.cell_id)!r}; is `cellctl run` running?")
+                raise WorkerUnavailable(
+                    f"no cellctl daemon serves {keys.cmd(cfg.cell_id)!r}; is `cellctl run` running?"
+                )
             if replies[0].ok is None:
                 raise WorkerTimeout(f"the daemon did not answer within {args.timeout:g} s")
             ack = decode_as(Ack, replies[0].ok.payload.to_bytes())
@@ -146,6 +152,8 @@ def run_cycles(args: argparse.Namespace) -> int:
         return 0
     print(f"{'cycle':28} {'outcome':16} {'verdict':8} {'bin':12} {'plan':14} reason")
     for r in rows:
-        print(f"{r.cycle_id:28} {r.outcome or 'running':16} {r.verdict or '-':8} {r.bin_type or '-':12} "
-              f"{(r.plan_id or '-')[:14]:14} {(r.reason or '')[:70]}")
+        print(
+            f"{r.cycle_id:28} {r.outcome or 'running':16} {r.verdict or '-':8} {r.bin_type or '-':12} "
+            f"{(r.plan_id or '-')[:14]:14} {(r.reason or '')[:70]}"
+        )
     return 0

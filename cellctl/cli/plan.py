@@ -34,7 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--paper-budget", type=float, default=None, help="paper mode: RRT* seconds per query (default 1.0)")
     p.add_argument(
-        "--paper-strict", action="store_true",
+        "--paper-strict",
+        action="store_true",
         help="paper mode: no RRTConnect fallback when RRT* finds nothing within its budget",
     )
     p.add_argument("--out", default=None, help="write the plan file here instead of the cache")
@@ -99,7 +100,12 @@ def run(args: argparse.Namespace) -> int:
         params.paper_budget_s = float(args.paper_budget)
     params.paper_fallback = not args.paper_strict
     plan = make_plan(
-        mesh, base_pose_from_xyz_yaw(x, y, z, yaw), params, default_robot_model(), bin_type=args.bin_type, show_bars=True
+        mesh,
+        base_pose_from_xyz_yaw(x, y, z, yaw),
+        params,
+        default_robot_model(),
+        bin_type=args.bin_type,
+        show_bars=True,
     )
     out = write_plan(plan, args.out) if args.out else write_plan(plan, plan_path(cfg.path(pc.plans_dir), plan))
     if args.png:

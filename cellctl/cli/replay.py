@@ -20,7 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--start-offset", type=float, default=0.0, metavar="S", help="skip the first S seconds")
     p.add_argument("--topics", nargs="+", default=None, metavar="K", help="only these topics")
     p.add_argument("--prefix", default="", metavar="P", help="prepend P to every key (e.g. replay/)")
-    p.add_argument("--verify", action="store_true", help="re-run the supervisor on the recorded replies; exit 1 on a difference")
+    p.add_argument(
+        "--verify", action="store_true", help="re-run the supervisor on the recorded replies; exit 1 on a difference"
+    )
     add_config_arguments(p)
     p.set_defaults(func=run_replay)
 
@@ -44,8 +46,13 @@ def run_replay(args: argparse.Namespace) -> int:
         port = _free_port()
         tmp = tempfile.mkdtemp(prefix="cellctl-verify-")
         ep = f'["tcp/127.0.0.1:{port}"]'
-        args.overrides = [*args.overrides, f"bus.listen={ep}", f"bus.connect={ep}", f"recording.dir={tmp}",
-                          f"recording.index={tmp}/cells.db"]
+        args.overrides = [
+            *args.overrides,
+            f"bus.listen={ep}",
+            f"bus.connect={ep}",
+            f"recording.dir={tmp}",
+            f"recording.index={tmp}/cells.db",
+        ]
         cfg = config_from_args(args)
         report = verify(args.file, cfg)
         print(json.dumps(report.as_dict(), indent=1))
@@ -55,15 +62,28 @@ def run_replay(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
     rec = read_cycle(args.file)
     if rec.truncated:
-        print(f"cellctl replay: warning: {args.file} is damaged; replaying the intact part ({rec.skipped})", file=sys.stderr)
+        print(
+            f"cellctl replay: warning: {args.file} is damaged; replaying the intact part ({rec.skipped})",
+            file=sys.stderr,
+        )
     stop = threading.Event()
     from cellctl.cli.worker import install_stop_signals
 
     install_stop_signals(stop)
     with open_session(cfg, "client") as s:
-        n = republish(rec, s, rate=args.rate, loop=args.loop, start_offset_s=args.start_offset, topics=args.topics,
-                      prefix=args.prefix, stop=stop)
-    print(json.dumps({"published": n, "messages": len(rec.messages), "truncated": rec.truncated, "skipped": rec.skipped}))
+        n = republish(
+            rec,
+            s,
+            rate=args.rate,
+            loop=args.loop,
+            start_offset_s=args.start_offset,
+            topics=args.topics,
+            prefix=args.prefix,
+            stop=stop,
+        )
+    print(
+        json.dumps({"published": n, "messages": len(rec.messages), "truncated": rec.truncated, "skipped": rec.skipped})
+    )
     return 0
 
 
@@ -91,7 +111,9 @@ def run_report(args: argparse.Namespace) -> int:
     res = results[-1]
     summary = {k: res.get(k) for k in ("cycle_id", "outcome", "reason", "verdict", "coverage", "plan_id")}
     summary["bin"] = res.get("bin", {}).get("type")
-    summary["viewpoints"] = [(v["index"], v.get("label"), v.get("p_dirty"), v.get("uncertain")) for v in res["viewpoints"]]
+    summary["viewpoints"] = [
+        (v["index"], v.get("label"), v.get("p_dirty"), v.get("uncertain")) for v in res["viewpoints"]
+    ]
     print(json.dumps(summary, indent=1))
     if args.png:
         dm = res.get("dirt_map")
@@ -106,7 +128,12 @@ def run_report(args: argparse.Namespace) -> int:
             if v.get("camera_pose"):
                 p = PoseMsg.model_validate(v["camera_pose"]).matrix()
                 cams.append((np.linalg.inv(T_base_bin) @ p)[:3, 3])
-        draw_dirt_map(mesh, dm, Path(args.png), f"cycle {args.cycle_id} verdict {res.get('verdict')}",
-                      np.array(cams) if cams else None)
+        draw_dirt_map(
+            mesh,
+            dm,
+            Path(args.png),
+            f"cycle {args.cycle_id} verdict {res.get('verdict')}",
+            np.array(cams) if cams else None,
+        )
         print(f"wrote {args.png}", file=sys.stderr)
     return 0

@@ -23,9 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r = ss.add_parser("render", help="write a picture of the simulated cell")
     r.add_argument("--bin", dest="bin_type", default=None, help="bin type (default: sim.bin_type)")
     r.add_argument("--dirty", action="store_true", help="scatter powder on the bin")
-    r.add_argument(
-        "--powder", type=float, default=None, help="powder amount 0..1 (default: sim.powder_amount)"
-    )
+    r.add_argument("--powder", type=float, default=None, help="powder amount 0..1 (default: sim.powder_amount)")
     r.add_argument("--seed", type=int, default=None, help="scenario seed (parking error, powder)")
     r.add_argument("--view", choices=("overview", "camera"), default="overview")
     r.add_argument("--width", type=int, default=1280)

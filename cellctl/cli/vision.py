@@ -40,15 +40,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(p)
     p.set_defaults(func=run_identify)
 
-    c = sub.add_parser(
-        "calibrate", help="camera calibration: hand-eye (over the bus) and intrinsics (from images)"
-    )
+    c = sub.add_parser("calibrate", help="camera calibration: hand-eye (over the bus) and intrinsics (from images)")
     csub = c.add_subparsers(dest="what", metavar="WHAT", required=True)
     he = csub.add_parser("hand-eye", help="move the arm around the board in view and solve T_flange_cam")
     he.add_argument("--views", type=int, default=12, help="arm poses to try (default 12)")
-    he.add_argument(
-        "--distance", type=float, default=None, help="camera-board distance in m (default: current)"
-    )
+    he.add_argument("--distance", type=float, default=None, help="camera-board distance in m (default: current)")
     he.add_argument("--seed", type=int, default=0)
     he.add_argument("--catalog", default=None, help="bin catalog YAML (default: the config's catalog)")
     he.add_argument("--out", default=DEFAULT_HAND_EYE, help=f"result JSON (default {DEFAULT_HAND_EYE})")
@@ -110,9 +106,7 @@ def parse_camera_pose(text: str | None) -> Any:
     except ValueError:
         v = []
     if len(v) != 7:
-        raise CellError(
-            f"--camera-pose {text!r}: expected 7 numbers 'x y z qx qy qz qw' (metres, quaternion xyzw)"
-        )
+        raise CellError(f"--camera-pose {text!r}: expected 7 numbers 'x y z qx qy qz qw' (metres, quaternion xyzw)")
     q = np.asarray(v[3:])
     if not np.isfinite(v).all() or np.linalg.norm(q) < 1e-9:
         raise CellError(f"--camera-pose {text!r}: the quaternion {v[3:]} is not a rotation")

@@ -272,11 +272,7 @@ def build_mesh(d: BinDesign) -> tuple[NDArray[np.float64], NDArray[np.int64], ND
         s = d.leg_size / 2
         z0, z1 = -d.height, d.leg_top_z
         corners = np.array(
-            [
-                [lx + dx * s, ly + dy * s, z]
-                for z in (z0, z1)
-                for dx, dy in ((-1, -1), (1, -1), (1, 1), (-1, 1))
-            ]
+            [[lx + dx * s, ly + dy * s, z] for z in (z0, z1) for dx, dy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
         )
         quads = [(0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6), (3, 0, 4, 7), (4, 5, 6, 7), (0, 3, 2, 1)]
         F = np.array([tri for a, b_, c, e in quads for tri in ((a, b_, c), (a, c, e))], dtype=np.int64)

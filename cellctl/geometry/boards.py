@@ -37,8 +37,7 @@ def make_charuco_board(spec: BoardSpec) -> Any:
     n_dict = dictionary.bytesList.shape[0]
     if spec.ids.stop > n_dict:
         raise ConfigError(
-            f"board ids {spec.ids.start}..{spec.ids.stop - 1} exceed dictionary {spec.dictionary} "
-            f"({n_dict} markers)"
+            f"board ids {spec.ids.start}..{spec.ids.stop - 1} exceed dictionary {spec.dictionary} ({n_dict} markers)"
         )
     ids = np.arange(spec.ids.start, spec.ids.stop, dtype=np.int32)
     size = (spec.squares_x, spec.squares_y)

@@ -355,9 +355,7 @@ def check_frame_convention(mesh: BinMesh, name: str, height_m: float | None = No
             f"y [{lo[1]:.3f}, {hi[1]:.3f}]; expected the origin at the centre of the top opening"
         )
     if height_m is not None and abs((hi[2] - lo[2]) - height_m) > 0.02:
-        raise ConfigError(
-            f"bin {name!r}: mesh is {hi[2] - lo[2]:.3f} m high but height_m says {height_m:.3f} m"
-        )
+        raise ConfigError(f"bin {name!r}: mesh is {hi[2] - lo[2]:.3f} m high but height_m says {height_m:.3f} m")
 
 
 # --- catalog --------------------------------------------------------------------------------
@@ -427,9 +425,7 @@ class Catalog:
                 raise ConfigError(f"bin {name!r}: mesh file {str(path)!r} does not exist")
             sha = file_sha256(path)
             if sha != t.mesh_sha256:
-                raise ConfigError(
-                    f"bin {name!r}: mesh {str(path)!r} has sha256 {sha}, catalog expects {t.mesh_sha256}"
-                )
+                raise ConfigError(f"bin {name!r}: mesh {str(path)!r} has sha256 {sha}, catalog expects {t.mesh_sha256}")
             mesh = read_bin_mesh(path)
             check_frame_convention(mesh, name, t.height_m)
             self._meshes[name] = mesh

@@ -142,8 +142,7 @@ def check_joints(q: ArrayLike, name: str = "joints") -> NDArray[np.float64]:
     for i, (lo, hi) in enumerate(JOINT_LIMITS):
         if not lo - 1e-9 <= a[i] <= hi + 1e-9:
             raise RobotError(
-                f"{name}: joint {JOINT_NAMES[i]} = {a[i]:.4f} rad is outside its limits "
-                f"[{lo:.4f}, {hi:.4f}] rad"
+                f"{name}: joint {JOINT_NAMES[i]} = {a[i]:.4f} rad is outside its limits [{lo:.4f}, {hi:.4f}] rad"
             )
     return a
 

@@ -94,7 +94,7 @@ class CollisionWorld:
         # motions are caught with 1/8 of the samples; only survivors get the fine pass.
         # Small batches (OMPL's single edges) skip it: there the per-call overhead dominates.
         n_fine = int(np.ceil(np.abs(B - A).max(axis=1) / max_step).sum())
-        for step in ((8 * max_step, max_step) if n_fine > 512 else (max_step,)):
+        for step in (8 * max_step, max_step) if n_fine > 512 else (max_step,):
             idx = np.flatnonzero(out)
             if len(idx) == 0:
                 break

@@ -9,7 +9,6 @@ Costs are joint-space path lengths (rad).
 
 from __future__ import annotations
 
-
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -218,8 +217,6 @@ def path_cost_matrix(
     return out
 
 
-
-
 class EdgeCache:
     """Fast mode's lazily evaluated path costs between viewpoint configurations.
 
@@ -236,8 +233,13 @@ class EdgeCache:
     """
 
     def __init__(
-        self, Q: NDArray[np.float64], q_start: NDArray[np.float64], world: CollisionWorld, budget_s: float,
-        simplify_s: float, max_step: float = 0.02,
+        self,
+        Q: NDArray[np.float64],
+        q_start: NDArray[np.float64],
+        world: CollisionWorld,
+        budget_s: float,
+        simplify_s: float,
+        max_step: float = 0.02,
     ) -> None:
         self.Q = np.asarray(Q, dtype=np.float64)
         self.q_start = np.asarray(q_start, dtype=np.float64)
@@ -278,7 +280,9 @@ class EdgeCache:
         k = (min(a, b), max(a, b))
         kind, _ = self.state[k]
         if kind == "lazy":
-            ok, length, path = self.planner.plan(self.q(k[0]), self.q(k[1]), "rrtconnect", self.budget_s, self.simplify_s)
+            ok, length, path = self.planner.plan(
+                self.q(k[0]), self.q(k[1]), "rrtconnect", self.budget_s, self.simplify_s
+            )
             self.planned += 1
             if ok:
                 self.state[k] = ("planned", length)
@@ -317,7 +321,9 @@ class EdgeCache:
             fails = sum(self.state.get((min(a, b), max(a, b)), ("?", 0.0))[0] == "failed" for b in main)
             group_fails = sum(
                 self.state.get((min(x, b), max(x, b)), ("?", 0.0))[0] == "failed"
-                for x in nodes if find(x) == find(a) for b in main
+                for x in nodes
+                if find(x) == find(a)
+                for b in main
             )
             if fails >= 1 or group_fails >= 2:
                 out.append(a)

@@ -24,8 +24,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.errors import PlanningError
-from cellctl.geometry.transforms import invert, rotation_about, transform_from
 from cellctl.geometry import robot_model as rm
+from cellctl.geometry.transforms import invert, rotation_about, transform_from
 from cellctl.planning.mesh import BinMesh
 from cellctl.planning.robot import RobotModel
 from cellctl.planning.visibility import CameraModel
@@ -37,6 +37,7 @@ ProgressFn = Callable[[str, float, str], None]
 
 MAX_TOUR_ROUNDS = 12  # fast mode: plan-the-tour's-edges / re-order rounds
 MAX_SELECT_ROUNDS = 4  # fast mode: re-select after dropping viewpoints no motion connects
+
 
 def robust_acceptor(
     mesh: BinMesh, robot: RobotModel, T_bin_base: NDArray[np.float64], params: PlanParams
@@ -55,8 +56,17 @@ def robust_acceptor(
     from cellctl.planning.reach import wrap_towards
 
     t, r = params.robust_m, np.radians(params.robust_deg)
-    errors = [transform_from_xyz_rpy(x, (0.0, 0.0, a)) for x, a in
-              (((t, 0, 0), 0.0), ((-t, 0, 0), 0.0), ((0, t, 0), 0.0), ((0, -t, 0), 0.0), ((0, 0, 0), r), ((0, 0, 0), -r))]
+    errors = [
+        transform_from_xyz_rpy(x, (0.0, 0.0, a))
+        for x, a in (
+            ((t, 0, 0), 0.0),
+            ((-t, 0, 0), 0.0),
+            ((0, t, 0), 0.0),
+            ((0, -t, 0), 0.0),
+            ((0, 0, 0), r),
+            ((0, 0, 0), -r),
+        )
+    ]
     worlds = [CollisionWorld(mesh, robot, T_bin_base @ E, margin=params.margin) for E in errors]
     inv_errors = [invert(E) for E in errors]
 
@@ -336,7 +346,14 @@ def make_plan(
         st.end()
         return finish(f"the start configuration {np.round(q_start, 3).tolist()} is in collision with the bin/floor")
     reached = reachability(
-        vp, robot, world, T_base_bin, q_start, params.n_roll, accept=accept, verify=verify,
+        vp,
+        robot,
+        world,
+        T_base_bin,
+        q_start,
+        params.n_roll,
+        accept=accept,
+        verify=verify,
         progress=lambda d, t: st.update(d, t),
     )
     counts["reachable"] = len(reached.index)
@@ -390,8 +407,13 @@ def make_plan(
             st.start("distance_matrix", "distance matrix")
             nodes_q = np.vstack([q_start[None], reached.q[sel]])
             pc = path_cost_matrix(
-                nodes_q, world, "paper", budget_s=params.paper_budget_s, simplify_s=params.simplify_s,
-                fallback=params.paper_fallback, progress=lambda d, t: st.update(d, t),
+                nodes_q,
+                world,
+                "paper",
+                budget_s=params.paper_budget_s,
+                simplify_s=params.simplify_s,
+                fallback=params.paper_fallback,
+                progress=lambda d, t: st.update(d, t),
             )
             stage_counts["matrix_pairs"] = len(nodes_q) * (len(nodes_q) - 1) // 2
             stage_counts["matrix_planned"] = pc.planned
@@ -437,7 +459,9 @@ def make_plan(
         D, lazy = jp_cache.matrix(nodes)
         bad = jp_cache.isolated(nodes)
         stage_counts["matrix_pairs"] = len(nodes) * (len(nodes) - 1) // 2
-        stage_counts["matrix_straight"] = int(np.sum(~lazy[np.triu_indices(len(nodes), 1)] & (D[np.triu_indices(len(nodes), 1)] < UNREACHABLE_COST)))
+        stage_counts["matrix_straight"] = int(
+            np.sum(~lazy[np.triu_indices(len(nodes), 1)] & (D[np.triu_indices(len(nodes), 1)] < UNREACHABLE_COST))
+        )
         stage_counts["matrix_planned"] = jp_cache.planned
         stage_counts["matrix_failed"] = jp_cache.failed
         stage_counts["tour_failed_edges"] = int(

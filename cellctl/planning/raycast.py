@@ -38,15 +38,15 @@ class RayCaster:
 
     def first_hit(self, origins: ArrayLike, directions: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """Face index (−1: none) and distance (inf: none) of the first hit of each ray."""
-        O = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+        Org = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         D = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-        face = np.full(len(O), -1, dtype=np.int64)
-        dist = np.full(len(O), np.inf)
-        if len(O) == 0:
+        face = np.full(len(Org), -1, dtype=np.int64)
+        dist = np.full(len(Org), np.inf)
+        if len(Org) == 0:
             return face, dist
-        locs, ray_idx, tri_idx = self._ray.intersects_location(O, D, multiple_hits=False)
+        locs, ray_idx, tri_idx = self._ray.intersects_location(Org, D, multiple_hits=False)
         if len(ray_idx):
-            d = np.einsum("ij,ij->i", locs - O[ray_idx], D[ray_idx])
+            d = np.einsum("ij,ij->i", locs - Org[ray_idx], D[ray_idx])
             face[ray_idx] = tri_idx
             dist[ray_idx] = d
         return face, dist

@@ -135,7 +135,9 @@ def simulated_annealing(
     return SAResult(np.array(sorted(best), dtype=np.int64), 100.0 * best_cost, k + 1, accepted)
 
 
-def _swap_polish(C: NDArray[np.bool_], area: NDArray[np.float64], sel: NDArray[np.int64], max_swaps: int = 100) -> NDArray[np.int64]:
+def _swap_polish(
+    C: NDArray[np.bool_], area: NDArray[np.float64], sel: NDArray[np.int64], max_swaps: int = 100
+) -> NDArray[np.int64]:
     """Best-improvement 1-swap local search: replace one member by the outsider that adds most.
 
     Deterministic finish of the annealer (which samples swaps at random): every member's

@@ -39,10 +39,22 @@ def open_box_bin(
 
     V = np.array(
         [
-            [-hx, -hy, 0], [hx, -hy, 0], [hx, hy, 0], [-hx, hy, 0],  # 0-3 outer top
-            [-hx, -hy, zb], [hx, -hy, zb], [hx, hy, zb], [-hx, hy, zb],  # 4-7 outer bottom
-            [-ix, -iy, 0], [ix, -iy, 0], [ix, iy, 0], [-ix, iy, 0],  # 8-11 inner top
-            [-ix, -iy, zi], [ix, -iy, zi], [ix, iy, zi], [-ix, iy, zi],  # 12-15 inner bottom
+            [-hx, -hy, 0],
+            [hx, -hy, 0],
+            [hx, hy, 0],
+            [-hx, hy, 0],  # 0-3 outer top
+            [-hx, -hy, zb],
+            [hx, -hy, zb],
+            [hx, hy, zb],
+            [-hx, hy, zb],  # 4-7 outer bottom
+            [-ix, -iy, 0],
+            [ix, -iy, 0],
+            [ix, iy, 0],
+            [-ix, iy, 0],  # 8-11 inner top
+            [-ix, -iy, zi],
+            [ix, -iy, zi],
+            [ix, iy, zi],
+            [-ix, iy, zi],  # 12-15 inner bottom
         ],
         dtype=np.float64,
     )

@@ -25,8 +25,9 @@ def face_states(n_faces: int, dirt_map: dict[str, Any]) -> np.ndarray:
     return s
 
 
-def draw_dirt_map(mesh: Any, dirt_map: dict[str, Any], out: Path, title: str = "",
-                  camera_positions: np.ndarray | None = None) -> Path:
+def draw_dirt_map(
+    mesh: Any, dirt_map: dict[str, Any], out: Path, title: str = "", camera_positions: np.ndarray | None = None
+) -> Path:
     """Write a PNG with two views of the bin (outside and from above) coloured by the dirt map.
 
     Args:

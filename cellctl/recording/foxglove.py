@@ -30,7 +30,11 @@ _QUAT = {
     "properties": {k: {"type": "number"} for k in "xyzw"},
     "required": ["x", "y", "z", "w"],
 }
-_POSE = {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}, "required": ["position", "orientation"]}
+_POSE = {
+    "type": "object",
+    "properties": {"position": _VEC3, "orientation": _QUAT},
+    "required": ["position", "orientation"],
+}
 _COLOR = {"type": "object", "properties": {k: {"type": "number"} for k in "rgba"}, "required": ["r", "g", "b", "a"]}
 
 
@@ -84,7 +88,11 @@ SCHEMAS: dict[str, dict[str, Any]] = {
                 "type": "array",
                 "items": {
                     "type": "object",
-                    "properties": {"timestamp": _TIME, "type": {"type": "integer", "enum": [0, 1]}, "id": {"type": "string"}},
+                    "properties": {
+                        "timestamp": _TIME,
+                        "type": {"type": "integer", "enum": [0, 1]},
+                        "id": {"type": "string"},
+                    },
                     "required": ["timestamp", "type", "id"],
                 },
             },
@@ -98,30 +106,94 @@ SCHEMAS: dict[str, dict[str, Any]] = {
                         "id": {"type": "string"},
                         "lifetime": _TIME,
                         "frame_locked": {"type": "boolean"},
-                        "metadata": {"type": "array", "items": {"type": "object", "properties": {
-                            "key": {"type": "string"}, "value": {"type": "string"}}, "required": ["key", "value"]}},
-                        "arrows": {"type": "array", "items": {"type": "object", "properties": {
-                            "pose": _POSE, "shaft_length": {"type": "number"}, "shaft_diameter": {"type": "number"},
-                            "head_length": {"type": "number"}, "head_diameter": {"type": "number"}, "color": _COLOR},
-                            "required": ["pose", "shaft_length", "shaft_diameter", "head_length", "head_diameter", "color"]}},
-                        "spheres": {"type": "array", "items": {"type": "object", "properties": {
-                            "pose": _POSE, "size": _VEC3, "color": _COLOR}, "required": ["pose", "size", "color"]}},
-                        "triangles": {"type": "array", "items": {"type": "object", "properties": {
-                            "pose": _POSE, "points": {"type": "array", "items": _VEC3}, "color": _COLOR,
-                            "colors": {"type": "array", "items": _COLOR},
-                            "indices": {"type": "array", "items": {"type": "integer", "minimum": 0}}},
-                            "required": ["pose", "points", "color", "colors", "indices"]}},
-                        "texts": {"type": "array", "items": {"type": "object", "properties": {
-                            "pose": _POSE, "billboard": {"type": "boolean"}, "font_size": {"type": "number"},
-                            "scale_invariant": {"type": "boolean"}, "color": _COLOR, "text": {"type": "string"}},
-                            "required": ["pose", "billboard", "font_size", "scale_invariant", "color", "text"]}},
+                        "metadata": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "properties": {"key": {"type": "string"}, "value": {"type": "string"}},
+                                "required": ["key", "value"],
+                            },
+                        },
+                        "arrows": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "properties": {
+                                    "pose": _POSE,
+                                    "shaft_length": {"type": "number"},
+                                    "shaft_diameter": {"type": "number"},
+                                    "head_length": {"type": "number"},
+                                    "head_diameter": {"type": "number"},
+                                    "color": _COLOR,
+                                },
+                                "required": [
+                                    "pose",
+                                    "shaft_length",
+                                    "shaft_diameter",
+                                    "head_length",
+                                    "head_diameter",
+                                    "color",
+                                ],
+                            },
+                        },
+                        "spheres": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "properties": {"pose": _POSE, "size": _VEC3, "color": _COLOR},
+                                "required": ["pose", "size", "color"],
+                            },
+                        },
+                        "triangles": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "properties": {
+                                    "pose": _POSE,
+                                    "points": {"type": "array", "items": _VEC3},
+                                    "color": _COLOR,
+                                    "colors": {"type": "array", "items": _COLOR},
+                                    "indices": {"type": "array", "items": {"type": "integer", "minimum": 0}},
+                                },
+                                "required": ["pose", "points", "color", "colors", "indices"],
+                            },
+                        },
+                        "texts": {
+                            "type": "array",
+                            "items": {
+                                "type": "object",
+                                "properties": {
+                                    "pose": _POSE,
+                                    "billboard": {"type": "boolean"},
+                                    "font_size": {"type": "number"},
+                                    "scale_invariant": {"type": "boolean"},
+                                    "color": _COLOR,
+                                    "text": {"type": "string"},
+                                },
+                                "required": ["pose", "billboard", "font_size", "scale_invariant", "color", "text"],
+                            },
+                        },
                         "cubes": {"type": "array"},
                         "cylinders": {"type": "array"},
                         "lines": {"type": "array"},
                         "models": {"type": "array"},
                     },
-                    "required": ["timestamp", "frame_id", "id", "lifetime", "frame_locked", "metadata", "arrows",
-                                 "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models"],
+                    "required": [
+                        "timestamp",
+                        "frame_id",
+                        "id",
+                        "lifetime",
+                        "frame_locked",
+                        "metadata",
+                        "arrows",
+                        "cubes",
+                        "spheres",
+                        "cylinders",
+                        "lines",
+                        "triangles",
+                        "texts",
+                        "models",
+                    ],
                 },
             },
         },
@@ -152,7 +224,13 @@ def _tq(T: Any) -> tuple[dict[str, float], dict[str, float]]:
 
 def frame_transform(parent: str, child: str, T_parent_child: Any, t_ns: int | None = None) -> dict[str, Any]:
     t, q = _tq(T_parent_child)
-    return {"timestamp": stamp(t_ns), "parent_frame_id": parent, "child_frame_id": child, "translation": t, "rotation": q}
+    return {
+        "timestamp": stamp(t_ns),
+        "parent_frame_id": parent,
+        "child_frame_id": child,
+        "translation": t,
+        "rotation": q,
+    }
 
 
 def pose_in_frame(frame_id: str, T_frame_x: Any, t_ns: int | None = None) -> dict[str, Any]:
@@ -199,16 +277,49 @@ def scene_update(
     R_z_to_x = np.array([[0, 0, -1, 0], [0, 1, 0, 0], [1, 0, 0, 0], [0, 0, 0, 1]], dtype=float)
     for T, rgba, label in cameras:
         T = np.asarray(T, dtype=float)
-        arrows.append({"pose": _pose(T @ R_z_to_x), "shaft_length": 0.1, "shaft_diameter": 0.01,
-                       "head_length": 0.04, "head_diameter": 0.03, "color": _colour(rgba)})
-        texts.append({"pose": _pose(T), "billboard": True, "font_size": 12.0, "scale_invariant": True,
-                      "color": _colour(rgba), "text": label})
+        arrows.append(
+            {
+                "pose": _pose(T @ R_z_to_x),
+                "shaft_length": 0.1,
+                "shaft_diameter": 0.01,
+                "head_length": 0.04,
+                "head_diameter": 0.03,
+                "color": _colour(rgba),
+            }
+        )
+        texts.append(
+            {
+                "pose": _pose(T),
+                "billboard": True,
+                "font_size": 12.0,
+                "scale_invariant": True,
+                "color": _colour(rgba),
+                "text": label,
+            }
+        )
     ts = stamp(t_ns)
     entity = {
-        "timestamp": ts, "frame_id": frame_id, "id": entity_id, "lifetime": {"sec": 0, "nsec": 0},
-        "frame_locked": False, "metadata": [], "arrows": arrows, "cubes": [], "spheres": [], "cylinders": [],
-        "lines": [], "texts": texts, "models": [],
-        "triangles": [{"pose": _pose(T_frame_bin), "points": points, "color": _colour((0.7, 0.7, 0.7, 1.0)),
-                       "colors": colours, "indices": []}],
+        "timestamp": ts,
+        "frame_id": frame_id,
+        "id": entity_id,
+        "lifetime": {"sec": 0, "nsec": 0},
+        "frame_locked": False,
+        "metadata": [],
+        "arrows": arrows,
+        "cubes": [],
+        "spheres": [],
+        "cylinders": [],
+        "lines": [],
+        "texts": texts,
+        "models": [],
+        "triangles": [
+            {
+                "pose": _pose(T_frame_bin),
+                "points": points,
+                "color": _colour((0.7, 0.7, 0.7, 1.0)),
+                "colors": colours,
+                "indices": [],
+            }
+        ],
     }
     return {"deletions": [{"timestamp": ts, "type": 1, "id": ""}], "entities": [entity]}

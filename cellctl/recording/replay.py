@@ -95,7 +95,8 @@ def read_cycle(path: Path | str) -> RecordedCycle:
         supported = model.model_fields["v"].default
         if isinstance(v, int) and v > supported:
             raise RecordingError(
-                f"{str(p)!r} holds {m.schema} version {v}; this cellctl reads up to version {supported} — upgrade cellctl"
+                f"{str(p)!r} holds {m.schema} version {v}; "
+                f"this cellctl reads up to version {supported} — upgrade cellctl"
             )
     return out
 
@@ -224,9 +225,9 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
             if isinstance(msg, ErrorReply):
                 # the log holds the supervisor's wording ("robot refused move: <reason>");
                 # answer with the worker's own reason so the replayed wording matches
-                role, _, op = key[len(prefix):].partition("/")
+                role, _, op = key[len(prefix) :].partition("/")
                 said = f"{role} refused {op}: "
-                raise RecordingError(msg.reason[len(said):] if msg.reason.startswith(said) else msg.reason)
+                raise RecordingError(msg.reason[len(said) :] if msg.reason.startswith(said) else msg.reason)
             if msg.type == "cellctl/CaptureReply":
                 with lock:
                     img = images.popleft().json()["data"] if images else ""
@@ -239,7 +240,7 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
 
     role_ops: dict[str, list[tuple[str, str]]] = defaultdict(list)
     for k in by_key:
-        rest = k[len(prefix):] if k.startswith(prefix) else k
+        rest = k[len(prefix) :] if k.startswith(prefix) else k
         role, _, op = rest.partition("/")
         role_ops[role].append((op, k))
     for role in cfg.supervisor.required_workers:
@@ -298,9 +299,17 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     if rec_cycle_states != rep_cycle_states:
         differences.append(f"states differ: recorded {rec_cycle_states} replayed {rep_cycle_states}")
     if replayed is not None and _strip(results[-1]) != _strip(json.loads(replayed.model_dump_json())):
-        differences.append(f"result differs: recorded {_strip(results[-1])} replayed {_strip(json.loads(replayed.model_dump_json()))}")
+        differences.append(
+            f"result differs: recorded {_strip(results[-1])} replayed {_strip(json.loads(replayed.model_dump_json()))}"
+        )
     left = {k: len(v) for k, v in by_key.items() if v}
     if left:
         differences.append(f"recorded requests never made on replay: {left}")
-    return VerifyReport(not differences, differences, rec_cycle_states, rep_cycle_states,
-                        sum(1 for m in rec.messages if m.topic.endswith("/request")), rec.skipped)
+    return VerifyReport(
+        not differences,
+        differences,
+        rec_cycle_states,
+        rep_cycle_states,
+        sum(1 for m in rec.messages if m.topic.endswith("/request")),
+        rec.skipped,
+    )

@@ -110,9 +110,7 @@ class DistanceGrid:
 
         if len(pts) == 0:
             return np.zeros(0)
-        return (
-            self._scene.compute_distance(o3d.core.Tensor(pts.astype(np.float32))).numpy().astype(np.float64)
-        )
+        return self._scene.compute_distance(o3d.core.Tensor(pts.astype(np.float32))).numpy().astype(np.float64)
 
 
 def distance_grid(mesh: BinMesh) -> DistanceGrid:

@@ -140,9 +140,7 @@ class PowderField:
         return (a > threshold).any(axis=0)
 
 
-def true_T_base_bin(
-    T_world_base: NDArray[np.float64], T_world_bin: NDArray[np.float64]
-) -> NDArray[np.float64]:
+def true_T_base_bin(T_world_base: NDArray[np.float64], T_world_bin: NDArray[np.float64]) -> NDArray[np.float64]:
     """The true bin pose in the robot base frame."""
     return invert(T_world_base) @ T_world_bin
 

@@ -70,9 +70,7 @@ def plan_path(
     for name, q in (("start", a), ("target", b)):
         hits = world.explain(q)
         if hits:
-            raise RobotError(
-                f"{name} configuration {np.round(q, 4).tolist()} is in collision: {', '.join(hits)}"
-            )
+            raise RobotError(f"{name} configuration {np.round(q, 4).tolist()} is in collision: {', '.join(hits)}")
     if _segment_free(world, a, b):
         return np.array([a, b])
     from ompl import base as ob

@@ -35,9 +35,7 @@ class PyBulletWorld:
         margin: clearance (m) below which a pair counts as colliding.
     """
 
-    def __init__(
-        self, mesh: BinMesh, T_base_bin: ArrayLike, T_base_world: ArrayLike, margin: float = 0.005
-    ) -> None:
+    def __init__(self, mesh: BinMesh, T_base_bin: ArrayLike, T_base_world: ArrayLike, margin: float = 0.005) -> None:
         import pybullet as p
 
         self.p = p
@@ -54,9 +52,7 @@ class PyBulletWorld:
             **kw,
         )
         pos, orn = _pose(Tbb)
-        self.env: dict[str, int] = {
-            "bin": p.createMultiBody(0, shape, basePosition=pos, baseOrientation=orn, **kw)
-        }
+        self.env: dict[str, int] = {"bin": p.createMultiBody(0, shape, basePosition=pos, baseOrientation=orn, **kw)}
         floor = p.createCollisionShape(p.GEOM_BOX, halfExtents=[CABIN_HALF[0], CABIN_HALF[1], 0.05], **kw)
         T = Tbw.copy()
         T[:3, 3] = Tbw[:3, :3] @ [0, 0, -0.05] + Tbw[:3, 3]

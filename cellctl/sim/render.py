@@ -214,9 +214,7 @@ class SimRenderer:
         add(Vb, mesh.faces, np.where(mesh.surface == INTERNAL, M_BIN_INT, M_BIN_EXT).astype(np.int8))
         w, h = bt.board.size_m
         Tb = T_world_bin @ bt.T_bin_board()
-        corners = (Tb @ np.array([[0, 0, 0, 1], [w, 0, 0, 1], [w, h, 0, 1], [0, h, 0, 1]], dtype=float).T).T[
-            :, :3
-        ]
+        corners = (Tb @ np.array([[0, 0, 0, 1], [w, 0, 0, 1], [w, h, 0, 1], [0, h, 0, 1]], dtype=float).T).T[:, :3]
         add(*_quad(*corners), M_BOARD)
         if cell:
             hx, hy = CABIN_HALF

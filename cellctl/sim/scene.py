@@ -121,9 +121,7 @@ def observation_T_bin_cam(bin_type: BinType, index: int) -> NDArray[np.float64]:
         RobotError: ``index`` is beyond the available observation poses.
     """
     if not 0 <= index < len(_OBS_OFFSETS_DEG):
-        raise RobotError(
-            f"observation_index {index} is out of range; expected 0..{len(_OBS_OFFSETS_DEG) - 1}"
-        )
+        raise RobotError(f"observation_index {index} is out of range; expected 0..{len(_OBS_OFFSETS_DEG) - 1}")
     w, h = bin_type.board.size_m
     T_bin_centre = bin_type.T_bin_board() @ transform_from(np.eye(3), [w / 2, h / 2, 0.0])
     yaw, pitch = np.radians(_OBS_OFFSETS_DEG[index])

@@ -45,8 +45,9 @@ def bench_cycle(args: argparse.Namespace) -> dict[str, Any]:
         progress: queue.Queue[PlanJobProgress] = queue.Queue()
         s.declare_subscriber(keys.status(c), lambda x: statuses.put(decode_as(Status, x.payload.to_bytes())))
         s.declare_subscriber(keys.result(c), lambda x: results.put(decode_as(CycleResult, x.payload.to_bytes())))
-        s.declare_subscriber(keys.planner_job_progress(c),
-                             lambda x: progress.put(decode_as(PlanJobProgress, x.payload.to_bytes())))
+        s.declare_subscriber(
+            keys.planner_job_progress(c), lambda x: progress.put(decode_as(PlanJobProgress, x.payload.to_bytes()))
+        )
 
         def cmd(name: str) -> Ack:
             (r,) = list(s.get(keys.cmd(c), payload=encode(Command(command=name)), timeout=10))
@@ -96,19 +97,31 @@ def bench_cycle(args: argparse.Namespace) -> dict[str, Any]:
             nv = max(1, len(res.viewpoints))
             scan_wall = t.get("steps_s", {}).get("scanning", 0.0)
             scan_rpc = t.get("rpc_s", {}).get("scanning", 0.0)
-            runs.append({"viewpoints": len(res.viewpoints), "cycle_s": dt,
-                         "overhead_ms_per_viewpoint": (scan_wall - scan_rpc) / nv * 1e3,
-                         "scan_s_per_viewpoint": scan_wall / nv, "steps_s": t.get("steps_s")})
+            runs.append(
+                {
+                    "viewpoints": len(res.viewpoints),
+                    "cycle_s": dt,
+                    "overhead_ms_per_viewpoint": (scan_wall - scan_rpc) / nv * 1e3,
+                    "scan_s_per_viewpoint": scan_wall / nv,
+                    "steps_s": t.get("steps_s"),
+                }
+            )
             print(f"bench cycle {i + 1}/{n}: {len(res.viewpoints)} viewpoints in {dt:.1f} s", file=sys.stderr)
         s.close()
     per_vp = statistics.median(r["scan_s_per_viewpoint"] for r in runs)
     fixed = statistics.median(r["cycle_s"] - r["scan_s_per_viewpoint"] * r["viewpoints"] for r in runs)
     return {
-        "config": {"settle_s": cfg.robot.settle_s, "speed_scale": cfg.robot.speed_scale,
-                   "camera": f"{cfg.camera.width}x{cfg.camera.height}", "seed_pct": cfg.planner.seed_pct},
+        "config": {
+            "settle_s": cfg.robot.settle_s,
+            "speed_scale": cfg.robot.speed_scale,
+            "camera": f"{cfg.camera.width}x{cfg.camera.height}",
+            "seed_pct": cfg.planner.seed_pct,
+        },
         "cycles": runs,
-        "overhead_ms_per_viewpoint": {"median": round(statistics.median(r["overhead_ms_per_viewpoint"] for r in runs), 3),
-                                      "max": round(max(r["overhead_ms_per_viewpoint"] for r in runs), 3)},
+        "overhead_ms_per_viewpoint": {
+            "median": round(statistics.median(r["overhead_ms_per_viewpoint"] for r in runs), 3),
+            "max": round(max(r["overhead_ms_per_viewpoint"] for r in runs), 3),
+        },
         "viewpoints_per_cycle": runs[0]["viewpoints"],
         "cycle_s_median": round(statistics.median(r["cycle_s"] for r in runs), 2),
         "cycle_s_30_viewpoints": round(fixed + 30 * per_vp, 2),

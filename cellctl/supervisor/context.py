@@ -105,6 +105,12 @@ class StepRun:
     def event(self, level: str, text: str) -> None:
         self.ctx.post_event(level, text)
 
+    def _account(self, account: str | None, dt: float) -> None:
+        """Time inside worker requests (refused ones too), per step: what the supervisor did not spend itself."""
+        name = account or self.name
+        self.ctx.rpc_seconds[name] = self.ctx.rpc_seconds.get(name, 0.0) + dt
+        self.ctx.rpc_count += 1
+
     def call(
         self,
         role: str,
@@ -135,15 +141,13 @@ class StepRun:
         try:
             reply, raw = request(self.ctx.session, k, msg, expect, timeout=t, payload=payload, role=role)
         except WorkerError as err:
+            self._account(account, time.perf_counter() - t0)
             self.ctx.log.write_message(f"{k}/reply", ErrorReply(kind=type(err).__name__, reason=str(err)))
             self.ctx.log.event(int(EventLevel.error), f"{role}/{op}: {err}")
             raise
         dt = time.perf_counter() - t0
         log.debug("%s/%s in %.1f ms", role, op, dt * 1e3)
-        # Time inside worker requests, per calling step: what the supervisor did not spend itself.
-        name = account or self.name
-        self.ctx.rpc_seconds[name] = self.ctx.rpc_seconds.get(name, 0.0) + dt
-        self.ctx.rpc_count += 1
+        self._account(account, dt)
         self.ctx.log.write_message(f"{k}/reply", reply)
         self.checkpoint()
         return reply, raw

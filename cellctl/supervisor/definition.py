@@ -122,7 +122,9 @@ def load_packml(path: Path | None = None, behaviours: Iterable[str] = ()) -> Pac
     known_behaviours = set(behaviours)
     unknown_top = set(data) - {"initial", "states", "commands", "state_complete"}
     if unknown_top:
-        raise ConfigError(f"{path}: unknown keys {sorted(unknown_top)}; allowed: initial, states, commands, state_complete")
+        raise ConfigError(
+            f"{path}: unknown keys {sorted(unknown_top)}; allowed: initial, states, commands, state_complete"
+        )
     states: dict[str, StateSpec] = {}
     for i, s in enumerate(_need(data, "states", str(path))):
         where = f"{path}: states[{i}]"
@@ -133,7 +135,9 @@ def load_packml(path: Path | None = None, behaviours: Iterable[str] = ()) -> Pac
             raise ConfigError(f"{where}: unknown keys {sorted(extra)}")
         name = _need(s, "name", where)
         if name not in PackMLState.__members__ or name == "Undefined":
-            raise ConfigError(f"{where}: state {name!r} is not a TR88 state; expected one of {list(PackMLState.__members__)[1:]}")
+            raise ConfigError(
+                f"{where}: state {name!r} is not a TR88 state; expected one of {list(PackMLState.__members__)[1:]}"
+            )
         code = _need(s, "code", where)
         if code != PackMLState[name].value:
             raise ConfigError(f"{where}: state {name!r} has code {code!r}; TR88 says {PackMLState[name].value}")
@@ -159,7 +163,9 @@ def load_packml(path: Path | None = None, behaviours: Iterable[str] = ()) -> Pac
         where = f"{path}: commands[{i}]"
         name = _need(c, "command", where)
         if name not in PackMLCommand.__members__:
-            raise ConfigError(f"{where}: command {name!r} is unknown; expected one of {list(PackMLCommand.__members__)}")
+            raise ConfigError(
+                f"{where}: command {name!r} is unknown; expected one of {list(PackMLCommand.__members__)}"
+            )
         dest = _need(c, "dest", where)
         srcs = _need(c, "source", where)
         srcs = [srcs] if isinstance(srcs, str) else list(srcs)
@@ -222,7 +228,8 @@ def load_cycle(path: Path | None = None, steps: Mapping[str, Iterable[str]] | No
         for outcome, dest in (_need(s, "on", where) or {}).items():
             if outcome not in provided[step]:
                 raise ConfigError(
-                    f"{where}: outcome {outcome!r} is not declared by step {step!r}; it declares {sorted(provided[step])}"
+                    f"{where}: outcome {outcome!r} is not declared by step {step!r}; "
+                    f"it declares {sorted(provided[step])}"
                 )
             if isinstance(dest, dict):
                 if set(dest) != {"exit"} or dest["exit"] not in Exit.__members__:

@@ -43,7 +43,6 @@ from cellctl.messages import (
     PoseMsg,
     Status,
     StopRequest,
-    now_iso,
 )
 from cellctl.recording.cycle_log import CycleLog
 from cellctl.recording.index import CycleIndex, file_sha256
@@ -186,8 +185,12 @@ class Supervisor:
                 # Unholding/Unsuspending resume the saved cycle step (transitions has no history states).
                 for child in children:
                     transitions.append(
-                        {"trigger": "sc", "source": src, "dest": f"Execute.{child}",
-                         "conditions": (lambda c=child: self._ctx is not None and self._ctx.saved_step == c)}
+                        {
+                            "trigger": "sc",
+                            "source": src,
+                            "dest": f"Execute.{child}",
+                            "conditions": (lambda c=child: self._ctx is not None and self._ctx.saved_step == c),
+                        }
                     )
                 transitions.append({"trigger": "sc", "source": src, "dest": f"Execute.{self.cycle.initial}"})
             else:
@@ -236,13 +239,18 @@ class Supervisor:
             s.declare_queryable(keys.cmd(c), lambda q: put(("cmd", q.payload.to_bytes() if q.payload else b"", q))),
             s.declare_queryable(keys.status(c), lambda q: put(("status_query", q))),
             s.liveliness().declare_subscriber(
-                keys.alive_all(c), lambda sample: put(("alive", str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)),
+                keys.alive_all(c),
+                lambda sample: put(("alive", str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)),
                 history=True,
             ),
             s.liveliness().declare_token(keys.alive(c, "supervisor")),
         ]
-        for name, key in (("ack", keys.cmd_ack(c)), ("status", keys.status(c)), ("result", keys.result(c)),
-                          ("events", keys.events(c))):
+        for name, key in (
+            ("ack", keys.cmd_ack(c)),
+            ("status", keys.status(c)),
+            ("result", keys.result(c)),
+            ("events", keys.events(c)),
+        ):
             self._pub[name] = s.declare_publisher(key)
         self._thread = threading.Thread(target=self._loop, name="dispatcher", daemon=True)
         self._thread.start()
@@ -341,8 +349,13 @@ class Supervisor:
             except ProtocolError as err:
                 return Ack(request_id=cmd.request_id, command=name, accepted=False, reason=str(err), state=before)
         elif cmd.params:
-            return Ack(request_id=cmd.request_id, command=name, accepted=False,
-                       reason=f"command {name!r} takes no params, got {sorted(cmd.params)}", state=before)
+            return Ack(
+                request_id=cmd.request_id,
+                command=name,
+                accepted=False,
+                reason=f"command {name!r} takes no params, got {sorted(cmd.params)}",
+                state=before,
+            )
         if name in ("stop", "abort", "complete") and self._ctx is not None and not self._ctx.finished:
             self._ctx.reason = self._ctx.reason or f"{name} commanded in {self.state}"
         self._fire(name)
@@ -398,7 +411,9 @@ class Supervisor:
                 self._events.put(("done", run.token, "failed", str(err)))
             except Exception as err:
                 log.exception("%s crashed", name)
-                self._events.put(("done", run.token, "failed", f"internal error in {name}: {type(err).__name__}: {err}"))
+                self._events.put(
+                    ("done", run.token, "failed", f"internal error in {name}: {type(err).__name__}: {err}")
+                )
 
         threading.Thread(target=body, name=f"run-{name}", daemon=True).start()
 
@@ -493,9 +508,16 @@ class Supervisor:
         clog = CycleLog(path, cycle_id, {"cell": self.cell_id, "mode": params.get("mode", "evaluate")})
         self.index.begin(cycle_id, self.cell_id, str(path), now.isoformat(timespec="milliseconds"))
         ctx = CycleContext(
-            cycle_id=cycle_id, cfg=self.cfg, session=self.session, log=clog, mode=params.get("mode", "evaluate"),
-            params=params, started=now.isoformat(timespec="milliseconds"), post_event=self._event,
-            identify=self.identify, catalog=self.catalog,
+            cycle_id=cycle_id,
+            cfg=self.cfg,
+            session=self.session,
+            log=clog,
+            mode=params.get("mode", "evaluate"),
+            params=params,
+            started=now.isoformat(timespec="milliseconds"),
+            post_event=self._event,
+            identify=self.identify,
+            catalog=self.catalog,
         )
         ctx.log_rel = str(rel)  # type: ignore[attr-defined]
         self._ctx = ctx
@@ -515,7 +537,9 @@ class Supervisor:
         try:
             if clog is not None:
                 clog.write_message(f"{key}/request", msg)
-            reply, _ = request(self.session, key, msg, StopRequest, timeout=self.cfg.supervisor.timeouts.stop, role="robot")
+            reply, _ = request(
+                self.session, key, msg, StopRequest, timeout=self.cfg.supervisor.timeouts.stop, role="robot"
+            )
             if clog is not None:
                 clog.write_message(f"{key}/reply", reply)
         except (WorkerError, ProtocolError) as err:
@@ -552,7 +576,9 @@ class Supervisor:
             cycle_id=ctx.cycle_id,
             outcome=outcome,
             reason=ctx.reason or reason,
-            bin=BinInfo(type=ctx.bin_type, pose=PoseMsg.from_matrix(ctx.T_base_bin) if ctx.T_base_bin is not None else None),
+            bin=BinInfo(
+                type=ctx.bin_type, pose=PoseMsg.from_matrix(ctx.T_base_bin) if ctx.T_base_bin is not None else None
+            ),
             plan_id=getattr(ctx.plan, "plan_id", None),
             plan_adjusted=getattr(ctx.plan, "adjusted", None),
             planner_job_id=ctx.planner_job_id,
@@ -561,15 +587,24 @@ class Supervisor:
             coverage=ctx.coverage,
             dirt_map=ctx.dirt_map,
             log=getattr(ctx, "log_rel", None),
-            timing={"steps_s": {k: round(v, 4) for k, v in ctx.step_seconds.items()},
-                    "rpc_s": {k: round(v, 4) for k, v in ctx.rpc_seconds.items()}, "rpc_count": ctx.rpc_count},
+            timing={
+                "steps_s": {k: round(v, 4) for k, v in ctx.step_seconds.items()},
+                "rpc_s": {k: round(v, 4) for k, v in ctx.rpc_seconds.items()},
+                "rpc_count": ctx.rpc_count,
+            },
             started=ctx.started,
         )
         ctx.log.write_message(keys.result(self.cell_id), res)
         ctx.log.close({"outcome": outcome.value, "reason": res.reason or ""})
         self.index.finish(
-            ctx.cycle_id, outcome.value, verdict=res.verdict, bin_type=ctx.bin_type, plan_id=res.plan_id,
-            reason=res.reason, log_sha256=file_sha256(ctx.log.path), finished=res.finished,
+            ctx.cycle_id,
+            outcome.value,
+            verdict=res.verdict,
+            bin_type=ctx.bin_type,
+            plan_id=res.plan_id,
+            reason=res.reason,
+            log_sha256=file_sha256(ctx.log.path),
+            finished=res.finished,
         )
         if "result" in self._pub:
             self._pub["result"].put(encode(res))

@@ -111,10 +111,7 @@ def twin_renderer(
     from cellctl.vision.render import board_outline, project
 
     if board is not None:
-        types = [
-            t.model_copy(update={"board": board, "tag_T_bin": None}) if t.name == bin_type else t
-            for t in catalog
-        ]
+        types = [t.model_copy(update={"board": board, "tag_T_bin": None}) if t.name == bin_type else t for t in catalog]
         catalog = Catalog(types, catalog.root)
     renderer = SimRenderer(catalog)
     spec = catalog.get(bin_type).board
@@ -208,10 +205,7 @@ def _pct(x: list[float]) -> dict[str, float | None]:
 
 def _errors(spec: Any, T_true: np.ndarray, T_est: np.ndarray) -> tuple[float, float, float]:
     c = board_centre(spec)
-    dt = (
-        float(np.linalg.norm((T_true[:3, :3] @ c + T_true[:3, 3]) - (T_est[:3, :3] @ c + T_est[:3, 3])))
-        * 1000
-    )
+    dt = float(np.linalg.norm((T_true[:3, :3] @ c + T_true[:3, 3]) - (T_est[:3, :3] @ c + T_est[:3, 3]))) * 1000
     T_board_bin = invert(np.asarray(getattr(spec, "T_bin_board", np.eye(4)), dtype=np.float64))
     db = pose_error(T_true @ T_board_bin, T_est @ T_board_bin)[0] * 1000
     dr = float(np.degrees(pose_error(T_true, T_est)[1]))
@@ -426,9 +420,7 @@ def _figure(out: dict[str, Any], path: Any) -> None:
             "o-",
             label=label,
         )
-        ax[1].plot(
-            d, [r["rot_deg"]["p95"] if r["rot_deg"]["p95"] is not None else np.nan for r in rows], "o-"
-        )
+        ax[1].plot(d, [r["rot_deg"]["p95"] if r["rot_deg"]["p95"] is not None else np.nan for r in rows], "o-")
         ax[2].plot(d, [r["identified"] / max(r["n"], 1) for r in rows], "o-")
     ax[0].plot([0.5, 1.0], [2, 2], "k--", lw=1)
     ax[0].plot([2.0], [5], "kv")
@@ -527,9 +519,7 @@ def bench_pose(args: argparse.Namespace) -> dict[str, Any]:
             "targets_met_fused_3_views": _targets(alt["fused_3_views"]["distances"]),
         }
     out["wall_s"] = round(time.perf_counter() - t0, 1)
-    fig = (
-        Path(args.out).with_suffix(".png") if getattr(args, "out", None) else cfg.path("logs/bench/pose.png")
-    )
+    fig = Path(args.out).with_suffix(".png") if getattr(args, "out", None) else cfg.path("logs/bench/pose.png")
     fig.parent.mkdir(parents=True, exist_ok=True)
     _figure(out, fig)
     out["figure"] = str(fig)

@@ -134,8 +134,7 @@ def make_board(spec: Any) -> Any:
     size = int(dic.bytesList.shape[0])
     if first < 0 or first + n > size:
         raise ConfigError(
-            f"board ids {first}..{first + n - 1} do not fit dictionary {spec.dictionary!r} "
-            f"(ids 0..{size - 1})"
+            f"board ids {first}..{first + n - 1} do not fit dictionary {spec.dictionary!r} (ids 0..{size - 1})"
         )
     ids = np.arange(first, first + n, dtype=np.int32)
     board = cv2.aruco.CharucoBoard(

@@ -185,9 +185,7 @@ def collect_hand_eye(
         except IdentificationError as err:
             skipped.append(f"pose {k}: {err}")
             continue
-        views.append(
-            HandEyeView(k, st.flange_pose.matrix(), ident.T_cam_board, ident.reproj_rms_px, ident.n_corners)
-        )
+        views.append(HandEyeView(k, st.flange_pose.matrix(), ident.T_cam_board, ident.reproj_rms_px, ident.n_corners))
         log.info("hand-eye view %d: %d corners, %.3f px", k, ident.n_corners, ident.reproj_rms_px)
     try:  # back to where the operator left the arm
         request(
@@ -201,8 +199,6 @@ def collect_hand_eye(
     except WorkerFailed as err:
         log.warning("could not return to the start pose: %s", err)
     if len(views) < 3:
-        raise CellError(
-            f"hand-eye: only {len(views)} usable views of {n_views} (need ≥ 3); skipped: {skipped}"
-        )
+        raise CellError(f"hand-eye: only {len(views)} usable views of {n_views} (need ≥ 3); skipped: {skipped}")
     result = solve_hand_eye([v.T_base_flange for v in views], [v.T_cam_board for v in views])
     return result, views, skipped

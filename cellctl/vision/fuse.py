@@ -104,9 +104,7 @@ def _rot_from_quat(q: NDArray[np.float64]) -> NDArray[np.float64]:
     return matrix_from_quaternion(q)
 
 
-def fuse(
-    identifications: Sequence[Identification], settings: FuseSettings | None = None
-) -> FusedIdentification:
+def fuse(identifications: Sequence[Identification], settings: FuseSettings | None = None) -> FusedIdentification:
     """Fuse several identifications of the same bin (different camera poses) into one pose.
 
     Args:

@@ -163,9 +163,7 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_cam_board: Sequence[Arr
 
     R_mean = matrix_from_quaternion(np.linalg.eigh(Mq)[1][:, -1])
     res_mm = [float(np.linalg.norm(b[:3, 3] - p_mean) * 1000.0) for b in boards]
-    res_deg = [
-        float(np.degrees(np.arccos(np.clip((np.trace(R_mean.T @ b[:3, :3]) - 1) / 2, -1, 1)))) for b in boards
-    ]
+    res_deg = [float(np.degrees(np.arccos(np.clip((np.trace(R_mean.T @ b[:3, :3]) - 1) / 2, -1, 1)))) for b in boards]
     return HandEyeResult(
         T_flange_cam=X,
         T_base_board=transform_from(R_mean, p_mean),

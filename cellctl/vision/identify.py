@@ -158,9 +158,7 @@ def detector_parameters() -> Any:
 
 def _gray(image: Any, intr: Intrinsics) -> NDArray[np.uint8]:
     if not isinstance(image, np.ndarray):
-        raise not_identified(
-            "bad image", f"image must be a numpy array (BGR or grey), got {type(image).__name__}"
-        )
+        raise not_identified("bad image", f"image must be a numpy array (BGR or grey), got {type(image).__name__}")
     if image.ndim == 3 and image.shape[2] == 3:
         gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     elif image.ndim == 3 and image.shape[2] == 4:

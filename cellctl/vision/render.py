@@ -56,9 +56,7 @@ class RenderSettings:
     background: float = 0.45
 
 
-def project(
-    intr: Intrinsics, T_cam_obj: NDArray[np.float64], pts_obj: NDArray[np.float64]
-) -> NDArray[np.float64]:
+def project(intr: Intrinsics, T_cam_obj: NDArray[np.float64], pts_obj: NDArray[np.float64]) -> NDArray[np.float64]:
     """Pinhole projection (no distortion) of object points (N, 3) → pixels (N, 2)."""
     P = (T_cam_obj[:3, :3] @ np.asarray(pts_obj, dtype=np.float64).T).T + T_cam_obj[:3, 3]
     return np.column_stack([intr.fx * P[:, 0] / P[:, 2] + intr.cx, intr.fy * P[:, 1] / P[:, 2] + intr.cy])
@@ -131,9 +129,7 @@ def render_boards(
     rng = rng if rng is not None else np.random.default_rng(0)
     f = max(1, int(s.supersample))
     W, H = intr.width * f, intr.height * f
-    Ks = np.array(
-        [[intr.fx * f, 0, intr.cx * f + (f - 1) / 2], [0, intr.fy * f, intr.cy * f + (f - 1) / 2], [0, 0, 1]]
-    )
+    Ks = np.array([[intr.fx * f, 0, intr.cx * f + (f - 1) / 2], [0, intr.fy * f, intr.cy * f + (f - 1) / 2], [0, 0, 1]])
     # Background: a smooth low-contrast texture (a steel bin side), generated small and upscaled.
     bg = rng.normal(0.0, 1.0, (max(4, intr.height // 40), max(4, intr.width // 40))).astype(np.float32)
     bg = cv2.resize(cv2.GaussianBlur(bg, (0, 0), 1.0), (W, H), interpolation=cv2.INTER_CUBIC)
@@ -143,9 +139,7 @@ def render_boards(
         outline = board_outline(spec, 0.5)
         Pc = (T[:3, :3] @ outline.T).T + T[:3, 3]
         if np.any(Pc[:, 2] <= 0.02):
-            raise CellError(
-                f"board is (partly) behind the camera: outline z = {Pc[:, 2].round(3).tolist()} m"
-            )
+            raise CellError(f"board is (partly) behind the camera: outline z = {Pc[:, 2].round(3).tolist()} m")
         if T[2, 2] <= 0.0:
             raise CellError(f"board is seen from its back: board +z in camera = {T[:3, 2].round(3).tolist()}")
         # Texture resolution just above the largest projected square (supersampled pixels).

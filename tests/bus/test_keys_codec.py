@@ -15,10 +15,23 @@ from cellctl.messages import MESSAGE_TYPES, Ack, Command, MoveRequest, PoseMsg, 
 
 def test_every_key_is_a_canonical_zenoh_key() -> None:
     c = "cell1"
-    built = [keys.cmd(c), keys.cmd_ack(c), keys.status(c), keys.result(c), keys.events(c), keys.robot_op(c, "move"),
-             keys.robot_joints(c), keys.camera_capture(c), keys.classifier_classify(c), keys.planner_jobs(c),
-             keys.planner_job_progress(c, "j1"), keys.planner_job_progress(c), keys.alive(c, "robot"),
-             keys.alive(c, "planner", "p-1"), keys.alive_all(c)]
+    built = [
+        keys.cmd(c),
+        keys.cmd_ack(c),
+        keys.status(c),
+        keys.result(c),
+        keys.events(c),
+        keys.robot_op(c, "move"),
+        keys.robot_joints(c),
+        keys.camera_capture(c),
+        keys.classifier_classify(c),
+        keys.planner_jobs(c),
+        keys.planner_job_progress(c, "j1"),
+        keys.planner_job_progress(c),
+        keys.alive(c, "robot"),
+        keys.alive(c, "planner", "p-1"),
+        keys.alive_all(c),
+    ]
     for k in built:
         assert str(zenoh.KeyExpr(k)) == k
         assert k.startswith("cell/cell1/")

@@ -126,9 +126,7 @@ def test_paper_preset_runs_both_phases_live(tiny_data: Path, tmp_path: Path) -> 
     """Table 4 preset: SGD + StepLR head phase, then all layers on live images."""
     from cellctl.classify.train import train
 
-    card = train(
-        tiny_data, "internal", tmp_path / "p.pt", preset="paper", input_size=64, max_epochs=(2, 1), threads=2
-    )
+    card = train(tiny_data, "internal", tmp_path / "p.pt", preset="paper", input_size=64, max_epochs=(2, 1), threads=2)
     assert card["phases"]["head"]["optimizer"] == "sgd" and card["phases"]["head"]["lr_step"] == 5
     assert card["phases"]["finetune"]["unfreeze"] == 1.0 and not card["phases"]["finetune"]["cached"]
     rows = list(csv.DictReader(open(tmp_path / "p.csv")))

@@ -31,9 +31,7 @@ def router(cfg: CellConfig):
         yield s
 
 
-def test_worker_serves_refuses_and_keeps_serving(
-    cfg: CellConfig, router, tiny_models: Path, tmp_path: Path
-) -> None:
+def test_worker_serves_refuses_and_keeps_serving(cfg: CellConfig, router, tiny_models: Path, tmp_path: Path) -> None:
     only_external = tmp_path / "m"
     only_external.mkdir()
     for suffix in (".pt", ".json"):
@@ -44,9 +42,7 @@ def test_worker_serves_refuses_and_keeps_serving(
         server = BatchingClassifyServer(ws, cfg.cell_id, service)
         try:
             key = keys.classifier_classify(cfg.cell_id)
-            rep, _ = request(
-                cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=_png(0)
-            )
+            rep, _ = request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=_png(0))
             assert rep.label in ("clean", "dirty") and rep.model_id.startswith("external-lite0-")
             with pytest.raises(WorkerFailed, match="cannot be decoded"):
                 request(
@@ -60,14 +56,10 @@ def test_worker_serves_refuses_and_keeps_serving(
             with pytest.raises(WorkerFailed, match="empty"):
                 request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=b"")
             with pytest.raises(WorkerFailed, match="no model for surface 'internal'.*do not exist"):
-                request(
-                    cs, key, ClassifyRequest(surface="internal"), ClassifyReply, timeout=10, payload=_png(1)
-                )
+                request(cs, key, ClassifyRequest(surface="internal"), ClassifyReply, timeout=10, payload=_png(1))
             small = cv2.imencode(".png", np.zeros((4, 4, 3), np.uint8))[1].tobytes()
             with pytest.raises(WorkerFailed, match="4×4 px"):
-                request(
-                    cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=small
-                )
+                request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=small)
             # a request without the image attachment layout (JSON payload only)
             with pytest.raises(WorkerFailed, match="attachment"):
                 request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10)
@@ -75,9 +67,7 @@ def test_worker_serves_refuses_and_keeps_serving(
             bad = b'{"type":"cellctl/ClassifyRequest","v":1,"surface":"roof","format":"png"}'
             replies = list(cs.get(key, payload=_png(2), attachment=bad, timeout=10))
             assert replies[0].ok is None and b"surface" in replies[0].err.payload.to_bytes()
-            rep2, _ = request(
-                cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=_png(0)
-            )
+            rep2, _ = request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=_png(0))
             assert rep2.p_dirty == pytest.approx(rep.p_dirty)
         finally:
             server.close()
@@ -109,9 +99,7 @@ def test_queued_requests_are_batched(cfg: CellConfig, router, tiny_models: Path)
 
 
 def test_run_worker_announces_and_stops(cfg: CellConfig, router, tiny_models: Path) -> None:
-    cfg2 = cfg.model_copy(
-        update={"classifier": cfg.classifier.model_copy(update={"models_dir": tiny_models})}
-    )
+    cfg2 = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"models_dir": tiny_models})})
     stop = threading.Event()
     t = threading.Thread(target=run_worker, args=(cfg2, None, stop), daemon=True)
     t.start()

@@ -19,19 +19,39 @@ def test_raw_zenoh_client_drives_the_daemon(tmp_path: Path) -> None:
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"
     daemon = subprocess.Popen(
-        [sys.executable, "-m", "cellctl", "run", "--set", f'bus.listen=["{ep}"]',
-         "--set", f"recording.dir={tmp_path}", "--set", f"recording.index={tmp_path / 'cells.db'}"],
-        stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "cellctl",
+            "run",
+            "--set",
+            f'bus.listen=["{ep}"]',
+            "--set",
+            f"recording.dir={tmp_path}",
+            "--set",
+            f"recording.index={tmp_path / 'cells.db'}",
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
     )
     try:
         time.sleep(1.5)
-        out = subprocess.run([sys.executable, str(HERE / "raw_plc.py"), ep, "cell1"], capture_output=True, text=True,
-                             timeout=60)
+        out = subprocess.run(
+            [sys.executable, str(HERE / "raw_plc.py"), ep, "cell1"], capture_output=True, text=True, timeout=60
+        )
         checks = [json.loads(line) for line in out.stdout.splitlines()]
         assert out.returncode == 0, out.stdout + out.stderr
         assert [c["check"] for c in checks if c["ok"]] == [
-            "status_readable", "reset_by_query", "reached_idle", "start_by_put_cntrl_cmd", "aborted_without_workers",
-            "bad_command_rejected", "clear_by_put", "stop_by_put", "abort_by_query", "aborted",
+            "status_readable",
+            "reset_by_query",
+            "reached_idle",
+            "start_by_put_cntrl_cmd",
+            "aborted_without_workers",
+            "bad_command_rejected",
+            "clear_by_put",
+            "stop_by_put",
+            "abort_by_query",
+            "aborted",
         ]
     finally:
         daemon.send_signal(signal.SIGTERM)

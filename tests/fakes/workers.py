@@ -98,7 +98,11 @@ class FakeCell:
             r = self.servers["robot"]
             r.serve("approach", ApproachRequest, self._approach)
             r.serve("move", MoveRequest, self._move)
-            r.serve("state", RobotStateRequest, lambda q, p: RobotState(joints=[0.0] * 6, flange_pose=CAM_POSE, camera_pose=CAM_POSE))
+            r.serve(
+                "state",
+                RobotStateRequest,
+                lambda q, p: RobotState(joints=[0.0] * 6, flange_pose=CAM_POSE, camera_pose=CAM_POSE),
+            )
             r.serve("stop", StopRequest, self._stop)
         if "camera" in self.servers:
             self.servers["camera"].serve("capture", CaptureRequest, self._capture)
@@ -115,8 +119,9 @@ class FakeCell:
 
     def _approach(self, req: ApproachRequest, _: bytes | None) -> ApproachReply:
         self._guard("approach")
-        return ApproachReply(joints=[0.0] * 6, flange_pose=CAM_POSE, camera_pose=CAM_POSE,
-                             observation_index=req.observation_index)
+        return ApproachReply(
+            joints=[0.0] * 6, flange_pose=CAM_POSE, camera_pose=CAM_POSE, observation_index=req.observation_index
+        )
 
     def _move(self, req: MoveRequest, _: bytes | None) -> MoveReply:
         self._guard("move")
@@ -142,8 +147,10 @@ class FakeCell:
         self._guard("lookup")
         if not self.plan_hit:
             return PlanLookupReply(hit=False, reason=f"no plan for bin type {req.bin_type!r}")
-        vps = [PlannedViewpoint(index=i, camera_pose=CAM_POSE, joints=[0.1 * i] * 6, faces=[2 * i, 2 * i + 1])
-               for i in range(self.n_viewpoints)]
+        vps = [
+            PlannedViewpoint(index=i, camera_pose=CAM_POSE, joints=[0.1 * i] * 6, faces=[2 * i, 2 * i + 1])
+            for i in range(self.n_viewpoints)
+        ]
         return PlanLookupReply(hit=True, plan_id="plan-1", viewpoints=vps, coverage=0.9, mesh_faces=10)
 
     def _submit(self, req: PlanJobRequest | PlanJobQuery, _: bytes | None) -> PlanJobReply:

@@ -119,9 +119,7 @@ def test_outer_faces_point_away_from_the_cavity() -> None:
     tri = V[F]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     c = tri.mean(axis=1)
-    wall = (
-        (np.abs(n[:, 2]) < 1e-9 * np.linalg.norm(n, axis=1) + 1e-12) & (c[:, 2] > -0.45) & (c[:, 2] < -0.01)
-    )
+    wall = (np.abs(n[:, 2]) < 1e-9 * np.linalg.norm(n, axis=1) + 1e-12) & (c[:, 2] > -0.45) & (c[:, 2] < -0.01)
     radial = np.einsum("ij,ij->i", n[:, :2], c[:, :2])
     assert (radial[wall & (S == EXTERNAL)] > 0).all()
     assert (radial[wall & (S == INTERNAL)] < 0).all()
@@ -160,9 +158,7 @@ def test_sha_mismatch_names_both_hashes(tmp_path: Path) -> None:
     path, data = _copy_catalog(tmp_path)
     mesh = tmp_path / "models" / "bins" / "drum.ply"
     mesh.write_text(mesh.read_text() + "\n")
-    with pytest.raises(
-        ConfigError, match=r"bin 'drum': mesh .* has sha256 [0-9a-f]{64}, catalog expects 9ee2"
-    ):
+    with pytest.raises(ConfigError, match=r"bin 'drum': mesh .* has sha256 [0-9a-f]{64}, catalog expects 9ee2"):
         load_catalog(_write(path, data))
 
 

@@ -64,9 +64,7 @@ def test_unreachable_pose_has_no_solution_and_a_reason() -> None:
 
 
 def test_joint_limits_are_enforced_with_the_joint_named() -> None:
-    with pytest.raises(
-        RobotError, match=r"joint elbow = 3.5000 rad is outside its limits \[-3.1416, 3.1416\]"
-    ):
+    with pytest.raises(RobotError, match=r"joint elbow = 3.5000 rad is outside its limits \[-3.1416, 3.1416\]"):
         rm.check_joints([0, 0, 3.5, 0, 0, 0])
     with pytest.raises(RobotError, match="6 finite joint angles"):
         rm.check_joints([0, 0, 0])

@@ -14,16 +14,34 @@ def test_plan_any_mesh_file_prints_the_issue_json(tmp_path, capsys):
     box.trimesh().export(mesh_file)
     out = tmp_path / "p.json"
     png = tmp_path / "p.png"
-    rc = main([
-        "plan", "--mesh", str(mesh_file), "--base", "0 -0.95 -0.1 90", "--seed-pct", "3",
-        "--json", "--out", str(out), "--png", str(png),
-    ])
+    rc = main(
+        [
+            "plan",
+            "--mesh",
+            str(mesh_file),
+            "--base",
+            "0 -0.95 -0.1 90",
+            "--seed-pct",
+            "3",
+            "--json",
+            "--out",
+            str(out),
+            "--png",
+            str(png),
+        ]
+    )
     assert rc == 0
     j = json.loads(capsys.readouterr().out)
     assert set(j["counts"]) == {"generated", "filtered", "reachable", "greedy", "annealed", "optimal_cover"}
     assert set(j["area"]) >= {"mesh_m2", "visible_all_m2", "visible_selected_m2", "loss_pct"}
     assert set(j["times_s"]) >= {
-        "generate_filter", "reachability", "visibility", "selection", "distance_matrix", "ordering", "total"
+        "generate_filter",
+        "reachability",
+        "visibility",
+        "selection",
+        "distance_matrix",
+        "ordering",
+        "total",
     }
     assert j["tour_cost"] > 0 and j["counts"]["annealed"] > 0
     assert out.is_file() and png.stat().st_size > 10_000

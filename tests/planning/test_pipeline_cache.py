@@ -17,7 +17,9 @@ from cellctl.planning.planfile import list_plans, plan_path, read_plan, write_pl
 
 @pytest.fixture(scope="module")
 def ext_plan(box, robot, T_bin_base):
-    return make_plan(box, T_bin_base, PlanParams(surface="external", seed_pct=6, sa_iterations=1500), robot, bin_type="box")
+    return make_plan(
+        box, T_bin_base, PlanParams(surface="external", seed_pct=6, sa_iterations=1500), robot, bin_type="box"
+    )
 
 
 def test_external_plan_counts_shrink_stage_by_stage(ext_plan):
@@ -29,7 +31,13 @@ def test_external_plan_counts_shrink_stage_by_stage(ext_plan):
     a = ext_plan["area"]
     assert 0 < a["visible_selected_m2"] <= a["visible_all_m2"] <= a["mesh_m2"]
     assert set(ext_plan["times_s"]) >= {
-        "generate_filter", "reachability", "visibility", "selection", "distance_matrix", "ordering", "total"
+        "generate_filter",
+        "reachability",
+        "visibility",
+        "selection",
+        "distance_matrix",
+        "ordering",
+        "total",
     }
     assert ext_plan["tour_cost"] > 0
 

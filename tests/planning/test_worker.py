@@ -46,7 +46,11 @@ def box_catalog(tmp_path_factory) -> Path:
                 "height_m": 0.8,
                 "top_hole_radius_m": 0.28,
                 "board": {
-                    "squares_x": 5, "squares_y": 4, "square_m": 0.04, "marker_m": 0.03, "first_id": 0,
+                    "squares_x": 5,
+                    "squares_y": 4,
+                    "square_m": 0.04,
+                    "marker_m": 0.03,
+                    "first_id": 0,
                     "T_bin_board": [[1, 0, 0, -0.1], [0, 0, 1, -0.3], [0, -1, 0, -0.1], [0, 0, 0, 1]],
                 },
             }
@@ -77,7 +81,8 @@ def test_job_progress_result_and_lookup_over_zenoh(tmp_path, box_catalog):
     worker.start()
     progress: list[PlanJobProgress] = []
     sub = router.declare_subscriber(
-        keys.planner_job_progress(cfg.cell_id), lambda s: progress.append(decode_as(PlanJobProgress, s.payload.to_bytes()))
+        keys.planner_job_progress(cfg.cell_id),
+        lambda s: progress.append(decode_as(PlanJobProgress, s.payload.to_bytes())),
     )
     try:
         alive_key = keys.alive(cfg.cell_id, "planner") + "/*"
@@ -85,28 +90,49 @@ def test_job_progress_result_and_lookup_over_zenoh(tmp_path, box_catalog):
         while time.monotonic() < deadline and not list(router.liveliness().get(alive_key, timeout=1.0)):
             time.sleep(0.1)
         pose = PoseMsg.from_matrix(invert(_T_BIN_BASE))
-        miss, _ = request(router, keys.worker_op(cfg.cell_id, "planner", "lookup"),
-                          PlanLookupRequest(bin_type="box", bin_pose=pose), PlanLookupReply, timeout=20)
+        miss, _ = request(
+            router,
+            keys.worker_op(cfg.cell_id, "planner", "lookup"),
+            PlanLookupRequest(bin_type="box", bin_pose=pose),
+            PlanLookupReply,
+            timeout=20,
+        )
         assert not miss.hit and "no plan for bin type 'box'" in miss.reason
         with pytest.raises(WorkerFailed, match="unknown"):
-            request(router, keys.planner_jobs(cfg.cell_id),
-                    PlanJobRequest(bin_type="barrel", bin_pose=pose), PlanJobReply, timeout=10)
-        sub_reply, _ = request(router, keys.planner_jobs(cfg.cell_id),
-                               PlanJobRequest(bin_type="box", bin_pose=pose, seed_pct=4), PlanJobReply, timeout=10)
+            request(
+                router,
+                keys.planner_jobs(cfg.cell_id),
+                PlanJobRequest(bin_type="barrel", bin_pose=pose),
+                PlanJobReply,
+                timeout=10,
+            )
+        sub_reply, _ = request(
+            router,
+            keys.planner_jobs(cfg.cell_id),
+            PlanJobRequest(bin_type="box", bin_pose=pose, seed_pct=4),
+            PlanJobReply,
+            timeout=10,
+        )
         assert sub_reply.state == "queued"
         job = sub_reply.job_id
         state = sub_reply
         deadline = time.monotonic() + 80
         while time.monotonic() < deadline and state.state not in ("done", "failed"):
             time.sleep(0.3)
-            state, _ = request(router, keys.planner_jobs(cfg.cell_id), PlanJobQuery(job_id=job), PlanJobReply,
-                               timeout=10)
+            state, _ = request(
+                router, keys.planner_jobs(cfg.cell_id), PlanJobQuery(job_id=job), PlanJobReply, timeout=10
+            )
         assert state.state == "done", state.reason
         assert state.plan_id and (tmp_path / "plans" / "box" / "external" / f"{state.plan_id}.json").is_file()
         stages = {p.stage for p in progress if p.job_id == job}
         assert {"generate_filter", "reachability", "visibility", "selection", "done"} <= stages
-        hit, _ = request(router, keys.worker_op(cfg.cell_id, "planner", "lookup"),
-                         PlanLookupRequest(bin_type="box", bin_pose=pose), PlanLookupReply, timeout=20)
+        hit, _ = request(
+            router,
+            keys.worker_op(cfg.cell_id, "planner", "lookup"),
+            PlanLookupRequest(bin_type="box", bin_pose=pose),
+            PlanLookupReply,
+            timeout=20,
+        )
         assert hit.hit and hit.plan_id == state.plan_id and not hit.adjusted and hit.viewpoints
         assert [v.index for v in hit.viewpoints] == list(range(len(hit.viewpoints)))
         assert all(len(v.joints) == 6 and v.faces for v in hit.viewpoints)

@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 
 from mcap.reader import make_reader
-from mcap.stream_reader import StreamReader
 from mcap.records import Message
+from mcap.stream_reader import StreamReader
 
 from cellctl.messages import Status
 from cellctl.recording.cycle_log import CycleLog

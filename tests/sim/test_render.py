@@ -30,9 +30,7 @@ def test_each_bin_renders_with_its_board(renderer: SimRenderer, name: str) -> No
     )
     assert out.rgb.shape == (360, 640, 3) and out.rgb.dtype == np.uint8
     gray = cv2.cvtColor(out.rgb, cv2.COLOR_RGB2GRAY)
-    det = cv2.aruco.ArucoDetector(
-        make_charuco_board(bt.board).getDictionary(), cv2.aruco.DetectorParameters()
-    )
+    det = cv2.aruco.ArucoDetector(make_charuco_board(bt.board).getDictionary(), cv2.aruco.DetectorParameters())
     _, ids, _ = det.detectMarkers(gray)
     assert ids is not None
     found = set(ids.ravel().tolist())
@@ -47,9 +45,7 @@ def test_powder_shows_only_when_dirty_and_the_mask_marks_it(renderer: SimRendere
     assert not clean.powder_mask.any()
     # find a seed whose powder lands in view, so the test does not depend on one lucky seed
     for seed in range(11, 40):
-        dirty = renderer.render_bin_view(
-            "case_study", T, K, dirty=True, powder_amount=1.0, seed=seed, params=quiet
-        )
+        dirty = renderer.render_bin_view("case_study", T, K, dirty=True, powder_amount=1.0, seed=seed, params=quiet)
         if dirty.powder_mask.sum() > 20:
             break
     m = dirty.powder_mask

@@ -81,9 +81,7 @@ def test_unreachable_targets_are_refused_with_a_reason(robot) -> None:
     T_bin_cam = np.eye(4)
     T_bin_cam[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]
     T_bin_cam[:3, 3] = [0.0, -0.37, -0.2]
-    with pytest.raises(
-        RobotError, match=r"unreachable without collision: all \d IK solutions collide.*camera vs bin"
-    ):
+    with pytest.raises(RobotError, match=r"unreachable without collision: all \d IK solutions collide.*camera vs bin"):
         robot.move(MoveRequest(camera_pose=PoseMsg.from_matrix(T_base_bin @ T_bin_cam)))
     with pytest.raises(RobotError, match="frame_id is 'world'; expected 'base'"):
         robot.move(MoveRequest(camera_pose=PoseMsg(position=(0.5, 0, 0.5), frame_id="world")))
@@ -103,9 +101,7 @@ def test_observation_poses_see_the_board_for_every_bin_type() -> None:
         rep = r.approach(ApproachRequest(park=True))
         bt = r.catalog.get(name)
         T_base_cam = rep.camera_pose.matrix()
-        T_cam_board = (
-            invert(T_base_cam) @ invert(r.scenario.base()) @ r.scenario.T_world_bin(bt) @ bt.T_bin_board()
-        )
+        T_cam_board = invert(T_base_cam) @ invert(r.scenario.base()) @ r.scenario.T_world_bin(bt) @ bt.T_bin_board()
         w, h = bt.board.size_m
         K = np.array([[920.0, 0, 640], [0, 920.0, 360], [0, 0, 1]])
         corners = T_cam_board @ np.array([[0, 0, 0, 1], [w, 0, 0, 1], [w, h, 0, 1], [0, h, 0, 1]], float).T

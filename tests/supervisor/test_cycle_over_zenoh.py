@@ -25,8 +25,12 @@ class Plc:
         self.s = open_session(cfg, "client")
         self.status: queue.Queue[Status] = queue.Queue()
         self.results: queue.Queue[CycleResult] = queue.Queue()
-        self.s.declare_subscriber(keys.status(cfg.cell_id), lambda x: self.status.put(decode_as(Status, x.payload.to_bytes())))
-        self.s.declare_subscriber(keys.result(cfg.cell_id), lambda x: self.results.put(decode_as(CycleResult, x.payload.to_bytes())))
+        self.s.declare_subscriber(
+            keys.status(cfg.cell_id), lambda x: self.status.put(decode_as(Status, x.payload.to_bytes()))
+        )
+        self.s.declare_subscriber(
+            keys.result(cfg.cell_id), lambda x: self.results.put(decode_as(CycleResult, x.payload.to_bytes()))
+        )
         time.sleep(0.2)
 
     def cmd(self, command: str, **params) -> Ack:  # noqa: ANN003
@@ -90,8 +94,13 @@ def test_daemon_starts_in_stopped_and_runs_a_full_cycle(cfg, cell, plc) -> None:
     assert keys.cmd(cfg.cell_id) in topics and keys.cmd_ack(cfg.cell_id) in topics
     assert f"{keys.robot_op(cfg.cell_id, 'move')}/request" in topics
     assert keys.result(cfg.cell_id) in topics
-    assert {"foxglove.Log", "foxglove.CompressedImage", "foxglove.PoseInFrame", "foxglove.SceneUpdate",
-            "cellctl/Status"} <= schemas
+    assert {
+        "foxglove.Log",
+        "foxglove.CompressedImage",
+        "foxglove.PoseInFrame",
+        "foxglove.SceneUpdate",
+        "cellctl/Status",
+    } <= schemas
     import jsonschema
 
     with open(path, "rb") as f:
@@ -210,7 +219,9 @@ def test_put_commands_are_acked_on_the_ack_key(cfg, cell, plc) -> None:
     acks: queue.Queue[Ack] = queue.Queue()
     plc.s.declare_subscriber(keys.cmd_ack(cfg.cell_id), lambda x: acks.put(decode_as(Ack, x.payload.to_bytes())))
     time.sleep(0.2)
-    plc.s.put(keys.cmd(cfg.cell_id), json.dumps({"type": "cellctl/Command", "v": 1, "cntrl_cmd": 1, "request_id": "p1"}))
+    plc.s.put(
+        keys.cmd(cfg.cell_id), json.dumps({"type": "cellctl/Command", "v": 1, "cntrl_cmd": 1, "request_id": "p1"})
+    )
     ack = acks.get(timeout=5)
     assert ack.accepted and ack.request_id == "p1" and ack.command == "reset"
     plc.s.put(keys.cmd(cfg.cell_id), b"garbage")
@@ -244,14 +255,30 @@ def test_replay_verify_passes_on_a_recorded_cycle_and_catches_a_change(cfg, cell
     assert not read_cycle(path).truncated
     port = free_port()
     ep = f'["tcp/127.0.0.1:{port}"]'
-    vcfg = load_config(None, [f"bus.listen={ep}", f"bus.connect={ep}", f"recording.dir={tmp_path / 'v'}",
-                              f"recording.index={tmp_path / 'v' / 'cells.db'}", "robot.settle_s=0"])
+    vcfg = load_config(
+        None,
+        [
+            f"bus.listen={ep}",
+            f"bus.connect={ep}",
+            f"recording.dir={tmp_path / 'v'}",
+            f"recording.index={tmp_path / 'v' / 'cells.db'}",
+            "robot.settle_s=0",
+        ],
+    )
     report = verify(path, vcfg, timeout_s=30, identification=(fake_identify, cell.catalog_for_tests))
     assert report.ok, report.differences
     assert report.states_replayed[:2] == ["Starting", "Execute.approaching"]
     # the same log checked by a supervisor with another settle time: the move requests differ
-    vcfg2 = load_config(None, [f"bus.listen={ep}", f"bus.connect={ep}", f"recording.dir={tmp_path / 'w'}",
-                               f"recording.index={tmp_path / 'w' / 'cells.db'}", "robot.settle_s=0.5"])
+    vcfg2 = load_config(
+        None,
+        [
+            f"bus.listen={ep}",
+            f"bus.connect={ep}",
+            f"recording.dir={tmp_path / 'w'}",
+            f"recording.index={tmp_path / 'w' / 'cells.db'}",
+            "robot.settle_s=0.5",
+        ],
+    )
     report = verify(path, vcfg2, timeout_s=30, identification=(fake_identify, cell.catalog_for_tests))
     assert not report.ok
     assert any("request on cell/cell1/robot/move differs" in d for d in report.differences)

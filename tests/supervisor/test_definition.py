@@ -32,7 +32,11 @@ def test_shipped_machines_load() -> None:
 @pytest.mark.parametrize(
     "old, new, message",
     [
-        ("behaviour: clear_faults", "behaviour: wipe_floor", "behaviour 'wipe_floor' of state 'Clearing' is not provided"),
+        (
+            "behaviour: clear_faults",
+            "behaviour: wipe_floor",
+            "behaviour 'wipe_floor' of state 'Clearing' is not provided",
+        ),
         ("{name: Idle,         code: 4,", "{name: Idle,         code: 5,", "has code 5; TR88 says 4"),
         ("  - {name: Held,         code: 11, kind: wait}\n", "", "TR88 states missing: ['Held']"),
         ("{command: clear,", "{command: wipe,", "command 'wipe' is unknown"),
@@ -56,7 +60,11 @@ def test_bad_packml_yaml_is_rejected(tmp_path: Path, old: str, new: str, message
         ("      hit: scanning", "      hit: scanning\n      maybe: scanning", "outcome 'maybe' is not declared"),
         ("succeeded: classifying", "succeeded: polishing", "goes to unknown state 'polishing'"),
         ("      miss: replanning", "      miss: scanning", "states ['replanning'] cannot be reached"),
-        ("failed: {exit: abort}\n  scanning", "failed: {exit: explode}\n  scanning", "must be {exit: complete|abort|hold}"),
+        (
+            "failed: {exit: abort}\n  scanning",
+            "failed: {exit: explode}\n  scanning",
+            "must be {exit: complete|abort|hold}",
+        ),
     ],
 )
 def test_bad_cycle_yaml_is_rejected(tmp_path: Path, old: str, new: str, message: str) -> None:

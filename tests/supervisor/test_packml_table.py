@@ -13,10 +13,37 @@ from cellctl.messages import Command
 from cellctl.recording.index import CycleIndex
 from cellctl.supervisor.supervisor import Supervisor
 
-STOP_FROM = {"Idle", "Starting", "Execute", "Completing", "Complete", "Resetting", "Holding", "Held",
-             "Unholding", "Suspending", "Suspended", "Unsuspending"}
-ABORT_FROM = {"Clearing", "Stopped", "Starting", "Idle", "Suspended", "Execute", "Stopping", "Holding", "Held",
-              "Unholding", "Suspending", "Unsuspending", "Resetting", "Completing", "Complete"}
+STOP_FROM = {
+    "Idle",
+    "Starting",
+    "Execute",
+    "Completing",
+    "Complete",
+    "Resetting",
+    "Holding",
+    "Held",
+    "Unholding",
+    "Suspending",
+    "Suspended",
+    "Unsuspending",
+}
+ABORT_FROM = {
+    "Clearing",
+    "Stopped",
+    "Starting",
+    "Idle",
+    "Suspended",
+    "Execute",
+    "Stopping",
+    "Holding",
+    "Held",
+    "Unholding",
+    "Suspending",
+    "Unsuspending",
+    "Resetting",
+    "Completing",
+    "Complete",
+}
 EXPECTED: dict[tuple[str, str], str] = {
     ("Idle", "start"): "Starting",
     ("Execute", "complete"): "Completing",
@@ -30,8 +57,25 @@ EXPECTED: dict[tuple[str, str], str] = {
     **{(s, "stop"): "Stopping" for s in STOP_FROM},
     **{(s, "abort"): "Aborting" for s in ABORT_FROM},
 }
-STATES = ["Clearing", "Stopped", "Starting", "Idle", "Suspended", "Execute", "Stopping", "Aborting", "Aborted",
-          "Holding", "Held", "Unholding", "Suspending", "Unsuspending", "Resetting", "Completing", "Complete"]
+STATES = [
+    "Clearing",
+    "Stopped",
+    "Starting",
+    "Idle",
+    "Suspended",
+    "Execute",
+    "Stopping",
+    "Aborting",
+    "Aborted",
+    "Holding",
+    "Held",
+    "Unholding",
+    "Suspending",
+    "Unsuspending",
+    "Resetting",
+    "Completing",
+    "Complete",
+]
 COMMANDS = ["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"]
 
 

@@ -63,9 +63,7 @@ class SimArmCamera:
 
     def _state(self, req: RobotStateRequest, _: bytes | None) -> RobotState:
         with self.lock:
-            return RobotState(
-                joints=[0.0] * 6, flange_pose=PoseMsg.from_matrix(self.flange), camera_pose=self._pose()
-            )
+            return RobotState(joints=[0.0] * 6, flange_pose=PoseMsg.from_matrix(self.flange), camera_pose=self._pose())
 
     def _capture(self, req: CaptureRequest, _: bytes | None) -> tuple[CaptureReply, bytes]:
         with self.lock:

@@ -96,10 +96,7 @@ def test_identify_cli_not_identified(tmp_path, catalog_file, capsys) -> None:
     )
     assert rc == 1
     d = json.loads(capsys.readouterr().out)
-    assert (
-        d == {"identified": False, "code": "no markers", "reason": d["reason"]}
-        and "no markers" in d["reason"]
-    )
+    assert d == {"identified": False, "code": "no markers", "reason": d["reason"]} and "no markers" in d["reason"]
     rc = main(["identify", str(img_path), "--intrinsics", "910,910,640,360", "--catalog", str(catalog_file)])
     assert rc == 2 and "no markers detected" in capsys.readouterr().err
 
@@ -109,9 +106,7 @@ def test_cli_argument_parsing(tmp_path) -> None:
     assert (k.fx, k.fy, k.cx, k.cy, k.width) == (900, 905, 641.5, 359, 1280)
     f = tmp_path / "intr.json"
     f.write_text(
-        json.dumps(
-            {"intrinsics": {"fx": 911.0, "fy": 912.0, "cx": 640.0, "cy": 360.0, "dist": [0.01, 0, 0, 0, 0]}}
-        )
+        json.dumps({"intrinsics": {"fx": 911.0, "fy": 912.0, "cx": 640.0, "cy": 360.0, "dist": [0.01, 0, 0, 0, 0]}})
     )
     assert parse_intrinsics(str(f), 1280, 720).dist[0] == 0.01
     with pytest.raises(CellError, match="neither an existing file nor four numbers"):
@@ -152,9 +147,7 @@ def test_calibrate_intrinsics_cli(tmp_path, catalog_file, capsys) -> None:
         )
         cv2.imwrite(str(imgs / f"v{k}.png"), render_boards([(SPEC_B, T)], INTR, rng=rng))
     out = tmp_path / "intr.json"
-    rc = main(
-        ["calibrate", "intrinsics", "--images", str(imgs), "--catalog", str(catalog_file), "--out", str(out)]
-    )
+    rc = main(["calibrate", "intrinsics", "--images", str(imgs), "--catalog", str(catalog_file), "--out", str(out)])
     assert rc == 0
     data = json.loads(out.read_text())
     assert data["type"] == "cellctl/IntrinsicsCalibration" and len(data["views"]) == 8

@@ -38,9 +38,7 @@ def _views(n: int, distance: float, seed: int, spec=SPEC_A):
 def _centre_err_mm(T_base_bin: np.ndarray) -> float:
     c = board_centre(SPEC_A)
     T = T_base_bin @ SPEC_A.T_bin_board
-    return float(
-        np.linalg.norm(T[:3, :3] @ c + T[:3, 3] - (T_BASE_BOARD[:3, :3] @ c + T_BASE_BOARD[:3, 3])) * 1000
-    )
+    return float(np.linalg.norm(T[:3, :3] @ c + T[:3, 3] - (T_BASE_BOARD[:3, :3] @ c + T_BASE_BOARD[:3, 3])) * 1000)
 
 
 def test_fusion_reduces_error(catalog) -> None:

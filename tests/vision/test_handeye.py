@@ -53,9 +53,7 @@ def test_log_rotation_round_trip() -> None:
         w = log_rotation(rotation_about(axis, ang))
         assert np.linalg.norm(w) == pytest.approx(ang, abs=1e-6)
         if ang > 0:
-            np.testing.assert_allclose(
-                rotation_about(w, np.linalg.norm(w)), rotation_about(axis, ang), atol=1e-6
-            )
+            np.testing.assert_allclose(rotation_about(w, np.linalg.norm(w)), rotation_about(axis, ang), atol=1e-6)
 
 
 def test_exact_recovery_noise_free() -> None:
@@ -94,9 +92,7 @@ def test_degenerate_inputs() -> None:
     with pytest.raises(CellError, match="got 4 robot poses and 3 board poses"):
         solve_hand_eye(F, C[:3])
     # Rotations about one axis only (the base z axis): the rotation about it is unobservable.
-    F1 = [
-        transform_from(rotation_about((0, 0, 1), a), [0.5 + 0.1 * a, 0.1, 0.6]) for a in (0.0, 0.3, 0.6, 0.9)
-    ]
+    F1 = [transform_from(rotation_about((0, 0, 1), a), [0.5 + 0.1 * a, 0.1, 0.6]) for a in (0.0, 0.3, 0.6, 0.9)]
     C1 = [invert(f @ X_TRUE) @ T_BASE_BOARD for f in F1]
     with pytest.raises(CellError, match="share one axis"):
         solve_hand_eye(F1, C1)

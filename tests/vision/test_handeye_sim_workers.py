@@ -30,9 +30,7 @@ def test_hand_eye_recovers_the_twin_camera_mount() -> None:
     cfg = load_config(None, ov)
     router = open_session(cfg, "router")
     args = [a for o in ov for a in ("--set", o)]
-    procs = [
-        subprocess.Popen([sys.executable, "-m", "cellctl", "worker", r, *args]) for r in ("robot", "camera")
-    ]
+    procs = [subprocess.Popen([sys.executable, "-m", "cellctl", "worker", r, *args]) for r in ("robot", "camera")]
     try:
         with open_session(cfg, "client") as s:
             deadline = time.monotonic() + 60

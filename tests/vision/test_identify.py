@@ -20,9 +20,7 @@ T_BASE_CAM = transform_from_xyz_rpy((0.4, -0.2, 0.9), (-np.pi / 2, 0.1, -0.3))
 
 def _centre_error_mm(T_true: np.ndarray, T_est: np.ndarray, spec: BoardSpec) -> float:
     c = board_centre(spec)
-    return float(
-        np.linalg.norm((T_true[:3, :3] @ c + T_true[:3, 3]) - (T_est[:3, :3] @ c + T_est[:3, 3])) * 1000
-    )
+    return float(np.linalg.norm((T_true[:3, :3] @ c + T_true[:3, 3]) - (T_est[:3, :3] @ c + T_est[:3, 3])) * 1000)
 
 
 @pytest.mark.parametrize(
@@ -121,11 +119,7 @@ def test_two_boards(catalog) -> None:
     Tb = view_of_board(SPEC_B, INTR, 1.3, 10.0, 0.0, offset_px=(300.0, 0.0))
     err = _reason(render_boards([(SPEC_A, Ta), (SPEC_B, Tb)], INTR, rng=np.random.default_rng(4)), catalog)
     assert err.code == "two boards"
-    assert (
-        "markers from two boards" in str(err)
-        and "bin_a: ids [0, 1," in str(err)
-        and "bin_b: ids [17," in str(err)
-    )
+    assert "markers from two boards" in str(err) and "bin_a: ids [0, 1," in str(err) and "bin_b: ids [17," in str(err)
 
 
 def test_unknown_id_range(catalog) -> None:
@@ -208,9 +202,7 @@ def test_lens_distortion_is_modelled(catalog) -> None:
     ideal = render_boards([(SPEC_A, T)], INTR, rng=np.random.default_rng(9))
     # Distort: each pixel of the distorted image samples the ideal image at its undistorted position.
     h, w = ideal.shape[:2]
-    uv = np.stack(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)), -1).reshape(
-        -1, 1, 2
-    )
+    uv = np.stack(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)), -1).reshape(-1, 1, 2)
     und = cv2.undistortPoints(uv, INTR.K(), np.array(dist), P=INTR.K()).reshape(h, w, 2)
     img = cv2.remap(ideal, und[..., 0], und[..., 1], cv2.INTER_LINEAR)
     good = identify(img, intr_d, None, catalog)

@@ -48,9 +48,7 @@ def test_too_few_views_says_why(catalog, tmp_path) -> None:
         cv2.imwrite(str(tmp_path / name), img)
     loaded = load_images(tmp_path)
     assert [n for n, _ in loaded] == ["blank.png", "view00.png", "view01.png", "view02.png"]
-    with pytest.raises(
-        CellError, match=r"needs ≥ 6 usable board views, got 3; skipped: \['blank.png: no markers"
-    ):
+    with pytest.raises(CellError, match=r"needs ≥ 6 usable board views, got 3; skipped: \['blank.png: no markers"):
         calibrate_intrinsics(loaded, catalog)
 
 

@@ -111,9 +111,7 @@ def test_approach_capture_and_refusals_over_zenoh(cell) -> None:
     with pytest.raises(WorkerFailed, match="unreachable: wrist centre"):
         _call(client, cfg, "move", MoveRequest(camera_pose=far), MoveReply)
     with pytest.raises(WorkerFailed, match="expected a cellctl/MoveRequest message"):
-        request(
-            client, keys.robot_op(cfg.cell_id, "move"), StopRequest(), MoveReply, timeout=10, role="robot"
-        )
+        request(client, keys.robot_op(cfg.cell_id, "move"), StopRequest(), MoveReply, timeout=10, role="robot")
     st = _call(client, cfg, "state", RobotStateRequest(), RobotState)
     assert np.allclose(st.joints, rep.joints)
     # a reachable move after the refusals
@@ -142,9 +140,7 @@ def test_joint_states_and_sim_state_are_published(cell) -> None:
 
 def test_scenario_change_swaps_the_bin(cell) -> None:
     cfg, client = cell
-    st = _call(
-        client, cfg, "scenario", SimScenarioRequest(bin_type="tote", dirty=False, repark=True), SimState
-    )
+    st = _call(client, cfg, "scenario", SimScenarioRequest(bin_type="tote", dirty=False, repark=True), SimState)
     assert st.bin_type == "tote" and not st.dirty and st.parked
     with pytest.raises(WorkerFailed, match=r"bin type 'crate' is unknown"):
         _call(client, cfg, "scenario", SimScenarioRequest(bin_type="crate"), SimState)
@@ -159,9 +155,7 @@ def test_scenario_change_swaps_the_bin(cell) -> None:
     )
     assert cap.format == "jpeg" and image[:2] == b"\xff\xd8"
     assert rep.observation_index == 0
-    _call(
-        client, cfg, "scenario", SimScenarioRequest(bin_type="case_study", dirty=True, repark=True), SimState
-    )
+    _call(client, cfg, "scenario", SimScenarioRequest(bin_type="case_study", dirty=True, repark=True), SimState)
 
 
 def test_folder_and_opencv_backends(tmp_path: Path) -> None:

@@ -29,5 +29,7 @@ class Step(ABC):
     def __call__(self, run: StepRun) -> str:
         outcome = self.execute(run)
         if outcome not in self.OUTCOMES:
-            raise ValueError(f"outcome {outcome!r} does not belong to the outcomes of step {self.NAME!r}: {self.OUTCOMES}")
+            raise ValueError(
+                f"outcome {outcome!r} does not belong to the outcomes of step {self.NAME!r}: {self.OUTCOMES}"
+            )
         return outcome

@@ -22,7 +22,9 @@ class Classifying(Step):
             try:
                 reply = fut.result(timeout=timeout)
             except concurrent.futures.TimeoutError as err:
-                raise ClassifierError(f"classification of viewpoint {ctx.viewpoints[i].index} not back in {timeout:g} s") from err
+                raise ClassifierError(
+                    f"classification of viewpoint {ctx.viewpoints[i].index} not back in {timeout:g} s"
+                ) from err
             except WorkerError as err:
                 ctx.viewpoints[i] = ctx.viewpoints[i].model_copy(update={"error": str(err)})
                 raise
@@ -38,5 +40,7 @@ class Classifying(Step):
             raise ClassifierError("no viewpoint was classified")
         ctx.verdict = "dirty" if "dirty" in labels else "clean"
         n_unc = sum(v.uncertain for v in ctx.viewpoints)
-        run.event("info", f"verdict {ctx.verdict}: {labels.count('dirty')}/{len(labels)} viewpoints dirty, {n_unc} uncertain")
+        run.event(
+            "info", f"verdict {ctx.verdict}: {labels.count('dirty')}/{len(labels)} viewpoints dirty, {n_unc} uncertain"
+        )
         return "succeeded"

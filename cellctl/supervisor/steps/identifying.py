@@ -57,7 +57,9 @@ class Identifying(Step):
             # fused estimate uses the ones that worked.
             idx = ctx.observation_index + k
             try:
-                moved, _ = run.call("robot", "approach", ApproachRequest(observation_index=idx, park=False), ApproachReply)
+                moved, _ = run.call(
+                    "robot", "approach", ApproachRequest(observation_index=idx, park=False), ApproachReply
+                )
                 views.append(self._view(run, moved.camera_pose.matrix()))
             except (IdentificationError, WorkerFailed) as err:
                 run.event("warning", f"extra view from observation pose {idx} skipped: {err}")

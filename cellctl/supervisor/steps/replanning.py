@@ -28,7 +28,9 @@ class Replanning(Step):
             seed=pc.seed,
         )
         key = keys.planner_jobs(ctx.cfg.cell_id)
-        reply, _ = run.call("planner", "jobs", req, PlanJobReply, key=key, timeout=ctx.cfg.supervisor.timeouts.plan_submit)
+        reply, _ = run.call(
+            "planner", "jobs", req, PlanJobReply, key=key, timeout=ctx.cfg.supervisor.timeouts.plan_submit
+        )
         ctx.planner_job_id = reply.job_id
         run.event("info", f"planning job {reply.job_id} submitted for bin {ctx.bin_type!r}")
         if not ctx.cfg.supervisor.wait_for_plan:

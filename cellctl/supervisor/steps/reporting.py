@@ -70,7 +70,12 @@ class Reporting(Step):
         for v in ctx.viewpoints:
             if v.camera_pose is None:
                 continue
-            colour = COLOURS["dirty"] if v.label == "dirty" else COLOURS["clean"] if v.label == "clean" else (0.2, 0.4, 1, 1)
+            colour = (
+                COLOURS["dirty"] if v.label == "dirty" else COLOURS["clean"] if v.label == "clean" else (0.2, 0.4, 1, 1)
+            )
             cams.append((v.camera_pose.matrix(), colour, f"{v.index}"))
-        ctx.log.write_json("/scene", "foxglove.SceneUpdate",
-                           foxglove.scene_update("base", ctx.T_base_bin, mesh.vertices, mesh.faces, rgba, cams))
+        ctx.log.write_json(
+            "/scene",
+            "foxglove.SceneUpdate",
+            foxglove.scene_update("base", ctx.T_base_bin, mesh.vertices, mesh.faces, rgba, cams),
+        )

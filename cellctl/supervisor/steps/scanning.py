@@ -23,8 +23,12 @@ from cellctl.supervisor.steps._base import Step
 
 def classify_image(run: StepRun, index: int, image: bytes, fmt: str, surface: str) -> ClassifyReply:
     reply, _ = run.call(
-        "classifier", "classify", ClassifyRequest(surface=surface, format=fmt), ClassifyReply,  # type: ignore[arg-type]
-        payload=image, account="classify_background",
+        "classifier",
+        "classify",
+        ClassifyRequest(surface=surface, format=fmt),
+        ClassifyReply,  # type: ignore[arg-type]
+        payload=image,
+        account="classify_background",
     )
     return reply
 

@@ -77,6 +77,4 @@ class SimCamera(Camera):
         )
         data = encode_image(out.rgb, fmt)
         # the camera pose is reported in the robot base frame, as the robot knows it (FK)
-        return CaptureReply(
-            format=fmt, intrinsics=self.intrinsics, camera_pose=PoseMsg.from_matrix(T_base_cam)
-        ), data
+        return CaptureReply(format=fmt, intrinsics=self.intrinsics, camera_pose=PoseMsg.from_matrix(T_base_cam)), data

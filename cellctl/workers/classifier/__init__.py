@@ -68,17 +68,11 @@ class ClassifierService:
         for i, (req, data) in enumerate(items):
             try:
                 if req.surface not in SURFACES:
-                    raise ClassifierError(
-                        f"surface {req.surface!r} is unknown; expected one of {list(SURFACES)}"
-                    )
+                    raise ClassifierError(f"surface {req.surface!r} is unknown; expected one of {list(SURFACES)}")
                 if req.surface not in self.models:
-                    raise ClassifierError(
-                        f"no model for surface {req.surface!r}: {self.problems.get(req.surface)}"
-                    )
+                    raise ClassifierError(f"no model for surface {req.surface!r}: {self.problems.get(req.surface)}")
                 if len(data) > MAX_IMAGE_BYTES:
-                    raise ClassifierError(
-                        f"image of {len(data)} bytes exceeds the limit of {MAX_IMAGE_BYTES} bytes"
-                    )
+                    raise ClassifierError(f"image of {len(data)} bytes exceeds the limit of {MAX_IMAGE_BYTES} bytes")
                 img = decode_image(data, f"({req.format}, {len(data)} bytes)")
                 groups.setdefault(req.surface, []).append((i, img))
             except CellError as err:
@@ -99,9 +93,7 @@ class BatchingClassifyServer:
     Zenoh callbacks only enqueue; one thread answers.
     """
 
-    def __init__(
-        self, session: zenoh.Session, cell_id: str, service: ClassifierService, max_batch: int = 16
-    ) -> None:
+    def __init__(self, session: zenoh.Session, cell_id: str, service: ClassifierService, max_batch: int = 16) -> None:
         self.service = service
         self.max_batch = max_batch
         self.key = keys.classifier_classify(cell_id)
@@ -118,9 +110,7 @@ class BatchingClassifyServer:
         try:
             self._queue.put_nowait(q)
         except queue.Full:
-            q.reply_err(
-                encode(ErrorReply(kind="ClassifierError", reason="classifier queue full (1024 requests)"))
-            )
+            q.reply_err(encode(ErrorReply(kind="ClassifierError", reason="classifier queue full (1024 requests)")))
             q.drop()
 
     def _drain(self) -> None:
@@ -147,8 +137,7 @@ class BatchingClassifyServer:
             try:
                 if q.attachment is None:
                     raise ProtocolError(
-                        "classify needs the ClassifyRequest as the attachment "
-                        "and the image bytes as the payload"
+                        "classify needs the ClassifyRequest as the attachment and the image bytes as the payload"
                     )
                 req = decode_as(ClassifyRequest, q.attachment.to_bytes(), MAX_PAYLOAD_BYTES)
                 data = q.payload.to_bytes() if q.payload is not None else b""
@@ -208,9 +197,7 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
         server = BatchingClassifyServer(session, cfg.cell_id, service, c.max_batch)
         alive = WorkerServer(session, cfg.cell_id, "classifier")
         alive.announce()
-        log.info(
-            "classifier serving %s with %s", server.key, {s: m.model_id for s, m in service.models.items()}
-        )
+        log.info("classifier serving %s with %s", server.key, {s: m.model_id for s, m in service.models.items()})
         try:
             stop_event.wait()
         finally:

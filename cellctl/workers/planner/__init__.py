@@ -17,7 +17,6 @@ Several workers may serve the same cell (each with its own liveliness instance n
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import queue
@@ -108,7 +107,11 @@ class PlannerService:
         except CellError as err:
             return PlanJobReply(job_id=job_id, state="failed", reason=f"unknown job {job_id!r}: {err}")
         state = rec.get("state", "failed")
-        if state in ("queued", "running") and rec.get("host") == socket.gethostname() and not _pid_alive(int(rec["pid"])):
+        if (
+            state in ("queued", "running")
+            and rec.get("host") == socket.gethostname()
+            and not _pid_alive(int(rec["pid"]))
+        ):
             return PlanJobReply(
                 job_id=job_id, state="failed", reason=f"planner worker {rec.get('instance')} (pid {rec['pid']}) died"
             )
@@ -147,8 +150,15 @@ class PlannerService:
         tol = self.cfg.planner.tolerance
         mesh = self._mesh(req.bin_type)
         res = lookup_plan(
-            self.plans_dir, req.bin_type, req.surface, req.bin_pose.matrix(), mesh, self.robot,
-            tol.translation_mm, tol.rotation_deg, use_all=req.all_reachable,
+            self.plans_dir,
+            req.bin_type,
+            req.surface,
+            req.bin_pose.matrix(),
+            mesh,
+            self.robot,
+            tol.translation_mm,
+            tol.rotation_deg,
+            use_all=req.all_reachable,
         )
         return PlanLookupReply(
             hit=res.hit,
@@ -172,13 +182,18 @@ class PlannerService:
 
     # --- the job thread -------------------------------------------------------------------
 
-    def _progress(self, job_id: str, stage: str, frac: float, state: str, message: str | None = None,
-                  plan_id: str | None = None) -> None:
+    def _progress(
+        self, job_id: str, stage: str, frac: float, state: str, message: str | None = None, plan_id: str | None = None
+    ) -> None:
         if self.publish is None:
             return
         try:
-            self.publish(job_id, PlanJobProgress(job_id=job_id, stage=stage, fraction=frac, state=state,
-                                                 message=message, plan_id=plan_id))
+            self.publish(
+                job_id,
+                PlanJobProgress(
+                    job_id=job_id, stage=stage, fraction=frac, state=state, message=message, plan_id=plan_id
+                ),
+            )
         except Exception as err:  # noqa: BLE001 - progress is best effort, the job goes on
             log.debug("progress publish failed: %s", err)
 

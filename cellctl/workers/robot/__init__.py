@@ -82,9 +82,7 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
         server.serve("stop", StopRequest, _stop)
         if isinstance(robot, SimRobot):
             server.serve("scenario", SimScenarioRequest, lambda r, _: robot.set_scenario(r))
-            server.serve(
-                "sim_state", SimStateRequest, lambda r, _: robot.sim_state(), key=keys.sim_state(cell)
-            )
+            server.serve("sim_state", SimStateRequest, lambda r, _: robot.sim_state(), key=keys.sim_state(cell))
         server.announce()
         log.info("robot worker serving cell %s", cell)
         period = 1.0 / cfg.robot.joint_state_hz

@@ -158,8 +158,7 @@ class SimRobot(Robot):
                     return total
                 if self._stop.is_set():
                     raise RobotError(
-                        f"motion stopped ({self._stop_reason or 'stop requested'}) at joints "
-                        f"{np.round(q, 4).tolist()}"
+                        f"motion stopped ({self._stop_reason or 'stop requested'}) at joints {np.round(q, 4).tolist()}"
                     )
                 time.sleep(min(dt, total - t))
         finally:
@@ -187,9 +186,7 @@ class SimRobot(Robot):
         pos = np.round(T_base_cam[:3, 3], 4).tolist()
         sols = rm.ik_camera(T_base_cam, self.joints)
         if len(sols) == 0:
-            raise RobotError(
-                f"camera pose at {pos} (base frame) is unreachable: {rm.unreachable_reason(T_base_cam)}"
-            )
+            raise RobotError(f"camera pose at {pos} (base frame) is unreachable: {rm.unreachable_reason(T_base_cam)}")
         flags = self._world.check(sols)
         free = sols[~flags]
         # prefer solutions whose own links do not block the camera's view (stable sort keeps
@@ -210,9 +207,7 @@ class SimRobot(Robot):
                 if self._stop.is_set():
                     raise
                 last = err
-        raise RobotError(
-            f"camera pose at {pos}: no collision-free path to any of {len(free)} IK solutions: {last}"
-        )
+        raise RobotError(f"camera pose at {pos}: no collision-free path to any of {len(free)} IK solutions: {last}")
 
     def _settle(self, settle_s: float | None) -> None:
         s = self.cfg.robot.settle_s if settle_s is None else settle_s
@@ -229,9 +224,7 @@ class SimRobot(Robot):
             if req.park:
                 self._park(bt, mesh)
             elif not self._parked:
-                raise RobotError(
-                    "cannot go to an observation pose before parking: send approach with park=true"
-                )
+                raise RobotError("cannot go to an observation pose before parking: send approach with park=true")
             T_base_cam = invert(scene.nominal_T_bin_base(bt, mesh)) @ scene.observation_T_bin_cam(
                 bt, req.observation_index
             )
@@ -274,9 +267,7 @@ class SimRobot(Robot):
                 q = rm.check_joints(req.joints, "target joints")
                 hits = self._world.explain(q)
                 if hits:
-                    raise RobotError(
-                        f"target joints {np.round(q, 4).tolist()} are in collision: {', '.join(hits)}"
-                    )
+                    raise RobotError(f"target joints {np.round(q, 4).tolist()} are in collision: {', '.join(hits)}")
                 length, duration = self._go(q)
             else:
                 assert req.camera_pose is not None
@@ -332,9 +323,7 @@ class SimRobot(Robot):
                 self._scenario = replace(self._scenario, **upd)
                 self._world = self._make_world()
             if req.repark:
-                self._park(
-                    self.catalog.get(self._scenario.bin_type), self.catalog.load_mesh(self._scenario.bin_type)
-                )
+                self._park(self.catalog.get(self._scenario.bin_type), self.catalog.load_mesh(self._scenario.bin_type))
             self._changed()
             return self.sim_state()
         finally:
