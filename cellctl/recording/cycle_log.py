@@ -7,6 +7,7 @@ reader (measured: chunked files lose the open chunk; see docs/decisions.md).
 
 from __future__ import annotations
 
+import base64
 import json
 import threading
 import time
@@ -97,7 +98,15 @@ class CycleLog:
         self.write_json(EVENTS_TOPIC, "foxglove.Log", foxglove.log(level, text, "supervisor", t_ns), t_ns)
 
     def image(self, topic: str, data: bytes, fmt: str, frame_id: str = "camera", t_ns: int | None = None) -> None:
-        self.write_json(topic, "foxglove.CompressedImage", foxglove.compressed_image(data, fmt, frame_id, t_ns), t_ns)
+        """Append a foxglove.CompressedImage.
+
+        Hot path (one per viewpoint): the JSON is assembled around the base64 text instead of
+        passing a multi-MB string through ``json.dumps`` (base64 needs no escaping).
+        """
+        t = time.time_ns() if t_ns is None else t_ns
+        head = json.dumps({"timestamp": foxglove.stamp(t), "frame_id": frame_id, "format": fmt})
+        body = head[:-1].encode() + b',"data":"' + base64.b64encode(data) + b'"}'
+        self.write_json(topic, "foxglove.CompressedImage", body, t)
 
     def close(self, metadata: dict[str, str] | None = None) -> None:
         """Write the summary and close; safe to call twice."""

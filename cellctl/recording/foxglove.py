@@ -6,14 +6,13 @@ reader validate the JSON. Times are ``{"sec", "nsec"}``, bytes are base64 string
 
 from __future__ import annotations
 
-import base64
 import json
 import time
 from typing import Any
 
 import numpy as np
 
-__all__ = ["SCHEMAS", "compressed_image", "frame_transform", "log", "pose_in_frame", "scene_update", "stamp"]
+__all__ = ["SCHEMAS", "frame_transform", "log", "pose_in_frame", "scene_update", "stamp"]
 
 _TIME = {
     "type": "object",
@@ -209,10 +208,6 @@ def stamp(t_ns: int | None = None) -> dict[str, int]:
 
 def log(level: int, message: str, name: str = "cellctl", t_ns: int | None = None) -> dict[str, Any]:
     return {"timestamp": stamp(t_ns), "level": int(level), "message": message, "name": name, "file": "", "line": 0}
-
-
-def compressed_image(data: bytes, fmt: str, frame_id: str = "camera", t_ns: int | None = None) -> dict[str, Any]:
-    return {"timestamp": stamp(t_ns), "frame_id": frame_id, "data": base64.b64encode(data).decode(), "format": fmt}
 
 
 def _tq(T: Any) -> tuple[dict[str, float], dict[str, float]]:
