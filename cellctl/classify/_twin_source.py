@@ -35,6 +35,29 @@ __all__ = ["make_twin_source"]
 MIN_SURFACE_FRACTION = 0.5
 
 
+PLANNED_FRACTION = 0.5
+"""Share of images taken from planned viewpoints when plans exist in ``planner.plans_dir``; the
+rest are sampled facing the surface, so the set also covers views a future plan may choose."""
+
+
+def _planned_views(cfg: Any, names: list[str], surface: str) -> dict[str, list[np.ndarray]]:
+    """``T_bin_cam`` of every reachable viewpoint of the cached plans, per bin type."""
+    from cellctl.planning.planfile import list_plans
+
+    out: dict[str, list[np.ndarray]] = {}
+    for name in names:
+        plans, _ = list_plans(cfg.path(cfg.planner.plans_dir), name, surface)
+        views = [
+            np.asarray(vp["T_bin_cam"], dtype=np.float64)
+            for pl in plans
+            for vp in (pl.get("reachable") or pl.get("viewpoints") or [])
+            if "T_bin_cam" in vp
+        ]
+        if views:
+            out[name] = views
+    return out
+
+
 def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: Any) -> Callable:
     """A ``draw(rng, dirty) -> Sample`` function rendering with :class:`cellctl.sim.render.SimRenderer`."""
     from cellctl.classify.synth import MIN_CONTRAST, Sample
@@ -61,6 +84,7 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
     if not meshes:
         raise ClassifierError(f"no bin type in the catalog has {surface} faces")
     usable = sorted(meshes)
+    planned = _planned_views(cfg, usable, surface)
 
     def params(rng: np.random.Generator) -> tuple[RenderParams, dict[str, Any]]:
         if not shifted:
@@ -129,6 +153,16 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
                 target = point_on(mesh, face, rng)
                 normal = normals[face]
             T_bin_cam = camera(name, target, normal, rng)
+            source = "sampled"
+            if planned.get(name) and rng.uniform() < PLANNED_FRACTION:
+                # a planned viewpoint of the cached plans, jittered as a parked robot would see it
+                views = planned[name]
+                T_bin_cam = views[int(rng.integers(len(views)))].copy()
+                T_bin_cam[:3, 3] += rng.uniform(-0.02, 0.02, 3)
+                T_bin_cam = T_bin_cam @ transform_from(
+                    rotation_about((0.0, 0.0, 1.0), float(rng.uniform(-0.3, 0.3))), np.zeros(3)
+                )
+                source = "planned"
             rp, pdict = params(rng)
             out = renderer.render_bin_view(
                 name, T_bin_cam, intr, dirty=dirty, powder_amount=amount, seed=pseed, params=rp
@@ -154,6 +188,7 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
                     "powder_in_view": round(float(out.powder_mask.mean()), 5),
                     **pdict,
                     "eye_bin": [round(float(v), 3) for v in T_bin_cam[:3, 3]],
+                    "viewpoint": source,
                 },
             )
         raise ClassifierError(f"30 sampled {surface} viewpoints in a row did not show the surface; check the catalog")
