@@ -60,7 +60,7 @@ def _planned_views(cfg: Any, names: list[str], surface: str) -> dict[str, list[n
 
 def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: Any) -> Callable:
     """A ``draw(rng, dirty) -> Sample`` function rendering with :class:`cellctl.sim.render.SimRenderer`."""
-    from cellctl.classify.synth import MIN_CONTRAST, Sample
+    from cellctl.classify.synth import MIN_CONTRAST, MIN_VISIBLE_FRACTION, Sample
     from cellctl.config import load_config
     from cellctl.geometry.catalog import EXTERNAL, INTERNAL, load_catalog
     from cellctl.geometry.transforms import rotation_about, transform_from
@@ -178,6 +178,8 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
                 )
                 diff = np.abs(out.rgb.astype(np.int16) - bare.rgb.astype(np.int16)).max(axis=2)
                 visible &= diff >= MIN_CONTRAST
+            if dirty and source == "planned" and visible.mean() < MIN_VISIBLE_FRACTION:
+                continue  # the powder is not where this planned view looks; draw again
             return Sample(
                 out.rgb,
                 visible.astype(np.float32),
