@@ -451,6 +451,9 @@ class PlanJobRequest(WireMessage):
     seed_pct: float = Field(default=10.0, gt=0.0, le=100.0)
     mode: Literal["fast", "paper"] = "fast"
     seed: int = 0
+    q_start: list[float] | None = Field(
+        default=None, min_length=6, max_length=6, description="robot joints now (rad): where the tour starts"
+    )
 
 
 class PlanJobReply(WireMessage):

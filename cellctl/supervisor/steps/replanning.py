@@ -26,6 +26,8 @@ class Replanning(Step):
             seed_pct=pc.seed_pct,
             mode=pc.mode,
             seed=pc.seed,
+            # the tour starts where the arm is now: at the observation pose it identified from
+            q_start=list(ctx.approach.joints) if ctx.approach is not None else None,
         )
         key = keys.planner_jobs(ctx.cfg.cell_id)
         reply, _ = run.call(

@@ -19,6 +19,7 @@ from cellctl.messages import (
 from cellctl.recording import foxglove
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps.board_mask import mask_board
 
 
 def classify_image(run: StepRun, index: int, image: bytes, fmt: str, surface: str) -> ClassifyReply:
@@ -46,6 +47,7 @@ class Scanning(Step):
         settle = ctx.cfg.robot.settle_s
         perturb = float(ctx.params.get("perturb_m", 0.0)) if collect else 0.0
         seed = int(ctx.params.get("seed", 0))
+        bin_type = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
         for k in range(ctx.next_viewpoint, len(plan.viewpoints)):
             vp = plan.viewpoints[k]
             if perturb > 0:
@@ -77,8 +79,11 @@ class Scanning(Step):
                 store_image(ctx.cfg, ctx.params, surface, ctx.cycle_id, vp.index, data)
                 result = result.model_copy(update={"label": ctx.params.get("label")})
             else:
+                image = data
+                if bin_type is not None and ctx.T_base_bin is not None:
+                    image = mask_board(data, bin_type, ctx.T_base_bin, moved.camera_pose.matrix(), cap.intrinsics)
                 ctx.classifications[len(ctx.viewpoints)] = ctx.pool.submit(
-                    classify_image, run, vp.index, data, cap.format, surface
+                    classify_image, run, vp.index, image, "png" if image is not data else cap.format, surface
                 )
             ctx.viewpoints.append(result)
             ctx.next_viewpoint = k + 1

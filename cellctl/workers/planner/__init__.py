@@ -221,7 +221,13 @@ class PlannerService:
                 self._progress(job_id, stage, frac, "running", msg or None)
 
         try:
-            params = PlanParams(surface=req.surface, seed_pct=req.seed_pct, mode=req.mode, seed=req.seed)
+            params = PlanParams(
+                surface=req.surface,
+                seed_pct=req.seed_pct,
+                mode=req.mode,
+                seed=req.seed,
+                q_start=tuple(req.q_start) if req.q_start is not None else None,
+            )
             mesh = self._mesh(req.bin_type)
             T_bin_base = invert(req.bin_pose.matrix())
             plan = make_plan(mesh, T_bin_base, params, self.robot, bin_type=req.bin_type, progress=progress)

@@ -1,0 +1,60 @@
+"""Hide the bin's own ID board from the classifier.
+
+The ChArUco board is mounted on the bin's outer wall; its black-and-white pattern is not a
+surface to inspect and looks like contamination to a clean/dirty classifier (seen in the
+demo: a clean bin called dirty from the one viewpoint that sees the board). Its pose is
+known, so its outline is projected into each image and filled with the median colour of the
+rest of the frame before classification. The recorded image stays untouched.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cellctl.geometry.transforms import invert
+from cellctl.messages import Intrinsics
+
+__all__ = ["mask_board"]
+
+MARGIN_M = 0.01
+"""The board plate's edge around the printed pattern."""
+
+
+def board_polygon(bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr: Intrinsics) -> np.ndarray | None:
+    """Pixel outline (4, 2) of the board in this view, or None when it is not in front of the camera."""
+    w, h = bin_type.board.size_m
+    m = MARGIN_M
+    corners = np.array([[-m, -m, 0, 1], [w + m, -m, 0, 1], [w + m, h + m, 0, 1], [-m, h + m, 0, 1]], dtype=float)
+    T_cam_board = invert(T_base_cam) @ np.asarray(T_base_bin) @ bin_type.T_bin_board()
+    p = (T_cam_board @ corners.T)[:3]
+    if np.any(p[2] <= 0.01):
+        return None
+    uv = intr.K() @ (p / p[2])
+    return uv[:2].T
+
+
+def mask_board(png: bytes, bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr: Intrinsics) -> bytes:
+    """The image with the board filled in, or the same bytes when the board is not in view."""
+    import cv2
+
+    poly = board_polygon(bin_type, T_base_bin, T_base_cam, intr)
+    if poly is None:
+        return png
+    W, H = intr.width, intr.height
+    if poly[:, 0].max() < 0 or poly[:, 0].min() > W or poly[:, 1].max() < 0 or poly[:, 1].min() > H:
+        return png
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:
+        return png
+    sx, sy = img.shape[1] / W, img.shape[0] / H
+    pts = np.round(poly * [sx, sy]).astype(np.int32)
+    mask = np.zeros(img.shape[:2], np.uint8)
+    cv2.fillPoly(mask, [pts], 255)
+    if mask.mean() > 0.9 * 255:
+        return png  # nothing but board: leave it to the classifier's uncertainty
+    fill = np.median(img[mask == 0], axis=0)
+    img[mask > 0] = fill
+    ok, out = cv2.imencode(".png", img)
+    return out.tobytes() if ok else png
