@@ -6,8 +6,6 @@ import argparse
 import json
 from pathlib import Path
 
-from cellctl.cli import add_config_arguments
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("schema", help="print the JSON Schemas of every wire message")
@@ -22,7 +20,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     v.add_argument("file", nargs="?", default=None)
     v.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     v.set_defaults(func=run_validate)
-    _ = add_config_arguments
 
 
 def run_schema(args: argparse.Namespace) -> int:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import itertools
+import json
 import logging
 import queue
 import threading
@@ -361,10 +362,23 @@ class Supervisor:
         self._fire(name)
         return Ack(request_id=cmd.request_id, command=name, accepted=True, state=self.top_state)
 
+    def _record_command(self, payload: bytes) -> None:
+        """Log what was received: the command as sent, or a rejected payload as text (audit)."""
+        assert self._ctx is not None
+        try:
+            is_command = isinstance(json.loads(payload), dict)
+        except ValueError:
+            is_command = False
+        if is_command:
+            self._ctx.log.write_json(keys.cmd(self.cell_id), "cellctl/Command", payload)
+        else:
+            raw = {"raw": payload[:1024].decode("utf-8", "replace"), "bytes": len(payload)}
+            self._ctx.log.write_json(keys.cmd(self.cell_id), "cellctl.RejectedPayload", raw)
+
     def _on_command(self, payload: bytes, query: Any) -> None:
         ack = self.apply_command(payload)
         if self._ctx is not None and not self._ctx.finished:
-            self._ctx.log.write_json(keys.cmd(self.cell_id), "cellctl/Command", payload if _is_json(payload) else b"{}")
+            self._record_command(payload)
             self._ctx.log.write_message(keys.cmd_ack(self.cell_id), ack)
         if query is not None:
             try:
@@ -662,16 +676,6 @@ class Supervisor:
         if pub is not None:
             pub.put(encode(ev))
         log.info("[%s] %s", level, text)
-
-
-def _is_json(payload: bytes) -> bool:
-    import json
-
-    try:
-        json.loads(payload)
-        return True
-    except ValueError:
-        return False
 
 
 class _NullLog:
