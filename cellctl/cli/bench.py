@@ -23,6 +23,15 @@ BENCHES: dict[str, tuple[str, str]] = {
         "cellctl.planning.bench:bench_plan",
         "planner: fast vs paper mode, case-study bin, p_SP 10/40 (--n: paper RRT* budget in 0.1 s)",
     ),
+    "faults": (
+        "cellctl.reliability.faults:bench_faults",
+        "kill/freeze each worker at each cycle step: detection time, safe state, recovery",
+    ),
+    "fuzz": ("cellctl.reliability.fuzz:bench_fuzz", "seeded hostile payloads to the command key (--n cases)"),
+    "soak": (
+        "cellctl.reliability.soak:bench_soak",
+        "sim cycles back to back (--n cycles): cycles/hour, RSS, open files",
+    ),
 }
 
 
@@ -30,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="measure and print JSON")
     p.add_argument("what", choices=sorted(BENCHES), help="; ".join(f"{k}: {v[1]}" for k, v in BENCHES.items()))
     p.add_argument("--n", type=int, default=None, help="sample count (bench-specific default)")
+    p.add_argument("--cycles", type=int, default=None, help="soak: cycles to run (same as --n)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="also write the JSON to this file")
     add_config_arguments(p)
@@ -37,6 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.cycles is not None:
+        args.n = args.cycles
     mod, fn = BENCHES[args.what][0].split(":")
     result = getattr(importlib.import_module(mod), fn)(args)
     text = json.dumps(result, indent=2)
