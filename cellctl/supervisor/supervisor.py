@@ -114,10 +114,15 @@ def validate_start_params(params: dict[str, Any]) -> dict[str, Any]:
         raise ProtocolError(f"start param label={label!r}; collect mode needs label 'clean' or 'dirty'")
     if "surface" in params and params["surface"] not in ("external", "internal"):
         raise ProtocolError(f"start param surface={params['surface']!r}; expected 'external' or 'internal'")
-    if "perturb_m" in params and not (isinstance(params["perturb_m"], int | float) and 0 <= params["perturb_m"] <= 0.1):
-        raise ProtocolError(f"start param perturb_m={params['perturb_m']!r}; expected a number in [0, 0.1] m")
-    if "seed" in params and not isinstance(params["seed"], int):
-        raise ProtocolError(f"start param seed={params['seed']!r}; expected an integer")
+    perturb = params.get("perturb_m", 0.0)
+    if isinstance(perturb, bool) or not isinstance(perturb, int | float) or not 0 <= perturb <= 0.1:
+        raise ProtocolError(f"start param perturb_m={perturb!r:.80}; expected a number in [0, 0.1] m")
+    seed = params.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+        # numpy seeds the perturbation with it: a negative or huge seed would fail mid-cycle
+        raise ProtocolError(f"start param seed={seed!r:.80}; expected an integer in [0, 2**63)")
+    if "dataset" in params and not (isinstance(params["dataset"], str) and params["dataset"].strip()):
+        raise ProtocolError(f"start param dataset={params['dataset']!r:.80}; expected a folder path (string)")
     return {**params, "mode": mode}
 
 
@@ -367,7 +372,7 @@ class Supervisor:
         assert self._ctx is not None
         try:
             is_command = isinstance(json.loads(payload), dict)
-        except ValueError:
+        except (ValueError, RecursionError):  # a rejected payload may be any bytes, nested arrays too
             is_command = False
         if is_command:
             self._ctx.log.write_json(keys.cmd(self.cell_id), "cellctl/Command", payload)
