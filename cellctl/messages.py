@@ -16,7 +16,7 @@ import enum
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 __all__ = [
     "MESSAGE_TYPES",
@@ -130,6 +130,14 @@ class Command(WireMessage):
     cntrl_cmd: int | None = Field(default=None, description="PackTags CntrlCmd code 1..10")
     request_id: str | None = Field(default=None, max_length=128)
     params: dict[str, Any] = Field(default_factory=dict)
+
+    @field_validator("cntrl_cmd", mode="before")
+    @classmethod
+    def _integer_code(cls, v: Any) -> Any:
+        # Lax validation would read true as 1 (Reset) and "2" as Start: a PLC sending those is broken.
+        if isinstance(v, bool | str):
+            raise ValueError(f"cntrl_cmd must be an integer code 1..10, got {type(v).__name__} {v!r}")
+        return v
 
     @model_validator(mode="after")
     def _one_command(self) -> Command:

@@ -10,10 +10,14 @@ from pydantic import ValidationError
 from cellctl.errors import ProtocolError
 from cellctl.messages import MESSAGE_TYPES, WireMessage
 
-__all__ = ["MAX_PAYLOAD_BYTES", "decode", "decode_as", "encode", "json_schemas"]
+__all__ = ["MAX_JSON_DEPTH", "MAX_PAYLOAD_BYTES", "decode", "decode_as", "encode", "json_schemas"]
 
 MAX_PAYLOAD_BYTES = 64 * 1024
 """Largest control payload accepted; images travel separately and are not decoded here."""
+
+MAX_JSON_DEPTH = 32
+"""Deepest nesting of arrays/objects accepted; every message fits in 6. A deeper payload would
+otherwise reach Python's recursion limit in the parser or later, in whoever walks it."""
 
 M = TypeVar("M", bound=WireMessage)
 
@@ -35,6 +39,37 @@ def _explain(err: ValidationError) -> str:
     return "; ".join(parts)
 
 
+def _too_deep(obj: object, limit: int) -> bool:
+    """True if ``obj`` nests containers deeper than ``limit`` (iterative: hostile input cannot recurse)."""
+    stack = [(obj, 1)]
+    while stack:
+        o, depth = stack.pop()
+        if depth > limit:
+            return True
+        children = o.values() if isinstance(o, dict) else o
+        stack.extend((c, depth + 1) for c in children if isinstance(c, dict | list))  # type: ignore[union-attr]
+    return False
+
+
+def _parse(raw: bytes) -> object:
+    """Strict UTF-8 (RFC 8259: no BOM, no UTF-16/32) JSON of bounded depth, or ProtocolError."""
+    shown = raw[:60]
+    try:
+        obj = json.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as err:
+        raise ProtocolError(
+            f"payload is not valid JSON (not UTF-8: {err.reason} at byte {err.start}); got {shown!r}"
+        ) from err
+    except RecursionError as err:
+        raise ProtocolError(f"payload nests JSON deeper than {MAX_JSON_DEPTH} levels; got {shown!r}") from err
+    except ValueError as err:  # JSONDecodeError, and int() refusing a number of more than 4300 digits
+        raise ProtocolError(f"payload is not valid JSON ({err}); got {shown!r}") from err
+    # A cheap bound first: nesting cannot exceed the number of opening brackets.
+    if raw.count(b"[") + raw.count(b"{") > MAX_JSON_DEPTH and _too_deep(obj, MAX_JSON_DEPTH):
+        raise ProtocolError(f"payload nests JSON deeper than {MAX_JSON_DEPTH} levels; got {shown!r}")
+    return obj
+
+
 def decode(
     data: bytes | bytearray | memoryview | str,
     max_bytes: int = MAX_PAYLOAD_BYTES,
@@ -44,11 +79,7 @@ def decode(
     raw = bytes(data, "utf-8") if isinstance(data, str) else bytes(data)
     if len(raw) > max_bytes:
         raise ProtocolError(f"payload of {len(raw)} bytes exceeds the limit of {max_bytes} bytes")
-    try:
-        obj = json.loads(raw)
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        shown = raw[:60]
-        raise ProtocolError(f"payload is not valid JSON ({err}); got {shown!r}") from err
+    obj = _parse(raw)
     if not isinstance(obj, dict):
         raise ProtocolError(f"payload must be a JSON object, got {type(obj).__name__}")
     kind = obj.get("type")
@@ -59,7 +90,7 @@ def decode(
         raise ProtocolError(f"message type {kind!r} is unknown; expected one of {sorted(MESSAGE_TYPES)}")
     version = obj.get("v")
     supported = model.model_fields["v"].default
-    if version != supported:
+    if isinstance(version, bool) or version != supported:  # true == 1 in Python, not on the wire
         raise ProtocolError(f"{kind} version {version!r} is not supported; this cellctl speaks version {supported}")
     try:
         return model.model_validate(obj)
