@@ -51,11 +51,21 @@ def _too_deep(obj: object, limit: int) -> bool:
     return False
 
 
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict[str, object]:
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        # Parsers disagree on which duplicate wins; a gateway checking the first while we act on the last is a hole.
+        names = [k for k, _ in pairs]
+        dup = next(k for k in names if names.count(k) > 1)
+        raise ProtocolError(f"payload repeats key {dup[:60]!r} in one object; expected unique keys")
+    return obj
+
+
 def _parse(raw: bytes) -> object:
     """Strict UTF-8 (RFC 8259: no BOM, no UTF-16/32) JSON of bounded depth, or ProtocolError."""
     shown = raw[:60]
     try:
-        obj = json.loads(raw.decode("utf-8"))
+        obj = json.loads(raw.decode("utf-8"), object_pairs_hook=_unique_keys)
     except UnicodeDecodeError as err:
         raise ProtocolError(
             f"payload is not valid JSON (not UTF-8: {err.reason} at byte {err.start}); got {shown!r}"
