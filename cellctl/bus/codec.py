@@ -55,9 +55,11 @@ def _unique_keys(pairs: list[tuple[str, object]]) -> dict[str, object]:
     obj = dict(pairs)
     if len(obj) != len(pairs):
         # Parsers disagree on which duplicate wins; a gateway checking the first while we act on the last is a hole.
-        names = [k for k, _ in pairs]
-        dup = next(k for k in names if names.count(k) > 1)
-        raise ProtocolError(f"payload repeats key {dup[:60]!r} in one object; expected unique keys")
+        seen: set[str] = set()
+        for k, _ in pairs:
+            if k in seen:
+                raise ProtocolError(f"payload repeats key {k[:60]!r} in one object; expected unique keys")
+            seen.add(k)
     return obj
 
 
