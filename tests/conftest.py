@@ -32,19 +32,21 @@ def port() -> int:
     return free_port()
 
 
+def cfg_overrides(tmp_path: Path, port: int) -> list[str]:
+    """The ``--set`` overrides of the ``cfg`` fixture (for tests that start ``cellctl`` processes)."""
+    ep = f'["tcp/127.0.0.1:{port}"]'
+    return [
+        f"bus.listen={ep}",
+        f"bus.connect={ep}",
+        f"recording.dir={tmp_path / 'logs'}",
+        f"recording.index={tmp_path / 'logs' / 'cells.db'}",
+        f"planner.plans_dir={tmp_path / 'plans'}",
+        "supervisor.status_period_s=0.2",
+        "robot.settle_s=0",
+    ]
+
+
 @pytest.fixture
 def cfg(tmp_path: Path, port: int) -> CellConfig:
     """The default cell config on a private port, logging under tmp_path, fast timeouts."""
-    ep = f'["tcp/127.0.0.1:{port}"]'
-    return load_config(
-        None,
-        [
-            f"bus.listen={ep}",
-            f"bus.connect={ep}",
-            f"recording.dir={tmp_path / 'logs'}",
-            f"recording.index={tmp_path / 'logs' / 'cells.db'}",
-            f"planner.plans_dir={tmp_path / 'plans'}",
-            "supervisor.status_period_s=0.2",
-            "robot.settle_s=0",
-        ],
-    )
+    return load_config(None, cfg_overrides(tmp_path, port))

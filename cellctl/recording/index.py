@@ -124,23 +124,48 @@ class CycleIndex:
         log_sha256: str | None = None,
         finished: str | None = None,
     ) -> CycleRow:
-        """Close the row: outcome, verdict, MCAP sha256 and the chained hash."""
+        """Close the row: outcome, verdict, MCAP sha256 and the chained hash.
+
+        One transaction: a crash between setting the outcome and the hash would leave a closed
+        row without a hash, which ``mark_interrupted`` does not pick up and the audit reports.
+        """
         with self._lock:
-            prev = self._db.execute(
-                "SELECT row_hash FROM cycles WHERE row_hash IS NOT NULL ORDER BY seq DESC LIMIT 1"
-            ).fetchone()
-            prev_hash = prev[0] if prev else GENESIS
-            self._db.execute(
-                "UPDATE cycles SET finished=?, outcome=?, verdict=?, bin_type=?, plan_id=?, reason=?, log_sha256=?,"
-                " prev_hash=? WHERE cycle_id=?",
-                (finished or now_iso(), outcome, verdict, bin_type, plan_id, reason, log_sha256, prev_hash, cycle_id),
-            )
-            r = self._db.execute("SELECT * FROM cycles WHERE cycle_id=?", (cycle_id,)).fetchone()
-            if r is None:
-                raise RecordingError(f"cycle {cycle_id!r} is not in the index")
-            row = CycleRow(*r)
-            h = row_hash(prev_hash, row)
-            self._db.execute("UPDATE cycles SET row_hash=? WHERE cycle_id=?", (h, cycle_id))
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                prev = self._db.execute(
+                    "SELECT row_hash FROM cycles WHERE row_hash IS NOT NULL ORDER BY seq DESC LIMIT 1"
+                ).fetchone()
+                prev_hash = prev[0] if prev else GENESIS
+                cur = self._db.execute(
+                    "UPDATE cycles SET finished=?, outcome=?, verdict=?, bin_type=?, plan_id=?, reason=?,"
+                    " log_sha256=?, prev_hash=? WHERE cycle_id=? AND outcome IS NULL",
+                    (
+                        finished or now_iso(),
+                        outcome,
+                        verdict,
+                        bin_type,
+                        plan_id,
+                        reason,
+                        log_sha256,
+                        prev_hash,
+                        cycle_id,
+                    ),
+                )
+                r = self._db.execute("SELECT * FROM cycles WHERE cycle_id=?", (cycle_id,)).fetchone()
+                if r is None:
+                    raise RecordingError(f"cycle {cycle_id!r} is not in the index")
+                if cur.rowcount == 0:
+                    # Re-closing a chained row would re-chain it and break every link after it.
+                    raise RecordingError(
+                        f"cycle {cycle_id!r} is already closed (outcome {r[5]!r}); expected a running row"
+                    )
+                row = CycleRow(*r)
+                h = row_hash(prev_hash, row)
+                self._db.execute("UPDATE cycles SET row_hash=? WHERE cycle_id=?", (h, cycle_id))
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+            self._db.execute("COMMIT")
         return CycleRow(**{**asdict(row), "row_hash": h})
 
     def mark_interrupted(self) -> list[CycleRow]:

@@ -239,3 +239,13 @@ def test_cli_exit_codes_and_head(cell: Cell, capsys: pytest.CaptureFixture[str],
     assert main(["audit", "verify", "--set", f"recording.index={missing}"]) == 2
     assert str(missing) in capsys.readouterr().err
     assert _cli(cell, "verify", "--head", "zz") == 2
+
+
+def test_closing_a_row_twice_is_refused_and_changes_nothing(cell: Cell) -> None:
+    before = cell.index.all()
+    with pytest.raises(RecordingError, match="'c3' is already closed"):
+        cell.index.finish("c3", "aborted")
+    with pytest.raises(RecordingError, match="'nope' is not in the index"):
+        cell.index.finish("nope", "aborted")
+    assert cell.index.all() == before
+    assert cell.verify().ok
