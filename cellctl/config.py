@@ -58,8 +58,16 @@ class BusConfig(_Model):
     listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
     lease_ms: int = Field(default=2000, ge=500, le=60000, description="link lease; bounds hang detection")
-    zenoh_config: Path | None = Field(default=None, description="extra Zenoh json5 (auth, ACL, TLS)")
+    zenoh_config: Path | None = Field(default=None, description="extra Zenoh json5 (tuning; loaded first)")
     multicast_scouting: StrictBool = False
+    security_dir: Path | None = Field(
+        default=None, description="`cellctl secure init` folder: user/password auth, ACL, TLS (docs/security.md)"
+    )
+    principal: str | None = Field(
+        default=None,
+        pattern=r"^[a-z][a-z0-9_-]{0,63}$",
+        description="who this client is on a secured bus; workers always use their role",
+    )
 
 
 class Timeouts(_Model):

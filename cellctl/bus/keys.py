@@ -13,6 +13,7 @@ __all__ = [
     "ROLES",
     "alive",
     "alive_all",
+    "alive_instances",
     "camera_capture",
     "check_cell_id",
     "classifier_classify",
@@ -28,6 +29,7 @@ __all__ = [
     "robot_op",
     "sim_state",
     "status",
+    "worker_all",
     "worker_op",
 ]
 
@@ -81,6 +83,13 @@ def worker_op(cell_id: str, role: str, op: str) -> str:
     return f"{prefix(cell_id)}/{role}/{op}"
 
 
+def worker_all(cell_id: str, role: str) -> str:
+    """Every key under one worker role (its ops and publications): ``cell/<id>/<role>/**``."""
+    if role not in ROLES:
+        raise ConfigError(f"worker role {role!r} is unknown; expected one of {list(ROLES)}")
+    return f"{prefix(cell_id)}/{role}/**"
+
+
 def robot_op(cell_id: str, op: str) -> str:
     return worker_op(cell_id, "robot", op)
 
@@ -124,6 +133,11 @@ def alive(cell_id: str, role: str, instance: str | None = None) -> str:
             raise ConfigError(f"instance name {instance!r} is invalid: expected lower-case letters, digits, '_' or '-'")
         key += f"/{instance}"
     return key
+
+
+def alive_instances(cell_id: str, role: str) -> str:
+    """The liveliness tokens of every named instance of ``role``: ``cell/<id>/alive/<role>/*``."""
+    return f"{alive(cell_id, role)}/*"
 
 
 def alive_all(cell_id: str) -> str:

@@ -8,10 +8,13 @@ from __future__ import annotations
 
 import json
 import logging
+import socket
+from pathlib import Path
 from typing import Literal
 
 import zenoh
 
+from cellctl.bus.security import apply_security
 from cellctl.config import BusConfig, CellConfig
 from cellctl.errors import ConfigError
 
@@ -26,20 +29,25 @@ Mode = Literal["router", "client", "peer"]
 def make_zenoh_config(bus: BusConfig, mode: Mode, root: object = None) -> zenoh.Config:
     """Build a ``zenoh.Config`` for ``mode`` from the bus section.
 
-    A ``bus.zenoh_config`` file (auth, access control, TLS) is loaded first; mode, endpoints,
-    scouting and lease are then set from the bus section, so the file cannot silently
+    A ``bus.zenoh_config`` file is loaded first; a ``bus.security_dir`` deployment then sets
+    auth, access control and TLS (as the router, or as client ``bus.principal``); mode,
+    endpoints, scouting and lease are set last from the bus section, so no file can silently
     re-enable multicast scouting.
+
+    Raises:
+        ConfigError: a file is missing or does not parse, or a client on a secured bus has no
+            (known) principal.
     """
     if bus.zenoh_config is not None:
-        path = bus.zenoh_config
-        if root is not None and not path.is_absolute():
-            path = root / path  # type: ignore[operator]
+        path = _resolve(bus.zenoh_config, root)
         try:
             conf = zenoh.Config.from_file(str(path))
         except Exception as err:  # zenoh raises its own ZError for any parse problem
             raise ConfigError(f"bus.zenoh_config {str(path)!r} cannot be loaded: {err}") from err
     else:
         conf = zenoh.Config()
+    if bus.security_dir is not None:
+        apply_security(conf, _resolve(bus.security_dir, root), mode, bus.principal)
     conf.insert_json5("mode", json.dumps(mode))
     if mode == "router":
         conf.insert_json5("listen/endpoints", json.dumps(bus.listen))
@@ -53,6 +61,25 @@ def make_zenoh_config(bus: BusConfig, mode: Mode, root: object = None) -> zenoh.
     return conf
 
 
+def _resolve(path: Path, root: object) -> Path:
+    return root / path if root is not None and not path.is_absolute() else path  # type: ignore[operator]
+
+
+def _refused_by_router(endpoints: list[str]) -> bool:
+    """True if some tcp/tls endpoint accepts a TCP connection: the router is there, so it refused the session."""
+    for ep in endpoints:
+        proto, _, addr = ep.partition("/")
+        host, _, port = addr.split("#", 1)[0].rpartition(":")
+        if proto not in ("tcp", "tls") or not port.isdigit():
+            continue
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), timeout=0.5).close()
+            return True
+        except OSError:
+            continue
+    return False
+
+
 def open_session(cfg: CellConfig, mode: Mode) -> zenoh.Session:
     """Open a Zenoh session for this cell.
 
@@ -64,7 +91,15 @@ def open_session(cfg: CellConfig, mode: Mode) -> zenoh.Session:
     try:
         session = zenoh.open(conf)
     except Exception as err:
-        hint = "is another daemon already listening there?" if mode == "router" else "is the daemon running?"
+        if mode == "router":
+            hint = "is another daemon already listening there?"
+        elif cfg.bus.security_dir is not None and _refused_by_router(endpoints):
+            hint = (
+                f"the router is reachable but refused principal {cfg.bus.principal!r}: wrong password, a principal "
+                f"the router does not know, or a certificate its CA did not sign (see docs/security.md)"
+            )
+        else:
+            hint = "is the daemon running?"
         raise ConfigError(f"cannot open a Zenoh {mode} session on {endpoints}: {err} ({hint})") from err
     log.debug("zenoh %s session %s on %s", mode, session.info.zid(), endpoints)
     return session

@@ -23,6 +23,7 @@ VERB_MODULES = (
     "cellctl.cli.worker",
     "cellctl.cli.bench",
     "cellctl.cli.replay",
+    "cellctl.cli.secure",
     "cellctl.cli.audit",
     "cellctl.cli.demo",
     "cellctl.cli.classify",

@@ -42,6 +42,9 @@ def install_stop_signals(stop: threading.Event) -> None:
 
 def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)
+    # On a secured bus a worker is its role's principal: `run --with-workers` hands every child
+    # the same config, and the ACL would refuse a worker's keys under any other name anyway.
+    cfg.bus.principal = args.role
     module = importlib.import_module(f"cellctl.workers.{args.role}")
     stop = threading.Event()
     install_stop_signals(stop)
