@@ -86,7 +86,7 @@ class Timeouts(_Model):
 class SupervisorConfig(_Model):
     status_period_s: float = Field(default=1.0, gt=0, le=60)
     timeouts: Timeouts = Field(default_factory=Timeouts)
-    required_workers: list[str] = Field(default_factory=lambda: ["robot", "camera", "classifier"])
+    required_workers: list[str] = Field(default_factory=lambda: ["robot", "camera", "classifier", "planner"])
     on_worker_lost: Literal["abort", "hold"] = "abort"
     identify_attempts: int = Field(default=3, ge=1, le=10)
     identify_views: int = Field(

@@ -524,8 +524,10 @@ class Supervisor:
         rel = Path(self.cfg.recording.dir) / f"{now:%Y-%m-%d}" / f"{cycle_id}.mcap"
         path = self.cfg.path(rel)
         params = self._start_params
-        clog = CycleLog(path, cycle_id, {"cell": self.cell_id, "mode": params.get("mode", "evaluate")})
+        # The row first: a crash between the two leaves a row that restart marks interrupted
+        # (no log yet), never a log that no row accounts for (an orphan to the audit).
         self.index.begin(cycle_id, self.cell_id, str(path), now.isoformat(timespec="milliseconds"))
+        clog = CycleLog(path, cycle_id, {"cell": self.cell_id, "mode": params.get("mode", "evaluate")})
         ctx = CycleContext(
             cycle_id=cycle_id,
             cfg=self.cfg,

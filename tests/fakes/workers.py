@@ -75,6 +75,7 @@ class FakeCell:
     move_delay_s: float = 0.0
     hang: set[str] = field(default_factory=set)  # ops that block forever
     fail: dict[str, str] = field(default_factory=dict)  # op -> reason
+    delays: dict[str, float] = field(default_factory=dict)  # op -> seconds each call takes
     calls: list[str] = field(default_factory=list)
     stops: int = 0
 
@@ -85,6 +86,8 @@ class FakeCell:
 
     def _guard(self, op: str) -> None:
         self.calls.append(op)
+        if op in self.delays:
+            time.sleep(self.delays[op])
         if op in self.hang:
             self._release.wait(30)
         if op in self.fail:

@@ -13,6 +13,10 @@ Publishes :class:`~cellctl.messages.JointState` on ``cell/<id>/robot/joints`` at
 ``robot.joint_state_hz`` and, for the sim, SimState on ``cell/<id>/sim/state`` on every change
 (and at 1 Hz). Refusals (unreachable, collision, busy, bad input) are error replies; the
 worker keeps serving.
+
+Safety: a motion stops when the supervisor's liveliness token goes away (supervisor crashed,
+or this worker lost its link to the router, e.g. after being frozen), so the arm never keeps
+moving for a supervisor that can no longer stop it.
 """
 
 from __future__ import annotations
@@ -20,6 +24,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
+
+import zenoh
 
 from cellctl.bus import keys
 from cellctl.bus.codec import encode
@@ -73,6 +79,14 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
         robot.stop(req.reason)
         return req
 
+    def _supervisor_seen(sample) -> None:  # noqa: ANN001 - zenoh.Sample; runs on a Zenoh thread
+        if sample.kind == zenoh.SampleKind.DELETE:
+            robot.stop("supervisor lost (liveliness token gone)")  # sets an event: never blocks
+
+    # history: a token declared before this subscriber must still report its DELETE
+    sup_watch = session.liveliness().declare_subscriber(
+        keys.alive(cell, "supervisor"), _supervisor_seen, history=True
+    )
     pub_j = session.declare_publisher(keys.robot_joints(cell))
     pub_s = session.declare_publisher(keys.sim_state(cell)) if isinstance(robot, SimRobot) else None
     with WorkerServer(session, cell, "robot") as server:
@@ -99,6 +113,7 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
                 stop.wait(period)
         finally:
             robot.stop("worker shutting down")
+            sup_watch.undeclare()
             pub_j.undeclare()
             if pub_s is not None:
                 pub_s.undeclare()

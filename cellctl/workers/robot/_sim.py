@@ -48,6 +48,14 @@ SPEED_FRACTION = 0.5
 """Nominal motion speed as a fraction of the joint speed limits."""
 DRIVE_S = 4.0
 """Simulated time the mobile base needs to park (divided by speed_scale)."""
+FROZEN_GAP_S = 1.0
+"""A motion whose control loop stalls this long stops instead of catching up.
+
+Motion is interpolated in wall-clock time, so a worker that was frozen (SIGSTOP, swapped out,
+debugger) would otherwise jump to where the path says it should be by now, after the
+supervisor may already have aborted the cycle. A real arm's controller does the same on a
+missed heartbeat (protective stop). Far above a loaded machine's scheduling jitter.
+"""
 
 
 class SimRobot(Robot):
@@ -141,10 +149,14 @@ class SimRobot(Robot):
         cum = np.concatenate([[0.0], np.cumsum(seg_t)])
         dt = 1.0 / self.cfg.robot.joint_state_hz
         t0 = time.monotonic()
+        last = t0
         self._moving = True
         try:
             while True:
-                t = time.monotonic() - t0
+                now = time.monotonic()
+                self._check_not_frozen(now - last, "motion")
+                last = now
+                t = now - t0
                 if t >= total:
                     q = path[-1].copy()
                 else:
@@ -209,10 +221,24 @@ class SimRobot(Robot):
                 last = err
         raise RobotError(f"camera pose at {pos}: no collision-free path to any of {len(free)} IK solutions: {last}")
 
+    def _check_not_frozen(self, gap_s: float, what: str) -> None:
+        if gap_s > FROZEN_GAP_S:
+            raise RobotError(
+                f"{what} interrupted: the robot worker was frozen for {gap_s:.1f} s (> {FROZEN_GAP_S:g} s); "
+                "stopped where it was instead of catching up"
+            )
+
+    def _wait(self, seconds: float, what: str) -> None:
+        """Wait ``seconds`` unless stopped; a stall longer than the wait counts as a freeze."""
+        t0 = time.monotonic()
+        if self._stop.wait(seconds):
+            raise RobotError(f"{what} stopped ({self._stop_reason or 'stop requested'})")
+        self._check_not_frozen(time.monotonic() - t0 - seconds, what)
+
     def _settle(self, settle_s: float | None) -> None:
         s = self.cfg.robot.settle_s if settle_s is None else settle_s
-        if s > 0 and self._stop.wait(s):
-            raise RobotError(f"settling stopped ({self._stop_reason or 'stop requested'})")
+        if s > 0:
+            self._wait(s, "settling")
 
     # --- Robot interface --------------------------------------------------------------------
 
@@ -252,9 +278,7 @@ class SimRobot(Robot):
             self.cfg.sim.approach_error_deg,
             self._park_attempt,
         )
-        drive = DRIVE_S / self.cfg.robot.speed_scale
-        if self._stop.wait(drive):
-            raise RobotError(f"parking stopped ({self._stop_reason or 'stop requested'})")
+        self._wait(DRIVE_S / self.cfg.robot.speed_scale, "parking")
         self._scenario = self._scenario.with_base(T)
         self._parked = True
         self._world = self._make_world()

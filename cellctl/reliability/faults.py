@@ -1,0 +1,337 @@
+"""Fault injection: kill (SIGKILL) or freeze (SIGSTOP) a worker process at a cycle step.
+
+:class:`FaultInjector` drives a running cell like a PLC, sends the signal to the worker's
+process the moment a Status shows the cycle in the chosen step, and then checks what a plant
+engineer would check:
+
+* **detection**: the supervisor's first error event after the signal (its MCAP log time) —
+  a killed worker's liveliness token goes at once, a frozen one's when its link lease
+  (``bus.lease_ms``) expires;
+* **safe state**: the cell rests in Aborted (or Held, by ``supervisor.on_worker_lost``);
+* **no further motion**: no approach/move request is logged after the detection, and the arm's
+  published joints do not change after the safe state (worker not killed);
+* **record**: the partial cycle's CycleResult says ``failed`` and names the worker;
+* **recovery**: once the worker is back (restarted after a kill, SIGCONT after a freeze),
+  Clear/Reset/Start runs a good cycle.
+
+``cellctl bench faults`` runs the matrix on the sim cell; the tests run it on worker doubles.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import queue
+import signal
+import sys
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
+
+from cellctl.bus import keys
+from cellctl.bus.codec import decode_as
+from cellctl.bus.plc_client import PlcClient
+from cellctl.config import CellConfig
+from cellctl.errors import CellError
+from cellctl.messages import JointState
+from cellctl.recording.cycle_log import EVENTS_TOPIC
+
+__all__ = ["FAULTS", "FaultCase", "FaultInjector", "FaultReport", "WorkerControl", "bench_faults"]
+
+FAULTS = {"kill": signal.SIGKILL, "freeze": signal.SIGSTOP}
+SAFE_STATES = ("Aborted", "Held", "Stopped")
+MOTION_OPS = ("approach", "move")
+ERROR_LEVEL = 4  # foxglove.Log ERROR
+
+
+class WorkerControl(Protocol):
+    """Where the worker processes are, and how to bring a killed one back."""
+
+    def pid(self, role: str) -> int: ...
+
+    def restart(self, role: str) -> None: ...
+
+
+@dataclass(frozen=True)
+class FaultCase:
+    role: str
+    fault: str  # a key of FAULTS
+    step: str
+
+    @property
+    def name(self) -> str:
+        return f"{self.fault} {self.role} in {self.step}"
+
+
+@dataclass
+class FaultReport:
+    """What happened in one case; ``problems`` empty means the cell behaved."""
+
+    case: FaultCase
+    injected_in: str | None = None
+    detection_s: float | None = None
+    detected_by: str | None = None
+    safe_state: str | None = None
+    safe_s: float | None = None
+    outcome: str | None = None
+    reason: str | None = None
+    motion_requests_after_detection: int = 0
+    robot_moved_rad: float | None = None
+    recovery_outcome: str | None = None
+    recovery_s: float | None = None
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["case"] = self.case.name
+        d["ok"] = self.ok
+        for k in ("detection_s", "safe_s", "recovery_s", "robot_moved_rad"):
+            if d[k] is not None:
+                d[k] = round(d[k], 4)
+        return d
+
+
+class _Joints:
+    """Latest published joint positions of the robot."""
+
+    def __init__(self, plc: PlcClient) -> None:
+        self._lock = threading.Lock()
+        self.q: list[float] | None = None
+
+        def on(sample: Any) -> None:
+            msg = decode_as(JointState, sample.payload.to_bytes())
+            with self._lock:
+                self.q = list(msg.position)
+
+        self._sub = plc.session.declare_subscriber(keys.robot_joints(plc.cell), on)
+
+    def get(self) -> list[float] | None:
+        with self._lock:
+            return None if self.q is None else list(self.q)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class FaultInjector:
+    """Runs fault cases against a live cell.
+
+    Args:
+        cfg: the cell config (for its logs and lease).
+        plc: a PLC client of the cell.
+        workers: the worker processes.
+        cycle_timeout: seconds a (good or partial) cycle may take.
+        good_outcomes: outcomes that count as a good recovery cycle.
+    """
+
+    def __init__(
+        self,
+        cfg: CellConfig,
+        plc: PlcClient,
+        workers: WorkerControl,
+        *,
+        cycle_timeout: float = 300.0,
+        good_outcomes: tuple[str, ...] = ("completed",),
+        on_step: Any = None,
+    ) -> None:
+        self.cfg = cfg
+        self.plc = plc
+        self.workers = workers
+        self.cycle_timeout = cycle_timeout
+        self.good_outcomes = good_outcomes
+        self.detect_bound_s = {"kill": 1.0, "freeze": cfg.bus.lease_ms / 1000 + 1.0}
+        """The bound promised per fault: liveliness loss at once / after one lease (+ 1 s margin)."""
+        self._joints = _Joints(plc)
+
+    def close(self) -> None:
+        self._joints.close()
+
+    def run(self, case: FaultCase, attempts: int = 3) -> FaultReport:
+        """Inject one fault; retried when the cycle passed the step before the signal landed."""
+        rep = FaultReport(case)
+        for _ in range(attempts):
+            rep = self._run_once(case)
+            if rep.injected_in is not None:
+                break
+        return rep
+
+    def _run_once(self, case: FaultCase) -> FaultReport:
+        rep = FaultReport(case)
+        plc, sig = self.plc, FAULTS[case.fault]
+        plc.to_idle()
+        plc.drain()
+        ack = plc.command("start")
+        if not ack.accepted:
+            rep.problems.append(f"start refused: {ack.reason}")
+            return rep
+        target = f"Execute.{case.step}"
+        st = plc.wait_for(
+            lambda s: (s.state == "Execute" and s.step == case.step) or s.state in ("Complete", *SAFE_STATES),
+            self.cycle_timeout,
+        )
+        if st is None or st.step != case.step:
+            plc.results.get(timeout=self.cycle_timeout)
+            plc.wait_for(lambda s: s.state in ("Complete", *SAFE_STATES), 30)
+            rep.problems.append(f"{target} not reached before the signal (cycle went on to {st and st.state})")
+            return rep
+        pid = self.workers.pid(case.role)
+        t_sig_ns = time.time_ns()
+        t_sig = time.monotonic()
+        os.kill(pid, sig)
+        rep.injected_in = target
+        try:
+            q_safe = self._observe(rep, t_sig_ns, t_sig)
+        finally:
+            if sig == signal.SIGSTOP:
+                os.kill(pid, signal.SIGCONT)
+        self._recover(rep, q_safe)
+        return rep
+
+    def _observe(self, rep: FaultReport, t_sig_ns: int, t_sig: float) -> list[float] | None:
+        """Detection, safe state, record, motion after detection; returns the arm's joints at rest."""
+        from cellctl.recording.replay import read_cycle
+
+        plc, case = self.plc, rep.case
+        bound = self.detect_bound_s[case.fault]
+        st = plc.wait_for(lambda s: s.state in SAFE_STATES, bound + self.cfg.supervisor.timeouts.stop + 10)
+        if st is None:
+            rep.problems.append(f"no safe state within {bound + 10:g} s (last status {plc.last_status})")
+            return None
+        rep.safe_state = st.state
+        rep.safe_s = time.monotonic() - t_sig
+        try:
+            res = plc.results.get(timeout=10)
+        except queue.Empty:
+            rep.problems.append("no CycleResult for the partial cycle")
+            return None
+        rep.outcome, rep.reason = res.outcome.value, res.reason
+        if rep.outcome != "failed":
+            rep.problems.append(f"partial cycle recorded as {rep.outcome!r}, expected 'failed'")
+        if case.role not in (res.reason or ""):
+            rep.problems.append(f"the recorded reason does not name the {case.role} worker: {res.reason!r}")
+        time.sleep(0.3)  # joints published at robot.joint_state_hz; let the last motion sample arrive
+        q_safe = self._joints.get()
+        rec = read_cycle(self.cfg.path(res.log)) if res.log else None
+        if rec is None:
+            rep.problems.append("the partial cycle has no log")
+            return q_safe
+        errors = [m for m in rec.on(EVENTS_TOPIC) if m.log_time >= t_sig_ns and m.json().get("level", 0) >= ERROR_LEVEL]
+        if not errors:
+            rep.problems.append("no error event logged after the signal")
+        else:
+            first = errors[0]
+            rep.detection_s = (first.log_time - t_sig_ns) / 1e9
+            rep.detected_by = first.json().get("message", "")[:160]
+            if rep.detection_s > bound:
+                rep.problems.append(f"detected after {rep.detection_s:.2f} s, beyond the bound of {bound:g} s")
+            motion_topics = {f"{keys.robot_op(self.cfg.cell_id, op)}/request" for op in MOTION_OPS}
+            motion = [m for m in rec.messages if m.log_time > first.log_time and m.topic in motion_topics]
+            rep.motion_requests_after_detection = len(motion)
+            if motion:
+                rep.problems.append(f"{len(motion)} motion request(s) sent after the fault was detected")
+        return q_safe
+
+    def _recover(self, rep: FaultReport, q_safe: list[float] | None) -> None:
+        plc, case = self.plc, rep.case
+        t0 = time.monotonic()
+        if case.fault == "kill":
+            self.workers.restart(case.role)
+        roles = list(self.cfg.supervisor.required_workers)
+        if not plc.wait_workers(roles, 120):
+            rep.problems.append(f"workers not back within 120 s: {plc.last_status and plc.last_status.workers}")
+            return
+        if case.role != "robot" or case.fault == "freeze":
+            time.sleep(0.5)
+            q_now = self._joints.get()
+            if q_safe is not None and q_now is not None:
+                rep.robot_moved_rad = max(abs(a - b) for a, b in zip(q_safe, q_now, strict=True))
+                if rep.robot_moved_rad > 1e-6:
+                    rep.problems.append(f"the arm moved {rep.robot_moved_rad:.4f} rad after the safe state")
+        try:
+            plc.to_idle()
+            res = plc.run_cycle(self.cycle_timeout)
+        except CellError as err:
+            rep.problems.append(f"recovery cycle: {err}")
+            return
+        rep.recovery_outcome = res.outcome.value
+        rep.recovery_s = time.monotonic() - t0
+        if res.outcome.value not in self.good_outcomes:
+            rep.problems.append(f"recovery cycle ended {res.outcome.value}: {res.reason}")
+
+
+class _ChildWorkers:
+    """WorkerControl over the daemon's child workers (:class:`cellctl.app.WorkerProcesses`)."""
+
+    def __init__(self, procs: Any) -> None:
+        self.procs = procs
+
+    def pid(self, role: str) -> int:
+        return self.procs.procs[role].pid
+
+    def restart(self, role: str) -> None:
+        self.procs.procs[role].wait(10)  # reap the killed one
+        self.procs.start_one(role)
+
+
+BENCH_STEPS = ("approaching", "identifying", "checking_cache", "scanning")
+"""Steps long enough on the sim to be hit from a Status (classifying/reporting last < 1 ms)."""
+
+
+def bench_faults(args: argparse.Namespace) -> dict[str, Any]:
+    """Every worker × {kill, freeze} × step on the sim cell; detection times and recovery."""
+    from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
+
+    reports: list[FaultReport] = []
+    with running_sim_cell(args, "faults", FAST_SIM) as run:
+        cfg = run.cfg
+        cases = [FaultCase(r, f, s) for r in cfg.supervisor.spawn_workers for f in FAULTS for s in BENCH_STEPS]
+        cases = cases[: args.n] if args.n else cases
+        inj = FaultInjector(cfg, run.plc, _ChildWorkers(run.cell.workers))
+        try:
+            for i, case in enumerate(cases, 1):
+                rep = inj.run(case)
+                reports.append(rep)
+                det = f"{rep.detection_s:.3f} s" if rep.detection_s is not None else "-"
+                print(
+                    f"faults {i}/{len(cases)}: {case.name}: detected in {det}, {rep.safe_state}, "
+                    f"recovery {rep.recovery_outcome} {'ok' if rep.ok else 'PROBLEMS: ' + '; '.join(rep.problems)}",
+                    file=sys.stderr,
+                )
+        finally:
+            inj.close()
+    by_fault: dict[str, Any] = {}
+    for f in FAULTS:
+        ds = sorted(r.detection_s for r in reports if r.case.fault == f and r.detection_s is not None)
+        if ds:
+            by_fault[f] = {
+                "n": len(ds),
+                "min_s": round(ds[0], 3),
+                "median_s": round(ds[len(ds) // 2], 3),
+                "max_s": round(ds[-1], 3),
+                "bound_s": inj.detect_bound_s[f],
+            }
+    return {
+        "cases": len(reports),
+        "ok": sum(r.ok for r in reports),
+        "detection": by_fault,
+        "table": [
+            {
+                "case": r.case.name,
+                "detection_s": None if r.detection_s is None else round(r.detection_s, 3),
+                "safe_state": r.safe_state,
+                "motion_after": r.motion_requests_after_detection,
+                "arm_moved_rad": r.robot_moved_rad,
+                "recovery": r.recovery_outcome,
+                "ok": r.ok,
+            }
+            for r in reports
+        ],
+        "reports": [r.as_dict() for r in reports],
+        "config": {"lease_ms": cfg.bus.lease_ms, "on_worker_lost": cfg.supervisor.on_worker_lost},
+        "out": str(run.out),
+    }
