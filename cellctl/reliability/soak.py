@@ -59,7 +59,8 @@ def growth(samples: list[dict[str, Any]], name: str, metric: str) -> dict[str, A
     body = ys[max(1, len(ys) // 10) :]
     k = max(1, len(body) // 5)
     first, last = statistics.median(body[:k]), statistics.median(body[-k:])
-    noise = statistics.pstdev(body[:k] + body[-k:]) if len(body) > 2 else 0.0
+    # within-window spread: a trend between the windows must not count as noise
+    noise = max(statistics.pstdev(body[:k]), statistics.pstdev(body[-k:]))
     g = last - first
     floor = max(GROWTH_FLOOR[metric], 3 * noise, 0.02 * first if metric == "rss_mb" else 0.0)
     return {
