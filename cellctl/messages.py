@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import datetime as _dt
 import enum
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator, model_validator
 
 __all__ = [
     "MESSAGE_TYPES",
@@ -61,6 +61,12 @@ __all__ = [
 
 WIRE_VERSION = 1
 
+ROBOT_JOINTS = 6
+"""Joint count of the arm (UR10e); joint vectors on the wire have exactly this many entries."""
+
+Joints = Annotated[list[FiniteFloat], Field(min_length=ROBOT_JOINTS, max_length=ROBOT_JOINTS)]
+"""Joint positions in radians; NaN/inf or a wrong length is refused when the message is decoded."""
+
 
 def now_iso() -> str:
     """UTC time as ISO-8601 with milliseconds, the stamp format of every message."""
@@ -81,9 +87,17 @@ class PoseMsg(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    position: tuple[float, float, float]
-    orientation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-    frame_id: str = "base"
+    position: tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+    orientation: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = (0.0, 0.0, 0.0, 1.0)
+    frame_id: str = Field(default="base", max_length=64)
+
+    @field_validator("orientation")
+    @classmethod
+    def _rotation(cls, q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        # Readers normalise the quaternion; one of (near) zero length has no direction to normalise to.
+        if sum(x * x for x in q) < 1e-12:
+            raise ValueError(f"orientation {q} is not a rotation: expected a unit quaternion xyzw")
+        return q
 
     @classmethod
     def from_matrix(cls, T: Any, frame_id: str = "base") -> PoseMsg:
@@ -286,7 +300,7 @@ class ApproachRequest(WireMessage):
 class ApproachReply(WireMessage):
     type: Literal["cellctl/ApproachReply"] = "cellctl/ApproachReply"
     v: Literal[1] = 1
-    joints: list[float]
+    joints: Joints
     flange_pose: PoseMsg
     camera_pose: PoseMsg
     observation_index: int = 0
@@ -297,7 +311,7 @@ class MoveRequest(WireMessage):
 
     type: Literal["cellctl/MoveRequest"] = "cellctl/MoveRequest"
     v: Literal[1] = 1
-    joints: list[float] | None = None
+    joints: Joints | None = None
     camera_pose: PoseMsg | None = None
     settle_s: float | None = Field(default=None, ge=0.0, le=60.0)
 
@@ -311,10 +325,10 @@ class MoveRequest(WireMessage):
 class MoveReply(WireMessage):
     type: Literal["cellctl/MoveReply"] = "cellctl/MoveReply"
     v: Literal[1] = 1
-    joints: list[float]
+    joints: Joints
     camera_pose: PoseMsg
-    path_length_rad: float = 0.0
-    duration_s: float = 0.0
+    path_length_rad: FiniteFloat = 0.0
+    duration_s: FiniteFloat = 0.0
 
 
 class RobotStateRequest(WireMessage):
@@ -325,7 +339,7 @@ class RobotStateRequest(WireMessage):
 class RobotState(WireMessage):
     type: Literal["cellctl/RobotState"] = "cellctl/RobotState"
     v: Literal[1] = 1
-    joints: list[float]
+    joints: Joints
     flange_pose: PoseMsg
     camera_pose: PoseMsg
     moving: bool = False
@@ -395,13 +409,13 @@ class Intrinsics(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
-    fx: float = Field(gt=0)
-    fy: float = Field(gt=0)
-    cx: float
-    cy: float
-    dist: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0])
+    width: int = Field(gt=0, le=65535)
+    height: int = Field(gt=0, le=65535)
+    fx: FiniteFloat = Field(gt=0)
+    fy: FiniteFloat = Field(gt=0)
+    cx: FiniteFloat
+    cy: FiniteFloat
+    dist: list[FiniteFloat] = Field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0, 0.0], max_length=14)
 
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
@@ -442,7 +456,7 @@ class ClassifyReply(WireMessage):
     label: Literal["clean", "dirty"]
     p_dirty: float = Field(ge=0.0, le=1.0)
     uncertain: bool = False
-    model_id: str
+    model_id: str = Field(max_length=256)
 
 
 # --- planner --------------------------------------------------------------------------------
@@ -459,7 +473,7 @@ class PlanJobRequest(WireMessage):
     seed_pct: float = Field(default=10.0, gt=0.0, le=100.0)
     mode: Literal["fast", "paper"] = "fast"
     seed: int = 0
-    q_start: list[float] | None = Field(
+    q_start: list[FiniteFloat] | None = Field(
         default=None, min_length=6, max_length=6, description="robot joints now (rad): where the tour starts"
     )
 
@@ -467,7 +481,7 @@ class PlanJobRequest(WireMessage):
 class PlanJobReply(WireMessage):
     type: Literal["cellctl/PlanJobReply"] = "cellctl/PlanJobReply"
     v: Literal[1] = 1
-    job_id: str
+    job_id: str = Field(max_length=128)
     state: Literal["queued", "running", "done", "failed"] = "queued"
     plan_id: str | None = None
     reason: str | None = None
@@ -497,9 +511,9 @@ class PlannedViewpoint(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    index: int
+    index: int = Field(ge=0)
     camera_pose: PoseMsg
-    joints: list[float]
+    joints: Joints
     faces: list[int] = Field(default_factory=list, description="mesh face ids visible from here")
 
 
@@ -521,13 +535,13 @@ class PlanLookupReply(WireMessage):
     v: Literal[1] = 1
     hit: bool
     reason: str | None = None
-    plan_id: str | None = None
+    plan_id: str | None = Field(default=None, max_length=256)
     viewpoints: list[PlannedViewpoint] = Field(default_factory=list)
-    coverage: float | None = None
+    coverage: FiniteFloat | None = Field(default=None, ge=0.0, le=1.0)
     adjusted: bool = False
-    translation_mm: float | None = None
-    rotation_deg: float | None = None
-    mesh_faces: int | None = None
+    translation_mm: FiniteFloat | None = None
+    rotation_deg: FiniteFloat | None = None
+    mesh_faces: int | None = Field(default=None, ge=0)
 
 
 MESSAGE_TYPES: dict[str, type[WireMessage]] = {

@@ -62,7 +62,8 @@ def request(
         WorkerUnavailable: no worker serves ``key``.
         WorkerTimeout: the worker did not answer within ``timeout``.
         WorkerFailed: the worker replied with an error (its reason is in the message).
-        ProtocolError: the reply is not the expected message type.
+        ProtocolError: the reply is not the expected message (type, version, fields), or more
+            than one reply came back; the message names the role and the op.
     """
     op = key.rsplit("/", 1)[-1]
     body = encode(msg)
@@ -75,6 +76,9 @@ def request(
     replies = list(session.get(key, **kwargs))
     if not replies:
         raise WorkerUnavailable(f"no {role or 'worker'} serves {key!r} (0 replies)", role=role, op=op)
+    if len(replies) > 1:
+        # One queryable answers one query once; more means a misbehaving worker or two workers on one key.
+        raise ProtocolError(f"{role or 'worker'} answered {op} with {len(replies)} replies; expected exactly one")
     rep = replies[0]
     if rep.ok is None:
         text = _err_text(rep.err)
@@ -90,12 +94,11 @@ def request(
     sample = rep.ok
     data = sample.payload.to_bytes()
     att = sample.attachment.to_bytes() if sample.attachment is not None else None
-    if att is not None:
-        meta = decode(att, MAX_REPLY_META_BYTES)
-        raw: bytes | None = data
-    else:
-        meta = decode(data, MAX_REPLY_META_BYTES)
-        raw = None
+    try:
+        meta = decode(att if att is not None else data, MAX_REPLY_META_BYTES)
+    except ProtocolError as err:
+        raise ProtocolError(f"{role or 'worker'} answered {op} with an unusable reply: {err}") from err
+    raw = data if att is not None else None
     if not isinstance(meta, expect):
         raise ProtocolError(
             f"{role or 'worker'} answered {op} with {meta.type}, expected {expect.model_fields['type'].default}"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from cellctl.errors import PlanCacheError
 from cellctl.messages import PlanLookupReply, PlanLookupRequest, PoseMsg
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
@@ -25,6 +26,8 @@ class CheckingCache(Step):
         if not reply.hit:
             run.event("info", f"no usable plan: {reply.reason}")
             return "miss"
+        if not reply.viewpoints:
+            raise PlanCacheError(f"planner answered lookup with a hit on plan {reply.plan_id!r} but no viewpoints")
         ctx.plan = reply
         note = " (viewpoints adjusted to the measured pose)" if reply.adjusted else ""
         run.event("info", f"plan {reply.plan_id} with {len(reply.viewpoints)} viewpoints{note}")

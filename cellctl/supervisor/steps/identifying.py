@@ -9,6 +9,21 @@ from cellctl.messages import ApproachReply, ApproachRequest, CaptureReply, Captu
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 
+_MAGIC = {"png": b"\x89PNG\r\n\x1a\n", "jpeg": b"\xff\xd8\xff"}
+
+
+def captured_image(reply: CaptureReply, image: bytes | None) -> bytes:
+    """The image of a capture reply, checked against the format the reply declares, or CameraError.
+
+    A signature check, not a decode: scanning hands the bytes on to the classifier without decoding.
+    """
+    data = image or b""
+    if not data.startswith(_MAGIC[reply.format]):
+        raise CameraError(
+            f"camera answered capture with {len(data)} bytes that are not a {reply.format} image (starts {data[:8]!r})"
+        )
+    return data
+
 
 def decode_image(data: bytes) -> np.ndarray:
     """Decode PNG/JPEG bytes to a BGR image, or raise CameraError."""
@@ -28,7 +43,7 @@ class Identifying(Step):
     def _view(self, run: StepRun, T_base_cam: np.ndarray):  # noqa: ANN202 - an Identification
         ctx = run.ctx
         reply, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
-        data = image or b""
+        data = captured_image(reply, image)
         ctx.log.image("/camera/image", data, reply.format, "camera")
         if ctx.identify is None:
             raise IdentificationError("no identifier is configured in this supervisor")
@@ -75,6 +90,8 @@ class Identifying(Step):
             bin_type, T_base_bin = ident.bin_type, np.asarray(ident.T_base_bin)
             note = ""
             ctx.identification = ident
+        if T_base_bin.shape != (4, 4) or not np.isfinite(T_base_bin).all():
+            raise IdentificationError(f"identification of bin {bin_type!r} gave no finite 4x4 pose")
         ctx.bin_type = bin_type
         ctx.T_base_bin = T_base_bin
         from cellctl.recording import foxglove

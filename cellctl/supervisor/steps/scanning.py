@@ -20,6 +20,7 @@ from cellctl.recording import foxglove
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 from cellctl.supervisor.steps.board_mask import mask_board
+from cellctl.supervisor.steps.identifying import captured_image
 
 
 def classify_image(run: StepRun, index: int, image: bytes, fmt: str, surface: str) -> ClassifyReply:
@@ -67,7 +68,7 @@ class Scanning(Step):
                 ctx.next_viewpoint = k + 1
                 continue
             cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
-            data = image or b""
+            data = captured_image(cap, image)
             ctx.log.image("/camera/image", data, cap.format, "camera")
             ctx.log.write_json(
                 "/camera/pose", "foxglove.PoseInFrame", foxglove.pose_in_frame("base", moved.camera_pose.matrix())
