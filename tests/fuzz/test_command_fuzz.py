@@ -1,0 +1,121 @@
+"""Hostile payloads on the command key: every one gets exactly one Ack, a rejected one changes nothing.
+
+The shipped fuzzer (:mod:`cellctl.reliability.fuzz`, seeded) and hypothesis (derandomized) both
+drive a real cell over Zenoh on loopback; the stand-in robot keeps started cycles in Execute so
+that Execute, Held and Suspended are fuzzed too.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cellctl.app import build_cell
+from cellctl.reliability.fuzz import CATEGORIES, CommandFuzzer, FuzzCase, FuzzTarget, run_fuzz
+
+SEED = 20240601
+
+
+@pytest.fixture
+def cell(cfg):  # noqa: ANN001, ANN201
+    cfg.supervisor.timeouts.approach = 600.0  # the stand-in robot holds the approach
+    c = build_cell(cfg, identification=(None, None))
+    yield c
+    c.close()
+
+
+def test_the_fuzzer_is_seeded_and_covers_every_category() -> None:
+    a = [c.payload for c in CommandFuzzer(SEED).cases(300)]
+    assert a == [c.payload for c in CommandFuzzer(SEED).cases(300)]
+    assert a != [c.payload for c in CommandFuzzer(SEED + 1).cases(300)]
+    seen = {c.category for c in CommandFuzzer(SEED).cases(2000)}
+    assert seen == set(CATEGORIES)
+
+
+def test_two_thousand_seeded_cases_keep_the_contract(cell) -> None:  # noqa: ANN001
+    out = run_fuzz(cell, 2000, SEED)
+    assert out["violations"] == 0, out["violation_examples"]
+    assert out["acks"] == out["cases"] == 2000
+    assert set(out["by_category"]) == set(CATEGORIES)
+    # the valid commands mixed in moved the machine through every waiting state
+    assert set(out["cases_by_state"]) >= {"Stopped", "Idle", "Execute", "Held", "Suspended", "Complete", "Aborted"}
+    assert out["by_transport"]["query"] > 500 and out["by_transport"]["put"] > 500
+    assert out["by_category"]["valid"]["accepted"] > 0
+    # nothing hostile got through
+    hostile = {c: v for c, v in out["by_category"].items() if c not in ("valid", "oversize", "hostile_request_id")}
+    assert all(v["accepted"] == 0 for v in hostile.values()), hostile
+    assert cell.supervisor.status.state in {"Stopped", "Idle", "Execute", "Held", "Suspended", "Complete", "Aborted"}
+
+
+def test_the_checks_catch_a_supervisor_that_breaks_the_contract(cell, monkeypatch) -> None:  # noqa: ANN001
+    """The oracle is not vacuous: a supervisor accepting a wrong command, or dying on one, is reported."""
+    sup = cell.supervisor
+    real = sup.apply_command
+
+    def sloppy(payload: bytes):  # noqa: ANN202
+        if payload.startswith(b"\xef\xbb\xbf"):  # a BOM'd Reset is taken as a Reset
+            payload = payload[3:]
+        if payload == b"boom":
+            raise RuntimeError("boom")
+        return real(payload)
+
+    monkeypatch.setattr(sup, "apply_command", sloppy)
+    target = FuzzTarget(cell, timeout=1.0)
+    try:
+        target.send(FuzzCase("bom_and_encodings", b'\xef\xbb\xbf{"type":"cellctl/Command","v":1,"command":"reset"}'))
+        target.send(FuzzCase("random_bytes", b"boom"), "put")
+    finally:
+        target.finish()
+    text = "\n".join(target.stats.violations)
+    assert "must be refused" in text
+    assert "no Ack on cmd/ack" in text and "dispatcher failed" in text
+
+
+_json = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=20),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
+    max_leaves=12,
+)
+_field = {
+    "type": st.sampled_from(["cellctl/Command", "cellctl/Ack", "Command"]) | _json,
+    "v": st.sampled_from([1, 2, 0]) | _json,
+    "command": st.sampled_from(["reset", "start", "stop", "hold", "abort", "clear", "jump"]) | _json,
+    "cntrl_cmd": st.integers(-2, 12) | _json,
+    "request_id": st.text(max_size=140) | _json,
+    "params": st.dictionaries(st.sampled_from(["mode", "seed", "perturb_m", "label", "x"]), _json) | _json,
+}
+_command_like = st.fixed_dictionaries({}, optional=_field).flatmap(
+    lambda d: st.dictionaries(st.text(max_size=6), _json, max_size=2).map(lambda extra: {**extra, **d})
+)
+_HYP = settings(
+    derandomize=True,
+    max_examples=250,
+    deadline=None,
+    database=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+
+
+def test_arbitrary_bytes_and_json_objects_keep_the_contract(cell) -> None:  # noqa: ANN001
+    target = FuzzTarget(cell, seed=SEED)
+
+    @_HYP
+    @given(data=st.binary(max_size=4096), via=st.sampled_from(["query", "put"]))
+    def any_bytes(data: bytes, via: str) -> None:
+        target.send(FuzzCase("hypothesis_bytes", data, expect=None), via)
+
+    @_HYP
+    @given(obj=_command_like, via=st.sampled_from(["query", "put"]))
+    def any_object(obj: dict, via: str) -> None:
+        target.send(FuzzCase("hypothesis_json", json.dumps(obj).encode(), expect=None), via)
+
+    try:
+        any_bytes()
+        any_object()
+    finally:
+        target.finish()
+    assert target.stats.n_violations == 0, target.stats.violations
+    assert target.stats.acks == sum(target.stats.sent.values()) >= 400
