@@ -35,6 +35,7 @@ __all__ = [
     "PRINCIPALS",
     "Principal",
     "access_control",
+    "acl_hint",
     "apply_security",
     "init_deployment",
     "principal_table",
@@ -49,8 +50,9 @@ BUS_YAML = "bus.yaml"
 
 # Message kinds as the Zenoh ACL names them. Each must be allowed on both faces it crosses:
 # a put is ingress on the publisher's face and egress on each subscriber's face, a query is
-# ingress on the querier's and egress on the queryable's face, a reply the other way round
-# (measured, docs/security.md "Findings").
+# ingress on the querier's and egress on the queryable's face, a reply the other way round.
+# A publisher also needs subscriber declarations egress: a client drops puts nobody it knows
+# of subscribes to (measured, docs/security.md "Findings").
 _SUBSCRIBE_IN = ["declare_subscriber", "query"]
 _SUBSCRIBE_OUT = ["put", "reply"]
 
@@ -105,7 +107,10 @@ def _grant_rules(cell_id: str) -> dict[str, list[tuple[str, list[str], list[str]
             ("egress", ["liveliness_token", "reply"], [keys.alive_all(c)]),
         ],
         # Exactly the cmd key: cmd/** would let the PLC forge the supervisor's acks.
-        "command": [("ingress", ["put", "query"], [keys.cmd(c)]), ("egress", ["reply"], [keys.cmd(c)])],
+        "command": [
+            ("ingress", ["put", "query"], [keys.cmd(c)]),
+            ("egress", ["reply", "declare_subscriber"], [keys.cmd(c)]),
+        ],
         "sim-view": [("ingress", ["query"], [keys.sim_state(c)]), ("egress", ["reply"], [keys.sim_state(c)])],
         "maintain": [
             ("ingress", ["query"], [*(keys.worker_all(c, r) for r in keys.ROLES), keys.sim_state(c)]),
@@ -116,7 +121,7 @@ def _grant_rules(cell_id: str) -> dict[str, list[tuple[str, list[str], list[str]
         own = [keys.worker_all(c, role)] + ([keys.sim_state(c)] if role == "robot" else [])
         grants[f"serve:{role}"] = [
             ("ingress", ["declare_queryable", "reply", "put"], own),
-            ("egress", ["query"], own),
+            ("egress", ["query", "declare_subscriber"], own),
             ("ingress", ["liveliness_token"], [keys.alive(c, role), keys.alive_instances(c, role)]),
         ]
     return grants
@@ -228,6 +233,13 @@ def apply_security(conf: zenoh.Config, security_dir: Path, mode: str, principal:
             if value.get(k) is not None and not Path(value[k]).is_absolute():
                 value[k] = str(security_dir / value[k])
         conf.insert_json5(section, json.dumps(value))
+
+
+def acl_hint(bus: object, key: str) -> str:
+    """Why a secured bus may have answered nothing on ``key``: the ACL drops refused messages silently."""
+    if getattr(bus, "security_dir", None) is None:
+        return ""
+    return f"; or the access-control list refuses {key!r} to principal {getattr(bus, 'principal', None)!r}"
 
 
 # --- writing a deployment -------------------------------------------------------------------------

@@ -52,6 +52,7 @@ def _parse_params(items: list[str]) -> dict:
 def run_cmd(args: argparse.Namespace) -> int:
     from cellctl.bus import keys
     from cellctl.bus.codec import decode_as, encode
+    from cellctl.bus.security import acl_hint
     from cellctl.bus.session import open_session
     from cellctl.messages import Ack, Command, Status
 
@@ -75,13 +76,17 @@ def run_cmd(args: argparse.Namespace) -> int:
                     if ack.request_id == cmd.request_id:
                         break
             except queue.Empty:
-                raise WorkerTimeout(f"no Ack on {keys.cmd_ack(cfg.cell_id)} within {args.timeout:g} s") from None
+                raise WorkerTimeout(
+                    f"no Ack on {keys.cmd_ack(cfg.cell_id)} within {args.timeout:g} s"
+                    + acl_hint(cfg.bus, keys.cmd(cfg.cell_id))
+                ) from None
             asub.undeclare()
         else:
             replies = list(s.get(keys.cmd(cfg.cell_id), payload=encode(cmd), timeout=args.timeout))
             if not replies:
                 raise WorkerUnavailable(
                     f"no cellctl daemon serves {keys.cmd(cfg.cell_id)!r}; is `cellctl run` running?"
+                    + acl_hint(cfg.bus, keys.cmd(cfg.cell_id))
                 )
             if replies[0].ok is None:
                 raise WorkerTimeout(f"the daemon did not answer within {args.timeout:g} s")

@@ -203,6 +203,18 @@ def test_a_worker_serves_only_its_own_keys(cell, secured) -> None:  # noqa: ANN0
         assert list(cam.get(keys.robot_op(c, "stop"), timeout=2)) == []
 
 
+def test_a_workers_declared_publisher_reaches_observers(cell, secured) -> None:  # noqa: ANN001
+    # a client that declared a publisher sends only to subscribers the router told it about,
+    # so the ACL must let subscriber declarations out to the publishing worker
+    with open_session(secured("robot"), "client") as rob, open_session(secured("operator"), "client") as op:
+        pub = rob.declare_publisher(keys.robot_joints("cell1"))
+        got: queue.Queue[bytes] = queue.Queue()
+        op.declare_subscriber(keys.robot_joints("cell1"), lambda x: got.put(x.payload.to_bytes()))
+        time.sleep(0.3)
+        pub.put(b"joints")
+        assert got.get(timeout=5) == b"joints"
+
+
 def test_engineer_may_query_worker_ops_operator_may_not(cell, secured) -> None:  # noqa: ANN001
     c = "cell1"
     with open_session(secured("robot"), "client") as rob:
@@ -230,3 +242,56 @@ def test_full_cycle_with_every_worker_under_its_own_principal(cell, secured) -> 
         plc.close()
         for f in fakes:
             f.close()
+
+
+@pytest.fixture(scope="module")
+def mtls_deployment(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("secure-mtls") / "cell1"
+    init_deployment(out, "cell1", mtls=True)
+    return out
+
+
+def test_mtls_binds_the_password_to_the_certificate(cfg, mtls_deployment: Path, tmp_path: Path) -> None:  # noqa: ANN001
+    ep = cfg.bus.listen[0].replace("tcp/", "tls/")
+    tls_cfg = cfg.model_copy(update={"bus": cfg.bus.model_copy(update={"listen": [ep], "connect": [ep]})})
+    with build_cell(as_principal(tls_cfg, None, mtls_deployment), identification=(fake_identify, None)):
+        plc = Client(as_principal(tls_cfg, "plc", mtls_deployment))
+        try:
+            # plc's password with the robot's certificate: the link is up (our CA signed it) but the
+            # ACL subject wants user plc AND certificate CN plc, so the command is dropped
+            borrowed = tmp_path / "borrowed"
+            shutil.copytree(mtls_deployment, borrowed)
+            client = borrowed / "clients" / "plc.json5"
+            client.write_text(client.read_text().replace("tls/plc.", "tls/robot."))
+            thief = Client(as_principal(tls_cfg, "plc", borrowed))
+            assert thief.query_cmd("reset", "thief") == []
+            thief.close()
+            (reply,) = plc.query_cmd("reset", "plc")
+            assert decode_as(Ack, reply.ok.payload.to_bytes()).accepted
+            # without a client certificate the router refuses the link itself
+            client.write_text(
+                "\n".join(
+                    line for line in client.read_text().splitlines() if "connect_" not in line and "mtls" not in line
+                )
+            )
+            with pytest.raises(ConfigError, match="refused principal 'plc'"):
+                open_session(as_principal(tls_cfg, "plc", borrowed), "client")
+        finally:
+            plc.close()
+
+
+def test_cli_init_then_cmd_as_the_wrong_and_the_right_principal(cell, port: int, tmp_path: Path, capsys) -> None:  # noqa: ANN001
+    from cellctl.cli import main
+
+    assert main(["secure", "init", "--out", str(tmp_path / "dep")]) == 0
+    out = capsys.readouterr().out
+    assert f"-rw-------  {tmp_path / 'dep' / 'passwords'}" in out and "bus.security_dir=" in out
+    # the running cell uses the module's deployment; the CLI is pointed at the same one
+    ep = f'["tcp/127.0.0.1:{port}"]'
+    base = ["cmd", "reset", "--timeout", "2", "--set", f"bus.listen={ep}", "--set", f"bus.connect={ep}"]
+    base += ["--set", f"bus.security_dir={cell.cfg.bus.security_dir}"]
+    assert main([*base, "--set", "bus.principal=operator"]) == 2
+    assert "access-control list refuses 'cell/cell1/cmd' to principal 'operator'" in capsys.readouterr().err
+    assert cell.supervisor.top_state == "Stopped"
+    assert main([*base, "--set", "bus.principal=plc", "--wait", "Idle"]) == 0
+    assert '"reached": "Idle"' in capsys.readouterr().out
