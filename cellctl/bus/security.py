@@ -77,10 +77,14 @@ PRINCIPALS: dict[str, Principal] = {
             ("observe", "maintain"),
             "commissioning tools (vision collect, sim scenarios): query worker ops directly, bypassing PackML",
         ),
-        Principal("robot", ("status", "serve:robot"), "the robot worker"),
-        Principal("camera", ("status", "serve:camera", "sim-view"), "the camera worker (sim camera reads sim state)"),
-        Principal("classifier", ("status", "serve:classifier"), "the classifier worker"),
-        Principal("planner", ("status", "serve:planner"), "the planner worker(s)"),
+        Principal("robot", ("status", "watch-supervisor", "serve:robot"), "the robot worker"),
+        Principal(
+            "camera",
+            ("status", "watch-supervisor", "serve:camera", "sim-view"),
+            "the camera worker (sim camera reads sim state)",
+        ),
+        Principal("classifier", ("status", "watch-supervisor", "serve:classifier"), "the classifier worker"),
+        Principal("planner", ("status", "watch-supervisor", "serve:planner"), "the planner worker(s)"),
     )
 }
 """Every principal ``cellctl secure init`` creates. Workers run as the principal named after their role."""
@@ -110,6 +114,12 @@ def _grant_rules(cell_id: str) -> dict[str, list[tuple[str, list[str], list[str]
         "command": [
             ("ingress", ["put", "query"], [keys.cmd(c)]),
             ("egress", ["reply", "declare_subscriber"], [keys.cmd(c)]),
+        ],
+        # The robot stops its motion when the supervisor's token goes (workers/robot): a refused
+        # liveliness subscriber would never see the token, nor its DELETE.
+        "watch-supervisor": [
+            ("ingress", ["declare_liveliness_subscriber", "liveliness_query"], [keys.alive(c, "supervisor")]),
+            ("egress", ["liveliness_token", "reply"], [keys.alive(c, "supervisor")]),
         ],
         "sim-view": [("ingress", ["query"], [keys.sim_state(c)]), ("egress", ["reply"], [keys.sim_state(c)])],
         "maintain": [

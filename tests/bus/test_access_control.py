@@ -215,6 +215,19 @@ def test_a_workers_declared_publisher_reaches_observers(cell, secured) -> None: 
         assert got.get(timeout=5) == b"joints"
 
 
+def test_a_worker_sees_the_supervisor_come_and_go(cfg, deployment: Path, secured) -> None:  # noqa: ANN001
+    # the robot worker stops its motion on the DELETE of this token (workers/robot)
+    router = open_session(as_principal(cfg, None, deployment), "router")
+    router_token = router.liveliness().declare_token(keys.alive("cell1", "supervisor"))
+    with open_session(secured("robot"), "client") as rob:
+        seen: queue.Queue[zenoh.SampleKind] = queue.Queue()
+        rob.liveliness().declare_subscriber(keys.alive("cell1", "supervisor"), lambda x: seen.put(x.kind), history=True)
+        assert seen.get(timeout=5) == zenoh.SampleKind.PUT
+        router_token.undeclare()
+        assert seen.get(timeout=5) == zenoh.SampleKind.DELETE
+    router.close()
+
+
 def test_engineer_may_query_worker_ops_operator_may_not(cell, secured) -> None:  # noqa: ANN001
     c = "cell1"
     with open_session(secured("robot"), "client") as rob:
