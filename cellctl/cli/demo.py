@@ -80,19 +80,9 @@ def _table(rows: list[Row]) -> str:
 def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top to bottom
     from cellctl.app import build_cell
     from cellctl.bus import keys
-    from cellctl.bus.codec import decode_as, encode
+    from cellctl.bus.plc_client import PlcClient
     from cellctl.bus.rpc import request
-    from cellctl.bus.session import open_session
-    from cellctl.messages import (
-        Ack,
-        Command,
-        CycleResult,
-        Event,
-        PlanJobProgress,
-        SimScenarioRequest,
-        SimState,
-        Status,
-    )
+    from cellctl.messages import SimScenarioRequest, SimState
 
     now = _dt.datetime.now()
     out = Path(args.out) if args.out else Path("logs") / f"demo-{now:%Y%m%d-%H%M%S}"
@@ -103,7 +93,6 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
         f"recording.dir={out}",
         f"recording.index={out / 'cells.db'}",
         f"planner.plans_dir={out / 'plans'}",
-        "supervisor.required_workers=[robot,camera,classifier,planner]",
     ]
     cfg = config_from_args(argparse.Namespace(config=args.config, overrides=overrides))
     c = cfg.cell_id
@@ -148,45 +137,10 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     rows: list[Row] = []
     failures = 0
     with build_cell(cfg, with_workers=True, config_file=args.config, overrides=overrides) as cell:
-        session = open_session(cfg, "client")
-        statuses: queue.Queue[Status] = queue.Queue()
-        results: queue.Queue[CycleResult] = queue.Queue()
-        progress: queue.Queue[PlanJobProgress] = queue.Queue()
-        subs = [
-            session.declare_subscriber(keys.status(c), lambda s: statuses.put(decode_as(Status, s.payload.to_bytes()))),
-            session.declare_subscriber(
-                keys.result(c), lambda s: results.put(decode_as(CycleResult, s.payload.to_bytes()))
-            ),
-            session.declare_subscriber(
-                keys.planner_job_progress(c), lambda s: progress.put(decode_as(PlanJobProgress, s.payload.to_bytes()))
-            ),
-            session.declare_subscriber(
-                keys.events(c), lambda s: _say("   · " + decode_as(Event, s.payload.to_bytes()).text)
-            ),
-        ]
-
-        def command(name: str) -> Ack:
-            (r,) = list(
-                session.get(keys.cmd(c), payload=encode(Command(command=name, request_id=f"demo-{name}")), timeout=10)
-            )
-            return decode_as(Ack, r.ok.payload.to_bytes())
-
-        def wait_for(pred, timeout: float) -> Status | None:  # noqa: ANN001
-            deadline = time.monotonic() + timeout
-            while time.monotonic() < deadline:
-                try:
-                    st = statuses.get(timeout=0.5)
-                except queue.Empty:
-                    continue
-                if pred(st):
-                    return st
-            return None
-
+        plc = PlcClient(cfg, "demo", on_event=lambda ev: _say("   · " + ev.text))
+        session = plc.session
         _say("starting workers (robot, camera, classifier, planner) …")
-        st = wait_for(
-            lambda s: all(s.workers.get(r) for r in ("robot", "camera", "classifier", "planner")), args.worker_timeout
-        )
-        if st is None:
+        if not plc.wait_workers(("robot", "camera", "classifier", "planner"), args.worker_timeout):
             _say(f"workers did not come up within {args.worker_timeout:g} s: {cell.supervisor.status.workers}")
             return 1
         _say("all workers alive\n")
@@ -199,22 +153,22 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
                 request(session, keys.robot_op(c, "scenario"), req, SimState, timeout=30, role="robot")
             _say(f"── cycle {i}: {stage.story}")
             t0 = time.monotonic()
-            if command("reset").accepted:
-                wait_for(lambda s: s.state == "Idle", 30)
-            ack = command("start")
+            if plc.command("reset").accepted:
+                plc.wait_for(lambda s: s.state == "Idle", 30)
+            ack = plc.command("start")
             if not ack.accepted:
                 row.note = f"start refused: {ack.reason}"
                 failures += 1
                 continue
             try:
-                res = results.get(timeout=args.cycle_timeout)
+                res = plc.results.get(timeout=args.cycle_timeout)
             except queue.Empty:
                 row.note = f"no result within {args.cycle_timeout:g} s"
                 failures += 1
-                command("abort")
+                plc.command("abort")
                 continue
             # the result is published while Completing/Aborting; the next Reset needs the wait state
-            wait_for(lambda s: s.state in ("Complete", "Aborted", "Stopped"), 30)
+            plc.wait_for(lambda s: s.state in ("Complete", "Aborted", "Stopped"), 30)
             row.seconds = time.monotonic() - t0
             row.outcome = res.outcome.value
             row.verdict = res.verdict or "-"
@@ -245,33 +199,24 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
                     _say(f"   (dirt map not drawn: {err})")
             if stage.after == "wait_plan" and res.planner_job_id:
                 _say(f"   planning job {res.planner_job_id} running offline:")
-                deadline = time.monotonic() + args.cycle_timeout
-                last = ""
-                done = False
-                while time.monotonic() < deadline:
-                    try:
-                        p = progress.get(timeout=1.0)
-                    except queue.Empty:
-                        continue
-                    if p.job_id != res.planner_job_id:
-                        continue
+                shown: set[str] = set()
+
+                def show(p: Any, shown: set[str] = shown) -> None:
                     line = f"   [{p.fraction:4.0%}] {p.stage} {p.message or ''}"
-                    if line != last:
+                    if line not in shown:
                         _say(line)
-                        last = line
-                    if p.state in ("done", "failed"):
-                        done = p.state == "done"
-                        break
+                        shown.add(line)
+
+                end = plc.wait_plan_job(res.planner_job_id, args.cycle_timeout, show)
+                done = end is not None and end.state == "done"
                 if not done:
                     row.ok = False
                     row.note = "planning job did not finish"
                     failures += 1
             if res.outcome.value in ("failed", "aborted"):
-                command("clear")
-                wait_for(lambda s: s.state == "Stopped", 30)
-        for s in subs:
-            s.undeclare()
-        session.close()
+                plc.command("clear")
+                plc.wait_for(lambda s: s.state == "Stopped", 30)
+        plc.close()
     _say("\n" + _table(rows))
     summary = {"cycles": len(rows), "failed": failures, "out": str(out)}
     _say(json.dumps(summary))
