@@ -454,7 +454,7 @@ class ClassifyReply(WireMessage):
     type: Literal["cellctl/ClassifyReply"] = "cellctl/ClassifyReply"
     v: Literal[1] = 1
     label: Literal["clean", "dirty"]
-    p_dirty: float = Field(ge=0.0, le=1.0)
+    p_dirty: FiniteFloat = Field(ge=0.0, le=1.0)
     uncertain: bool = False
     model_id: str = Field(max_length=256)
 

@@ -67,7 +67,12 @@ def request(
     """
     op = key.rsplit("/", 1)[-1]
     body = encode(msg)
-    kwargs: dict[str, object] = {"timeout": timeout, "target": zenoh.QueryTarget.BEST_MATCHING}
+    # No consolidation: Zenoh would otherwise keep only the last of several replies, silently.
+    kwargs: dict[str, object] = {
+        "timeout": timeout,
+        "target": zenoh.QueryTarget.BEST_MATCHING,
+        "consolidation": zenoh.ConsolidationMode.NONE,
+    }
     if payload is None:
         kwargs["payload"] = body
     else:
@@ -75,7 +80,11 @@ def request(
         kwargs["attachment"] = body
     replies = list(session.get(key, **kwargs))
     if not replies:
-        raise WorkerUnavailable(f"no {role or 'worker'} serves {key!r} (0 replies)", role=role, op=op)
+        raise WorkerUnavailable(
+            f"no {role or 'worker'} serves {key!r} (0 replies: nobody serves it, or the worker dropped the query)",
+            role=role,
+            op=op,
+        )
     if len(replies) > 1:
         # One queryable answers one query once; more means a misbehaving worker or two workers on one key.
         raise ProtocolError(f"{role or 'worker'} answered {op} with {len(replies)} replies; expected exactly one")
@@ -90,7 +99,11 @@ def request(
             err = decode_as(ErrorReply, text)
             raise WorkerFailed(f"{role or 'worker'} refused {op}: {err.reason}", role=role, op=op)
         except ProtocolError:
-            raise WorkerFailed(f"{role or 'worker'} failed {op}: {text[:300]}", role=role, op=op) from None
+            # not an ErrorReply: show it, escaped when it is not plain text (it goes into logs and Status)
+            shown = text[:300] if text[:300].isprintable() else repr(text[:300])
+            raise WorkerFailed(
+                f"{role or 'worker'} failed {op}: {shown or '(empty error reply)'}", role=role, op=op
+            ) from None
     sample = rep.ok
     data = sample.payload.to_bytes()
     att = sample.attachment.to_bytes() if sample.attachment is not None else None

@@ -89,5 +89,8 @@ class Scanning(Step):
             ctx.viewpoints.append(result)
             ctx.next_viewpoint = k + 1
         if not any(v.error is None for v in ctx.viewpoints):
-            raise WorkerFailed(f"robot reached none of the {len(plan.viewpoints)} planned viewpoints", role="robot")
+            first = ctx.viewpoints[0].error if ctx.viewpoints else "the plan has none"
+            raise WorkerFailed(
+                f"robot reached none of the {len(plan.viewpoints)} planned viewpoints (first: {first})", role="robot"
+            )
         return "succeeded"
