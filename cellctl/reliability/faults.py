@@ -4,10 +4,12 @@
 process the moment a Status shows the cycle in the chosen step, and then checks what a plant
 engineer would check:
 
-* **detection**: the supervisor's first error event after the signal (its MCAP log time) —
-  a killed worker's liveliness token goes at once, a frozen one's when its link lease
+* **detection**: the first warning/error Event naming the worker after the signal (arrival
+  time) — a killed worker's liveliness token goes at once, a frozen one's when its link lease
   (``bus.lease_ms``) expires;
-* **safe state**: the cell rests in Aborted (or Held, by ``supervisor.on_worker_lost``);
+* **safe state**: the cell rests in Aborted (or Held, by ``supervisor.on_worker_lost``) — or
+  in Complete with a good record, when the rest of the cycle did not need the worker and ended
+  before the fault could be noticed;
 * **no further motion**: no approach/move request is logged after the detection, and the arm's
   published joints do not change after the safe state (worker not killed);
 * **record**: the partial cycle's CycleResult says ``failed`` and names the worker;
@@ -34,15 +36,13 @@ from cellctl.bus.codec import decode_as
 from cellctl.bus.plc_client import PlcClient
 from cellctl.config import CellConfig
 from cellctl.errors import CellError
-from cellctl.messages import JointState
-from cellctl.recording.cycle_log import EVENTS_TOPIC
+from cellctl.messages import Event, JointState
 
 __all__ = ["FAULTS", "FaultCase", "FaultInjector", "FaultReport", "WorkerControl", "bench_faults"]
 
 FAULTS = {"kill": signal.SIGKILL, "freeze": signal.SIGSTOP}
 SAFE_STATES = ("Aborted", "Held", "Stopped")
 MOTION_OPS = ("approach", "move")
-ERROR_LEVEL = 4  # foxglove.Log ERROR
 
 
 class WorkerControl(Protocol):
@@ -118,6 +118,40 @@ class _Joints:
         self._sub.undeclare()
 
 
+class _Events:
+    """Warning/error Events of the cell with their arrival time (wall clock, ns)."""
+
+    def __init__(self, plc: PlcClient) -> None:
+        self._cond = threading.Condition()
+        self._seen: list[tuple[int, Event]] = []
+
+        def on(sample: Any) -> None:
+            ev = decode_as(Event, sample.payload.to_bytes())
+            if ev.level in ("warning", "error", "fatal"):
+                with self._cond:
+                    self._seen.append((time.time_ns(), ev))
+                    del self._seen[:-200]
+                    self._cond.notify_all()
+
+        self._sub = plc.session.declare_subscriber(keys.events(plc.cell), on)
+
+    def first_after(self, t_ns: int, word: str, timeout: float) -> tuple[int, str] | None:
+        """The first warning/error after ``t_ns`` whose text names ``word``: (arrival ns, text)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                for t, ev in self._seen:
+                    if t >= t_ns and word in ev.text:
+                        return t, ev.text[:160]
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(left)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
 class FaultInjector:
     """Runs fault cases against a live cell.
 
@@ -147,9 +181,11 @@ class FaultInjector:
         self.detect_bound_s = {"kill": 1.0, "freeze": cfg.bus.lease_ms / 1000 + 1.0}
         """The bound promised per fault: liveliness loss at once / after one lease (+ 1 s margin)."""
         self._joints = _Joints(plc)
+        self._events = _Events(plc)
 
     def close(self) -> None:
         self._joints.close()
+        self._events.close()
 
     def run(self, case: FaultCase, attempts: int = 3) -> FaultReport:
         """Inject one fault; retried when the cycle passed the step before the signal landed."""
@@ -193,44 +229,54 @@ class FaultInjector:
         return rep
 
     def _observe(self, rep: FaultReport, t_sig_ns: int, t_sig: float) -> list[float] | None:
-        """Detection, safe state, record, motion after detection; returns the arm's joints at rest."""
+        """Detection, safe state, record, motion after detection; returns the arm's joints at rest.
+
+        A fault in a worker the rest of the cycle does not use may be noticed only after the
+        cycle completed (e.g. frozen during replanning, which ends sooner than one lease): the
+        cycle's record is then rightly ``completed``, and the fault is noticed in Complete.
+        """
         from cellctl.recording.replay import read_cycle
 
         plc, case = self.plc, rep.case
         bound = self.detect_bound_s[case.fault]
-        st = plc.wait_for(lambda s: s.state in SAFE_STATES, bound + self.cfg.supervisor.timeouts.stop + 10)
+        rest = ("Complete", *SAFE_STATES)
+        st = plc.wait_for(lambda s: s.state in rest, bound + self.cfg.supervisor.timeouts.stop + 10)
         if st is None:
             rep.problems.append(f"no safe state within {bound + 10:g} s (last status {plc.last_status})")
             return None
         rep.safe_state = st.state
         rep.safe_s = time.monotonic() - t_sig
+        ev = self._events.first_after(t_sig_ns, case.role, timeout=max(0.0, bound + 0.5 - rep.safe_s))
+        if ev is None:
+            rep.problems.append(f"no event naming the {case.role} worker within {bound:g} s of the signal")
+        else:
+            t_det_ns, rep.detected_by = ev
+            rep.detection_s = (t_det_ns - t_sig_ns) / 1e9
+            if rep.detection_s > bound:
+                rep.problems.append(f"detected after {rep.detection_s:.2f} s, beyond the bound of {bound:g} s")
         try:
             res = plc.results.get(timeout=10)
         except queue.Empty:
-            rep.problems.append("no CycleResult for the partial cycle")
+            rep.problems.append("no CycleResult for the cycle")
             return None
         rep.outcome, rep.reason = res.outcome.value, res.reason
-        if rep.outcome != "failed":
+        if st.state == "Complete":
+            if rep.outcome not in self.good_outcomes:
+                rep.problems.append(f"cycle completed as {rep.outcome!r}: {res.reason}")
+        elif rep.outcome != "failed":
             rep.problems.append(f"partial cycle recorded as {rep.outcome!r}, expected 'failed'")
-        if case.role not in (res.reason or ""):
+        elif case.role not in (res.reason or ""):
             rep.problems.append(f"the recorded reason does not name the {case.role} worker: {res.reason!r}")
         time.sleep(0.3)  # joints published at robot.joint_state_hz; let the last motion sample arrive
         q_safe = self._joints.get()
-        rec = read_cycle(self.cfg.path(res.log)) if res.log else None
-        if rec is None:
-            rep.problems.append("the partial cycle has no log")
+        if not res.log:
+            rep.problems.append("the cycle has no log")
             return q_safe
-        errors = [m for m in rec.on(EVENTS_TOPIC) if m.log_time >= t_sig_ns and m.json().get("level", 0) >= ERROR_LEVEL]
-        if not errors:
-            rep.problems.append("no error event logged after the signal")
-        else:
-            first = errors[0]
-            rep.detection_s = (first.log_time - t_sig_ns) / 1e9
-            rep.detected_by = first.json().get("message", "")[:160]
-            if rep.detection_s > bound:
-                rep.problems.append(f"detected after {rep.detection_s:.2f} s, beyond the bound of {bound:g} s")
+        if rep.detection_s is not None:
+            rec = read_cycle(self.cfg.path(res.log))
             motion_topics = {f"{keys.robot_op(self.cfg.cell_id, op)}/request" for op in MOTION_OPS}
-            motion = [m for m in rec.messages if m.log_time > first.log_time and m.topic in motion_topics]
+            t_det_ns = t_sig_ns + int(rep.detection_s * 1e9)
+            motion = [m for m in rec.messages if m.log_time > t_det_ns and m.topic in motion_topics]
             rep.motion_requests_after_detection = len(motion)
             if motion:
                 rep.problems.append(f"{len(motion)} motion request(s) sent after the fault was detected")

@@ -90,8 +90,13 @@ def _check(rig, case: FaultCase):  # noqa: ANN001, ANN202
     print(rep.as_dict())  # shown with -s: the detection times of this run
     assert rep.injected_in == f"Execute.{case.step}", rep.problems
     assert rep.ok, f"{case.name}: {rep.problems}"
-    assert rep.safe_state == "Aborted"
-    assert rep.outcome == "failed" and case.role in rep.reason
+    if rep.safe_state == "Complete":
+        # the worker was not needed any more and the cycle ended before one lease: a good record
+        assert case.fault == "freeze" and case.step in ("replanning", "classifying"), rep
+        assert rep.outcome in ("completed", "replan_required")
+    else:
+        assert rep.safe_state == "Aborted"
+        assert rep.outcome == "failed" and case.role in rep.reason
     assert rep.motion_requests_after_detection == 0
     assert rep.detection_s is not None and rep.detection_s <= inj.detect_bound_s[case.fault]
     assert rep.recovery_outcome in ("completed", "replan_required")
