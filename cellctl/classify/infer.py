@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
+import stat
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +35,34 @@ __all__ = ["VARIANTS", "Prediction", "SurfaceModel", "load_surface_models"]
 
 VARIANTS = ("fp32", "fused")
 WEIGHTS_FORMAT = "cellctl-classifier/1"
+MAX_WEIGHTS_BYTES = 512 * 1024 * 1024
+"""Largest weights file read (lite0 is ~7 MB, resnet18 ~23 MB in fp16)."""
+MAX_CARD_BYTES = 1024 * 1024
+
+
+def _number(x: Any, lo: float = -math.inf, hi: float = math.inf) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x) and lo <= x <= hi
+
+
+def _blob_problem(blob: dict[str, Any]) -> str | None:
+    """What is wrong with the metadata and tensors of a weights blob whose format is ours, or None."""
+    sd = blob.get("state_dict")
+    if not isinstance(sd, dict) or not all(isinstance(k, str) and torch.is_tensor(v) for k, v in sd.items()):
+        return "state_dict is not a mapping of parameter names to tensors"
+    size = blob.get("input_size")
+    if not (isinstance(size, int) and not isinstance(size, bool) and 16 <= size <= 1024):
+        return f"input_size is {size!r:.40}, expected an integer in [16, 1024] pixels"
+    for key, lo in (("mean", -math.inf), ("std", 1e-6)):
+        v = blob.get(key)
+        if not (isinstance(v, list | tuple) and len(v) == 3 and all(_number(x, lo) for x in v)):
+            return f"{key} is {v!r:.60}, expected 3 finite numbers" + (" > 0" if key == "std" else "")
+    if not _number(blob.get("threshold"), 0.0, 1.0):
+        return f"threshold is {blob.get('threshold')!r:.40}, expected a number in [0, 1]"
+    if not _number(blob.get("uncertain_logit_band"), 0.0):
+        return f"uncertain_logit_band is {blob.get('uncertain_logit_band')!r:.40}, expected a number >= 0"
+    if not _number(blob.get("temperature", 1.0), 1e-6):
+        return f"temperature is {blob.get('temperature')!r:.40}, expected a number > 0"
+    return None
 
 
 @dataclass(frozen=True)
@@ -100,18 +130,35 @@ class SurfaceModel:
         p = Path(path)
         if variant not in VARIANTS:
             raise ClassifierError(f"variant {variant!r} is unknown; expected one of {list(VARIANTS)}")
-        if not p.is_file():
+        if not p.exists() and not p.is_symlink():  # a symlink loop "does not exist" but must say so
             raise ClassifierError(
                 f"classifier weights {str(p)!r} do not exist; train them with "
                 f"`cellctl train --surface {surface or p.stem} --data DIR --out {p}`"
             )
-        raw = p.read_bytes()
+        try:
+            st = p.stat()
+            if not stat.S_ISREG(st.st_mode):  # a FIFO would block the worker's start forever
+                raise ClassifierError(f"classifier weights {str(p)!r} is not a regular file")
+            if st.st_size == 0:
+                raise ClassifierError(
+                    f"classifier weights {str(p)!r} is empty; expected a file saved by `cellctl train`"
+                )
+            if st.st_size > MAX_WEIGHTS_BYTES:
+                raise ClassifierError(
+                    f"classifier weights {str(p)!r} has {st.st_size} bytes; expected at most {MAX_WEIGHTS_BYTES}"
+                )
+            raw = p.read_bytes()
+        except OSError as err:
+            raise ClassifierError(f"classifier weights {str(p)!r} cannot be read: {err}") from err
         try:
             import io
 
             blob = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
         except Exception as err:  # torch raises many kinds for a damaged file
-            raise ClassifierError(f"classifier weights {str(p)!r} cannot be read: {err}") from err
+            first = (str(err).strip().splitlines() or [type(err).__name__])[0][:300]
+            raise ClassifierError(
+                f"classifier weights {str(p)!r} cannot be read as a torch file saved by `cellctl train`: {first}"
+            ) from err
         if not isinstance(blob, dict) or blob.get("format") != WEIGHTS_FORMAT:
             got = blob.get("format") if isinstance(blob, dict) else type(blob).__name__
             raise ClassifierError(
@@ -120,8 +167,11 @@ class SurfaceModel:
         if surface is not None and blob.get("surface") != surface:
             raise ClassifierError(f"{str(p)!r} is a model for surface {blob.get('surface')!r}, expected {surface!r}")
         arch = blob.get("arch")
-        if arch not in ARCHS:
-            raise ClassifierError(f"{str(p)!r} records architecture {arch!r}; expected one of {list(ARCHS)}")
+        if not isinstance(arch, str) or arch not in ARCHS:
+            raise ClassifierError(f"{str(p)!r} records architecture {arch!r:.40}; expected one of {list(ARCHS)}")
+        problem = _blob_problem(blob)
+        if problem is not None:
+            raise ClassifierError(f"{str(p)!r} is not a usable cellctl classifier file: {problem}")
         net = build_model(arch, pretrained=False)
         sd = {k: (v.float() if v.is_floating_point() else v) for k, v in blob["state_dict"].items()}
         try:
@@ -135,12 +185,18 @@ class SurfaceModel:
         card_path = p.with_suffix(".json")
         if card_path.is_file():
             try:
-                card = json.loads(card_path.read_text())
-            except json.JSONDecodeError as err:
+                if card_path.stat().st_size > MAX_CARD_BYTES:
+                    raise ClassifierError(f"model card {str(card_path)!r} is larger than {MAX_CARD_BYTES} bytes")
+                card = json.loads(card_path.read_bytes())
+            except (OSError, ValueError, RecursionError) as err:
                 raise ClassifierError(f"model card {str(card_path)!r} is not valid JSON: {err}") from err
+            if not isinstance(card, dict):
+                raise ClassifierError(
+                    f"model card {str(card_path)!r} holds a JSON {type(card).__name__}, expected an object"
+                )
             if card.get("sha256") not in (None, sha):
                 raise ClassifierError(
-                    f"model card {str(card_path)!r} is for weights sha256 {card.get('sha256', '')[:12]}…, "
+                    f"model card {str(card_path)!r} is for weights sha256 {str(card.get('sha256'))[:12]}…, "
                     f"but {p.name} has {sha[:12]}… (card and weights do not belong together)"
                 )
         if variant == "fused":

@@ -149,17 +149,24 @@ class PlannerService:
 
         tol = self.cfg.planner.tolerance
         mesh = self._mesh(req.bin_type)
-        res = lookup_plan(
-            self.plans_dir,
-            req.bin_type,
-            req.surface,
-            req.bin_pose.matrix(),
-            mesh,
-            self.robot,
-            tol.translation_mm,
-            tol.rotation_deg,
-            use_all=req.all_reachable,
-        )
+        try:
+            res = lookup_plan(
+                self.plans_dir,
+                req.bin_type,
+                req.surface,
+                req.bin_pose.matrix(),
+                mesh,
+                self.robot,
+                tol.translation_mm,
+                tol.rotation_deg,
+                use_all=req.all_reachable,
+            )
+        except CellError:
+            raise
+        except Exception as err:  # noqa: BLE001 - a cache file that passed the checks still breaks the adjustment
+            # A broken cache costs a replan, not the cycle: answer a miss that says why.
+            log.exception("plan cache lookup for %s/%s failed", req.bin_type, req.surface)
+            return PlanLookupReply(hit=False, reason=f"plan cache lookup failed ({type(err).__name__}: {err}); replan")
         return PlanLookupReply(
             hit=res.hit,
             reason=res.reason,
