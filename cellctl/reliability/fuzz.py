@@ -15,10 +15,11 @@ command contract on every one:
   PackML table allows it in the state it arrived in;
 * the dispatcher stays alive (a status query answers) and logs no error.
 
-The cell needs no workers: a stand-in robot inside this module declares the required
-liveliness tokens, confirms stops and never finishes an approach, so a started cycle waits in
-``Execute`` for as long as the fuzzer likes; Hold/Suspend/Complete/Stop/Abort/Clear then take
-the machine through every waiting state of PackML.
+The cell runs with one real worker, the sim robot, slowed down (:data:`FUZZ_OVERRIDES`: the
+base takes an hour to park) and the only required role, so a started cycle waits in
+``Execute.approaching`` with a real request in flight for as long as the fuzzer likes;
+Hold/Suspend/Complete/Stop/Abort/Clear then take the machine through every waiting state of
+PackML, each with the robot's real ``stop``.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,7 +45,16 @@ from cellctl.bus.codec import decode_as, encode
 from cellctl.errors import CellError
 from cellctl.messages import MESSAGE_TYPES, Ack, Command, PackMLCommand
 
-__all__ = ["CATEGORIES", "CommandFuzzer", "FuzzCase", "FuzzTarget", "bench_fuzz", "run_fuzz"]
+__all__ = [
+    "CATEGORIES",
+    "FUZZ_OVERRIDES",
+    "CommandFuzzer",
+    "FuzzCase",
+    "FuzzTarget",
+    "bench_fuzz",
+    "run_fuzz",
+    "slow_sim_robot",
+]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -53,7 +64,15 @@ REJECT = "reject"
 """``FuzzCase.expect`` for a payload every state must refuse."""
 
 STABLE = frozenset({"Stopped", "Idle", "Held", "Suspended", "Complete", "Aborted", "Execute.approaching"})
-"""States the machine stays in without a command (Execute: the stand-in robot never finishes approaching)."""
+"""States the machine stays in without a command (Execute: the slowed robot never finishes parking)."""
+
+FUZZ_OVERRIDES = [
+    "supervisor.required_workers=[robot]",
+    "robot.speed_scale=0.001",  # parking takes 4000 s: a started cycle rests in Execute.approaching
+    "supervisor.timeouts.approach=3600",
+    "supervisor.auto_reset=false",
+]
+"""Config the fuzzed cell runs with (see :func:`slow_sim_robot`)."""
 
 _CMD = "cellctl/Command"
 _FIELDS = ("type", "v", "command", "cntrl_cmd", "request_id", "params")
@@ -413,46 +432,26 @@ CATEGORIES = (*CATEGORIES_HOSTILE, "valid")
 """Every category a case can come from."""
 
 
-# --- the target: a running cell, a client session, a stand-in robot ----------------------------
+# --- the target: a running cell, a client session, the slowed sim robot -------------------------
 
 
-class _StandInRobot:
-    """Liveliness for the required roles; ``robot/stop`` confirmed; ``robot/approach`` held unanswered.
+@contextmanager
+def slow_sim_robot(cfg: Any) -> Iterator[None]:
+    """Run the sim robot worker (in a thread of this process) for the fuzzed cell.
 
-    Holding the approach keeps a started cycle in ``Execute.approaching`` (a real state with a
-    worker request in flight) until the fuzzer commands it out; :meth:`release` then drops the
-    held queries so the cancelled step's request ends.
+    Raises:
+        CellError: its liveliness token does not appear within 30 s.
     """
+    from cellctl.workers.robot import run_worker
 
-    def __init__(self, session: Any, cell_id: str, roles: list[str]) -> None:
-        self._held: list[Any] = []
-        self._lock = threading.Lock()
-        self.stops = 0
-        self._decls = [session.liveliness().declare_token(keys.alive(cell_id, r)) for r in roles]
-        self._decls.append(session.declare_queryable(keys.robot_op(cell_id, "approach"), self._hold, complete=True))
-        self._decls.append(session.declare_queryable(keys.robot_op(cell_id, "stop"), self._stop, complete=True))
-
-    def _hold(self, q: Any) -> None:
-        with self._lock:
-            self._held.append(q)
-
-    def _stop(self, q: Any) -> None:
-        self.stops += 1
-        try:
-            q.reply(q.key_expr, q.payload.to_bytes() if q.payload is not None else b"")  # StopRequest echoed
-        finally:
-            q.drop()
-
-    def release(self) -> None:
-        with self._lock:
-            held, self._held = self._held, []
-        for q in held:
-            q.drop()
-
-    def close(self) -> None:
-        self.release()
-        for d in reversed(self._decls):
-            d.undeclare()
+    stop = threading.Event()
+    t = threading.Thread(target=run_worker, args=(cfg, "sim", stop), name="fuzz-robot", daemon=True)
+    t.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        t.join(30)
 
 
 class _ErrorLogs(logging.Handler):
@@ -529,13 +528,15 @@ class FuzzTarget:
         self.session = open_session(self.cfg, "client")
         self._acks: queue.Queue[bytes] = queue.Queue()
         self._sub = self.session.declare_subscriber(keys.cmd_ack(c), lambda s: self._acks.put(s.payload.to_bytes()))
-        self.robot = _StandInRobot(self.session, c, list(self.cfg.supervisor.required_workers))
         self._errors = _ErrorLogs()
         logging.getLogger("cellctl.supervisor").addHandler(self._errors)
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 30
         while not all(self.sup.status.workers.get(r) for r in self.cfg.supervisor.required_workers):
             if time.monotonic() > deadline:
-                raise CellError("the stand-in workers' liveliness tokens did not reach the supervisor in 10 s")
+                raise CellError(
+                    f"required workers {self.cfg.supervisor.required_workers} not alive within 30 s "
+                    "(run the cell inside slow_sim_robot)"
+                )
             time.sleep(0.02)
         self._visits: Counter = Counter()
 
@@ -561,8 +562,6 @@ class FuzzTarget:
                 self.stats.violation(None, f"machine did not come to rest within 10 s (in {st})")
                 break
             time.sleep(0.001)
-        if not st.startswith("Execute"):
-            self.robot.release()
         # A status round trip: every event queued before it (done, Ack) has been dispatched.
         if self.status_state() is None:
             self.stats.violation(None, "status query unanswered: dispatcher dead?")
@@ -665,7 +664,6 @@ class FuzzTarget:
         if self.status_state() is None or self.sup.wait_stopped(0):
             self.stats.violation(None, "the supervisor's dispatcher is not answering at the end")
         logging.getLogger("cellctl.supervisor").removeHandler(self._errors)
-        self.robot.close()
         self._sub.undeclare()
         self.session.close()
 
@@ -693,7 +691,6 @@ def run_fuzz(
     out = target.stats.as_dict()
     out["seconds"] = round(dt, 2)
     out["cases_per_s"] = round(n / dt, 1) if dt > 0 else None
-    out["robot_stops_confirmed"] = target.robot.stops
     return out
 
 
@@ -715,19 +712,18 @@ def bench_fuzz(args: argparse.Namespace) -> dict[str, Any]:
             f"bus.connect={ep}",
             f"recording.dir={tmp}/logs",
             f"recording.index={tmp}/logs/cells.db",
-            "supervisor.timeouts.approach=3600",  # the stand-in robot holds the approach
-            "supervisor.auto_reset=false",
+            *FUZZ_OVERRIDES,
         ],
     )
     try:
         # No identification: the cycle never gets past approaching (no vision imports needed).
-        with build_cell(cfg, identification=(None, None)) as cell:
+        with build_cell(cfg, identification=(None, None)) as cell, slow_sim_robot(cfg):
             out = run_fuzz(
                 cell, n, args.seed, progress=lambda i, k: print(f"bench fuzz {i}/{k}", file=sys.stderr, flush=True)
             )
             out["cycles_opened"] = len(cell.index.all())
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    out["target"] = "cell/<id>/cmd: zenoh tcp loopback, daemon router in this process, client session; no workers"
+    out["target"] = "cell/<id>/cmd: zenoh tcp loopback, daemon router in this process, client session; sim robot"
     out["max_command_bytes"] = cfg.supervisor.max_command_bytes
     return out

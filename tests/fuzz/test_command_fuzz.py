@@ -1,8 +1,8 @@
 """Hostile payloads on the command key: every one gets exactly one Ack, a rejected one changes nothing.
 
 The shipped fuzzer (:mod:`cellctl.reliability.fuzz`, seeded) and hypothesis (derandomized) both
-drive a real cell over Zenoh on loopback; the stand-in robot keeps started cycles in Execute so
-that Execute, Held and Suspended are fuzzed too.
+drive a real cell over Zenoh on loopback; the slowed sim robot keeps started cycles in Execute
+so that Execute, Held and Suspended are fuzzed too.
 """
 
 from __future__ import annotations
@@ -14,17 +14,26 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cellctl.app import build_cell
-from cellctl.reliability.fuzz import CATEGORIES, CommandFuzzer, FuzzCase, FuzzTarget, run_fuzz
+from cellctl.config import load_config
+from cellctl.reliability.fuzz import (
+    CATEGORIES,
+    FUZZ_OVERRIDES,
+    CommandFuzzer,
+    FuzzCase,
+    FuzzTarget,
+    run_fuzz,
+    slow_sim_robot,
+)
+from tests.conftest import cfg_overrides
 
 SEED = 20240601
 
 
 @pytest.fixture
-def cell(cfg):  # noqa: ANN001, ANN201
-    cfg.supervisor.timeouts.approach = 600.0  # the stand-in robot holds the approach
-    c = build_cell(cfg, identification=(None, None))
-    yield c
-    c.close()
+def cell(tmp_path, port):  # noqa: ANN001, ANN201
+    cfg = load_config(None, [*cfg_overrides(tmp_path, port), *FUZZ_OVERRIDES])
+    with build_cell(cfg, identification=(None, None)) as c, slow_sim_robot(cfg):
+        yield c
 
 
 def test_the_fuzzer_is_seeded_and_covers_every_category() -> None:
