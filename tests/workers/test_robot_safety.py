@@ -20,7 +20,7 @@ from cellctl.bus import keys
 from cellctl.bus.rpc import request
 from cellctl.bus.session import open_session
 from cellctl.config import CellConfig, load_config
-from cellctl.errors import WorkerFailed
+from cellctl.errors import CellError
 from cellctl.messages import MoveReply, MoveRequest, RobotState, RobotStateRequest
 from cellctl.sim import scene
 from cellctl.workers import robot as robot_worker
@@ -30,10 +30,14 @@ from tests.conftest import free_port
 TARGET = (scene.HOME_JOINTS + np.array([2.0, 0, 0, 0, 0, 0])).tolist()
 
 
+# slow motions (a 2 rad swing lasts seconds); a long lease, so a loaded machine cannot turn the
+# short freeze into a lost link
+SLOW = ["robot.speed_scale=0.5", "robot.settle_s=0", "bus.lease_ms=5000"]
+
+
 def _cfg(port: int) -> CellConfig:
     ep = f'["tcp/127.0.0.1:{port}"]'
-    # slow motions, so that a 2 rad swing lasts seconds
-    return load_config(None, [f"bus.listen={ep}", f"bus.connect={ep}", "robot.speed_scale=0.5", "robot.settle_s=0"])
+    return load_config(None, [f"bus.listen={ep}", f"bus.connect={ep}", *SLOW])
 
 
 def _joints(session, cfg: CellConfig) -> np.ndarray:  # noqa: ANN001
@@ -49,8 +53,8 @@ def _move_in_background(session, cfg: CellConfig) -> tuple[threading.Thread, dic
             out["reply"] = request(
                 session, keys.robot_op(cfg.cell_id, "move"), MoveRequest(joints=TARGET), MoveReply, timeout=60
             )
-        except WorkerFailed as err:
-            out["error"] = str(err)
+        except CellError as err:  # WorkerFailed expected; anything else shows in the assertion
+            out["error"] = f"{type(err).__name__}: {err}"
 
     t = threading.Thread(target=go, daemon=True)
     t.start()
@@ -102,7 +106,7 @@ def test_a_frozen_robot_worker_stops_instead_of_catching_up(freeze_s: float) -> 
     cfg = _cfg(free_port())
     ep = cfg.bus.listen[0]
     router = open_session(cfg, "router")
-    overrides = [f'bus.listen=["{ep}"]', f'bus.connect=["{ep}"]', "robot.speed_scale=0.5", "robot.settle_s=0"]
+    overrides = [f'bus.listen=["{ep}"]', f'bus.connect=["{ep}"]', *SLOW]
     cmd = [sys.executable, "-m", "cellctl", "worker", "robot"]
     for ov in overrides:
         cmd += ["--set", ov]
@@ -113,7 +117,7 @@ def test_a_frozen_robot_worker_stops_instead_of_catching_up(freeze_s: float) -> 
         t, out = _move_in_background(router, cfg)
         _wait_moving(router, cfg, q0)
         proc.send_signal(signal.SIGSTOP)
-        time.sleep(freeze_s)  # shorter than the 2 s lease: the link survives, only the worker's clock jumps
+        time.sleep(freeze_s)  # shorter than the lease: the link survives, only the worker's clock jumps
         proc.send_signal(signal.SIGCONT)
         t.join(20)
         assert "frozen" in out.get("error", ""), out
