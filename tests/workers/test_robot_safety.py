@@ -130,3 +130,34 @@ def test_a_frozen_robot_worker_stops_instead_of_catching_up(freeze_s: float) -> 
         proc.terminate()
         proc.wait(20)
         router.close()
+
+
+def test_a_stall_before_the_motion_starts_refuses_the_motion() -> None:
+    """Frozen while planning (the tick went stale): the motion must not start at all."""
+    from cellctl.errors import RobotError
+    from cellctl.workers.robot._sim import FROZEN_GAP_S, SimRobot
+
+    robot = SimRobot(_cfg(free_port()))
+    try:
+        q0 = robot.joints
+        robot._tick -= FROZEN_GAP_S + 1  # as the stall watch would find it on resumption, before it ran
+        with pytest.raises(RobotError, match="frozen"):
+            robot.move(MoveRequest(joints=TARGET))
+        assert np.abs(robot.joints - q0).max() == 0.0
+    finally:
+        robot.close()
+
+
+def test_the_stall_watch_stops_a_request_in_progress() -> None:
+    from cellctl.workers.robot._sim import FROZEN_GAP_S, SimRobot
+
+    robot = SimRobot(_cfg(free_port()))
+    try:
+        with robot._busy:  # a request in progress
+            robot._tick -= FROZEN_GAP_S + 1
+            deadline = time.monotonic() + 2
+            while not robot._stop.is_set() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert robot._stop.is_set() and "frozen" in robot._stop_reason
+    finally:
+        robot.close()

@@ -97,6 +97,12 @@ class SimRobot(Robot):
         """Waypoints (K, 6) of the last planned motion (for tests and logs)."""
         self.on_change = on_change
         self._world = self._make_world()
+        # Stall watch: a thread that ticks every 0.1 s. After a freeze (SIGSTOP, swap, debugger)
+        # either it runs first and sees its own gap (→ stop), or the motion thread runs first and
+        # sees a stale tick (→ refuses to move): no order of resumption lets a stale motion run.
+        self._tick = time.monotonic()
+        self._closed = threading.Event()
+        threading.Thread(target=self._watch_stalls, name="robot-stall-watch", daemon=True).start()
 
     # --- world ------------------------------------------------------------------------------
 
@@ -154,7 +160,12 @@ class SimRobot(Robot):
         try:
             while True:
                 now = time.monotonic()
-                self._check_not_frozen(now - last, "motion")
+                self._check_not_frozen(max(now - last, now - self._tick), "motion")
+                if self._stop.is_set():  # before moving: a stop that came during planning holds
+                    raise RobotError(
+                        f"motion stopped ({self._stop_reason or 'stop requested'}) at joints "
+                        f"{np.round(self.joints, 4).tolist()}"
+                    )
                 last = now
                 t = now - t0
                 if t >= total:
@@ -168,10 +179,6 @@ class SimRobot(Robot):
                 self._changed()
                 if t >= total:
                     return total
-                if self._stop.is_set():
-                    raise RobotError(
-                        f"motion stopped ({self._stop_reason or 'stop requested'}) at joints {np.round(q, 4).tolist()}"
-                    )
                 time.sleep(min(dt, total - t))
         finally:
             self._moving = False
@@ -220,6 +227,17 @@ class SimRobot(Robot):
                     raise
                 last = err
         raise RobotError(f"camera pose at {pos}: no collision-free path to any of {len(free)} IK solutions: {last}")
+
+    def _watch_stalls(self) -> None:
+        while not self._closed.wait(0.1):
+            now = time.monotonic()
+            gap = now - self._tick
+            if gap > FROZEN_GAP_S and self._busy.locked():  # a request was in progress
+                self.stop(f"the robot worker was frozen for {gap:.1f} s")
+            self._tick = now  # only after the stop: the motion thread sees a stale tick or the stop
+
+    def close(self) -> None:
+        self._closed.set()
 
     def _check_not_frozen(self, gap_s: float, what: str) -> None:
         if gap_s > FROZEN_GAP_S:
