@@ -10,8 +10,9 @@ engineer would check:
 * **safe state**: the cell rests in Aborted (or Held, by ``supervisor.on_worker_lost``) — or
   in Complete with a good record, when the rest of the cycle did not need the worker and ended
   before the fault could be noticed;
-* **no further motion**: no approach/move request is logged after the detection, and the arm's
-  published joints do not change after the safe state (worker not killed);
+* **no further motion**: no approach/move request is logged after the detection, and the arm
+  (asked through ``robot/state``) does not move after the safe state — for a frozen robot,
+  after it resumed;
 * **record**: the partial cycle's CycleResult says ``failed`` and names the worker;
 * **recovery**: once the worker is back (restarted after a kill, SIGCONT after a freeze),
   Clear/Reset/Start runs a good cycle.
@@ -34,9 +35,10 @@ from typing import Any, Protocol
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as
 from cellctl.bus.plc_client import PlcClient
+from cellctl.bus.rpc import request
 from cellctl.config import CellConfig
 from cellctl.errors import CellError
-from cellctl.messages import Event, JointState
+from cellctl.messages import Event, RobotState, RobotStateRequest
 
 __all__ = ["FAULTS", "FaultCase", "FaultInjector", "FaultReport", "WorkerControl", "bench_faults"]
 
@@ -94,28 +96,6 @@ class FaultReport:
             if d[k] is not None:
                 d[k] = round(d[k], 4)
         return d
-
-
-class _Joints:
-    """Latest published joint positions of the robot."""
-
-    def __init__(self, plc: PlcClient) -> None:
-        self._lock = threading.Lock()
-        self.q: list[float] | None = None
-
-        def on(sample: Any) -> None:
-            msg = decode_as(JointState, sample.payload.to_bytes())
-            with self._lock:
-                self.q = list(msg.position)
-
-        self._sub = plc.session.declare_subscriber(keys.robot_joints(plc.cell), on)
-
-    def get(self) -> list[float] | None:
-        with self._lock:
-            return None if self.q is None else list(self.q)
-
-    def close(self) -> None:
-        self._sub.undeclare()
 
 
 class _Events:
@@ -180,11 +160,9 @@ class FaultInjector:
         self.good_outcomes = good_outcomes
         self.detect_bound_s = {"kill": 1.0, "freeze": cfg.bus.lease_ms / 1000 + 1.0}
         """The bound promised per fault: liveliness loss at once / after one lease (+ 1 s margin)."""
-        self._joints = _Joints(plc)
         self._events = _Events(plc)
 
     def close(self) -> None:
-        self._joints.close()
         self._events.close()
 
     def run(self, case: FaultCase, attempts: int = 3) -> FaultReport:
@@ -268,7 +246,8 @@ class FaultInjector:
         elif case.role not in (res.reason or ""):
             rep.problems.append(f"the recorded reason does not name the {case.role} worker: {res.reason!r}")
         time.sleep(0.3)  # joints published at robot.joint_state_hz; let the last motion sample arrive
-        q_safe = self._joints.get()
+        # the arm at rest, asked from the robot itself (its published joints lag up to a period)
+        q_safe = self._arm() if case.role != "robot" else None
         if not res.log:
             rep.problems.append("the cycle has no log")
             return q_safe
@@ -282,6 +261,21 @@ class FaultInjector:
                 rep.problems.append(f"{len(motion)} motion request(s) sent after the fault was detected")
         return q_safe
 
+    def _arm(self) -> list[float] | None:
+        """The robot's joints now, asked by a ``robot/state`` request (None if it does not answer)."""
+        try:
+            st, _ = request(
+                self.plc.session,
+                keys.robot_op(self.cfg.cell_id, "state"),
+                RobotStateRequest(),
+                RobotState,
+                timeout=5,
+                role="robot",
+            )
+        except CellError:
+            return None
+        return list(st.joints)
+
     def _recover(self, rep: FaultReport, q_safe: list[float] | None) -> None:
         plc, case = self.plc, rep.case
         t0 = time.monotonic()
@@ -291,10 +285,15 @@ class FaultInjector:
         if not plc.wait_workers(roles, 120):
             rep.problems.append(f"workers not back within 120 s: {plc.last_status and plc.last_status.workers}")
             return
-        if case.role != "robot" or case.fault == "freeze":
+        # A robot that was frozen is compared with itself just after resuming (where it stood
+        # when frozen cannot be asked; that it does not jump is tested at slow speed in
+        # tests/workers/test_robot_safety.py); a killed one restarts at home.
+        if case.role == "robot" and case.fault == "freeze":
+            q_safe = self._arm()
+        if q_safe is not None:
             time.sleep(0.5)
-            q_now = self._joints.get()
-            if q_safe is not None and q_now is not None:
+            q_now = self._arm()
+            if q_now is not None:
                 rep.robot_moved_rad = max(abs(a - b) for a, b in zip(q_safe, q_now, strict=True))
                 if rep.robot_moved_rad > 1e-6:
                     rep.problems.append(f"the arm moved {rep.robot_moved_rad:.4f} rad after the safe state")
