@@ -23,9 +23,30 @@ from cellctl.messages import PlanLookupRequest, PoseMsg
 from cellctl.planning.planfile import MAX_PLAN_BYTES, list_plans, plan_path, read_plan, write_plan
 
 ROOT = Path(__file__).resolve().parents[2]
-GOOD_PLAN = next((ROOT / "models" / "plans" / "case_study" / "external").glob("*.json"))
 MODELS = ROOT / "models" / "classifier"
 SEED = 11
+GOOD_PLAN = Path()
+"""A real plan file, made once per session by :func:`good_plan_file` (the plan cache is not in git)."""
+
+
+@pytest.fixture(scope="session", autouse=True)
+def good_plan_file(tmp_path_factory) -> Path:  # noqa: ANN001
+    """Plan the case-study bin (fast mode, seeded) like ``cellctl plan`` does, once."""
+    global GOOD_PLAN
+    from cellctl.config import load_config
+    from cellctl.planning.mesh import load_catalog_mesh
+    from cellctl.planning.pipeline import PlanParams, base_pose_from_xyz_yaw, make_plan
+    from cellctl.planning.robot import default_robot_model
+
+    cfg = load_config(None, [])
+    mesh = load_catalog_mesh(cfg.path(cfg.catalog), "case_study")
+    params = PlanParams(surface="external", seed_pct=10.0, mode="fast", seed=0)
+    plan = make_plan(
+        mesh, base_pose_from_xyz_yaw(0, -1.13, -0.33, 90), params, default_robot_model(), bin_type="case_study"
+    )
+    assert plan["viewpoints"], plan.get("reason")
+    GOOD_PLAN = write_plan(plan, tmp_path_factory.mktemp("good-plan") / "good.json")
+    return GOOD_PLAN
 
 
 def _good_plan() -> dict:
