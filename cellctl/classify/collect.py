@@ -119,7 +119,8 @@ def store_image(cfg: Any, params: Mapping[str, Any], surface: str, cycle_id: str
         cfg: the cell config (``classifier.dataset_dir`` is the default dataset root,
             resolved against the project root).
         params: the Start command's params: ``label`` (``clean``/``dirty``, required) and an
-            optional ``dataset`` folder overriding the config.
+            optional ``dataset`` name: a sub-folder of the dataset root (the supervisor has
+            checked it is a plain name, not a path).
         surface, cycle_id, k, image: as :func:`store_capture`.
 
     Raises:
@@ -128,5 +129,8 @@ def store_image(cfg: Any, params: Mapping[str, Any], surface: str, cycle_id: str
     label = params.get("label")
     if not isinstance(label, str):
         raise ClassifierError(f"collect mode needs start param label 'clean' or 'dirty', got {label!r}")
-    dataset = params.get("dataset") or cfg.path(cfg.classifier.dataset_dir)
-    return store_capture(Path(dataset), surface, label, cycle_id, k, image)
+    root = cfg.path(cfg.classifier.dataset_dir)
+    name = params.get("dataset")
+    if name is not None and (not isinstance(name, str) or Path(name).name != name or name in ("", ".", "..")):
+        raise ClassifierError(f"dataset {name!r:.80} is not a plain folder name under {str(root)!r}")
+    return store_capture(root / name if name else root, surface, label, cycle_id, k, image)

@@ -19,6 +19,7 @@ import itertools
 import json
 import logging
 import queue
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -76,6 +77,7 @@ BEHAVIOURS = (
 """PackML behaviours this code provides; ``states/packml.yaml`` may name only these."""
 
 START_PARAMS = {"mode", "label", "surface", "perturb_m", "seed", "dataset"}
+DATASET_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 
 
 class _CellState(NestedState):
@@ -121,8 +123,12 @@ def validate_start_params(params: dict[str, Any]) -> dict[str, Any]:
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
         # numpy seeds the perturbation with it: a negative or huge seed would fail mid-cycle
         raise ProtocolError(f"start param seed={seed!r:.80}; expected an integer in [0, 2**63)")
-    if "dataset" in params and not (isinstance(params["dataset"], str) and params["dataset"].strip()):
-        raise ProtocolError(f"start param dataset={params['dataset']!r:.80}; expected a folder path (string)")
+    if "dataset" in params and not (isinstance(params["dataset"], str) and DATASET_NAME.fullmatch(params["dataset"])):
+        # a name under classifier.dataset_dir, never a path: the PLC must not choose where the daemon writes
+        raise ProtocolError(
+            f"start param dataset={params['dataset']!r:.80}; expected a dataset name (letters, digits, '.', '_', '-';"
+            " at most 64, no path) stored under classifier.dataset_dir"
+        )
     return {**params, "mode": mode}
 
 

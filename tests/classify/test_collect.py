@@ -60,7 +60,9 @@ def test_store_image_supervisor_hook(tmp_path: Path) -> None:
     cid = "20261127T064512-123-1"
     p = store_image(cfg, {"mode": "collect", "label": "clean"}, "internal", cid, 3, png)
     assert p == tmp_path / "ds" / "internal" / "clean" / f"{cid}_003.png"
-    p2 = store_image(cfg, {"label": "dirty", "dataset": str(tmp_path / "other")}, "external", cid, 0, png)
-    assert p2.parent == tmp_path / "other" / "external" / "dirty"
+    p2 = store_image(cfg, {"label": "dirty", "dataset": "other"}, "external", cid, 0, png)
+    assert p2.parent == tmp_path / "ds" / "other" / "external" / "dirty"
+    with pytest.raises(ClassifierError, match="not a plain folder name"):
+        store_image(cfg, {"label": "dirty", "dataset": "../../etc"}, "external", cid, 0, png)
     with pytest.raises(ClassifierError, match="needs start param label"):
         store_image(cfg, {"mode": "collect"}, "external", cid, 0, png)

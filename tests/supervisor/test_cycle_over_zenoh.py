@@ -236,6 +236,9 @@ def test_start_params_are_validated(cfg, cell, plc) -> None:
     assert not ack.accepted and "label" in ack.reason
     ack = plc.cmd("start", speed=3)
     assert not ack.accepted and "speed" in ack.reason
+    for where in ("/etc", "../../x", "a/b", ".hidden", ""):  # the PLC names a dataset, never a path
+        ack = plc.cmd("start", mode="collect", label="clean", dataset=where)
+        assert not ack.accepted and "dataset name" in ack.reason, where
     assert cell.supervisor.state == "Idle"
 
 
@@ -285,10 +288,11 @@ def test_replay_verify_passes_on_a_recorded_cycle_and_catches_a_change(cfg, cell
 
 
 def test_collect_mode_stores_labelled_images_at_perturbed_poses(cfg, cell, plc, tmp_path) -> None:
+    cfg.classifier.dataset_dir = tmp_path
     with FakeCell(cfg, n_viewpoints=3) as fake:
         plc.cmd("reset")
         plc.wait_state("Idle")
-        ack = plc.cmd("start", mode="collect", label="dirty", perturb_m=0.01, seed=3, dataset=str(tmp_path / "ds"))
+        ack = plc.cmd("start", mode="collect", label="dirty", perturb_m=0.01, seed=3, dataset="ds")
         assert ack.accepted, ack.reason
         plc.wait_state("Complete")
         res = plc.results.get(timeout=5)
