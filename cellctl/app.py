@@ -55,10 +55,35 @@ class WorkerProcesses:
         for ov in overrides:
             extra += ["--set", ov]
         self._cmds = {role: [*base, role, *extra] for role in roles}
+        self._backoff: dict[str, float] = {}
+        self._not_before: dict[str, float] = {}
 
     def start(self) -> None:
         for role, cmd in self._cmds.items():
             self.start_one(role, cmd)
+
+    def restart_dead(self) -> list[str]:
+        """Start again every child that exited, with a doubling back-off (1 s … 60 s) per role.
+
+        The supervisor has already aborted the cycle when the worker's token went; this only
+        brings the process back, so the operator's Clear → Reset → Start finds it alive. A
+        frozen child is not dead and is left alone (it resumes by itself).
+        """
+        now = time.monotonic()
+        restarted = []
+        for role, p in list(self.procs.items()):
+            code = p.poll()
+            if code is None or now < self._not_before.get(role, 0.0):
+                continue
+            delay = min(60.0, 2 * self._backoff.get(role, 0.5))
+            self._backoff[role] = delay
+            self._not_before[role] = now + delay
+            log.warning(
+                "%s worker (pid %d) exited with %s; restarting it (next restart in >= %.0f s)", role, p.pid, code, delay
+            )
+            self.start_one(role)
+            restarted.append(role)
+        return restarted
 
     def start_one(self, role: str, cmd: list[str] | None = None) -> None:
         cmd = cmd or self._cmds[role]
@@ -95,9 +120,10 @@ class Cell:
         self.workers = workers
 
     def run(self, stop: threading.Event) -> None:
-        """Serve until ``stop`` is set (SIGTERM/SIGINT in the daemon)."""
+        """Serve until ``stop`` is set (SIGTERM/SIGINT in the daemon); restart child workers that died."""
         while not stop.wait(0.5):
-            pass
+            if self.workers is not None:
+                self.workers.restart_dead()
 
     def close(self) -> None:
         try:
