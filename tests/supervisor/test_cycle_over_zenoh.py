@@ -11,46 +11,29 @@ from mcap.reader import make_reader
 
 from cellctl.app import build_cell
 from cellctl.bus import keys
-from cellctl.bus.codec import decode_as, encode
-from cellctl.bus.session import open_session
-from cellctl.messages import Ack, Command, CycleResult, Status
+from cellctl.bus.codec import decode_as
+from cellctl.bus.plc_client import PlcClient
+from cellctl.messages import Ack, Status
 from tests.fakes.workers import FakeCell, fake_identify
 
 
-class Plc:
-    """A client that sends commands by query and watches Status and CycleResult."""
+class Plc(PlcClient):
+    """The shipped PLC client with the short names these tests read best with."""
 
     def __init__(self, cfg) -> None:  # noqa: ANN001
-        self.cfg = cfg
-        self.s = open_session(cfg, "client")
-        self.status: queue.Queue[Status] = queue.Queue()
-        self.results: queue.Queue[CycleResult] = queue.Queue()
-        self.s.declare_subscriber(
-            keys.status(cfg.cell_id), lambda x: self.status.put(decode_as(Status, x.payload.to_bytes()))
-        )
-        self.s.declare_subscriber(
-            keys.result(cfg.cell_id), lambda x: self.results.put(decode_as(CycleResult, x.payload.to_bytes()))
-        )
+        super().__init__(cfg, "t")
+        self.s = self.session
+        self.status = self.statuses
         time.sleep(0.2)
 
     def cmd(self, command: str, **params) -> Ack:  # noqa: ANN003
-        msg = Command(command=command, request_id=f"t-{command}", params=params)
-        (reply,) = list(self.s.get(keys.cmd(self.cfg.cell_id), payload=encode(msg), timeout=5))
-        return decode_as(Ack, reply.ok.payload.to_bytes())
+        return self.command(command, timeout=5, **params)
 
     def wait_state(self, state: str, timeout: float = 10.0) -> Status:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            try:
-                st = self.status.get(timeout=0.2)
-            except queue.Empty:
-                continue
-            if st.state == state:
-                return st
-        raise AssertionError(f"state {state!r} not reached in {timeout} s")
-
-    def close(self) -> None:
-        self.s.close()
+        st = self.wait_for(lambda s: s.state == state, timeout)
+        if st is None:
+            raise AssertionError(f"state {state!r} not reached in {timeout} s")
+        return st
 
 
 @pytest.fixture
