@@ -84,9 +84,7 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
             robot.stop("supervisor lost (liveliness token gone)")  # sets an event: never blocks
 
     # history: a token declared before this subscriber must still report its DELETE
-    sup_watch = session.liveliness().declare_subscriber(
-        keys.alive(cell, "supervisor"), _supervisor_seen, history=True
-    )
+    sup_watch = session.liveliness().declare_subscriber(keys.alive(cell, "supervisor"), _supervisor_seen, history=True)
     pub_j = session.declare_publisher(keys.robot_joints(cell))
     pub_s = session.declare_publisher(keys.sim_state(cell)) if isinstance(robot, SimRobot) else None
     with WorkerServer(session, cell, "robot") as server:
