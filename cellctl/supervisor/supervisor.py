@@ -76,6 +76,9 @@ BEHAVIOURS = (
 )
 """PackML behaviours this code provides; ``states/packml.yaml`` may name only these."""
 
+RECONCILE_S = 2.0
+"""How often worker liveliness is re-read from the router (bounds a wrong count's lifetime)."""
+
 START_PARAMS = {"mode", "label", "surface", "perturb_m", "seed", "dataset"}
 DATASET_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 
@@ -266,6 +269,7 @@ class Supervisor:
             self._pub[name] = s.declare_publisher(key)
         self._thread = threading.Thread(target=self._loop, name="dispatcher", daemon=True)
         self._thread.start()
+        threading.Thread(target=self._reconcile_alive, name="alive-reconcile", daemon=True).start()
         self._events.put(("publish_status",))
 
     def stop(self, timeout: float = 10.0) -> None:
@@ -337,6 +341,8 @@ class Supervisor:
             self._publish_status()
         elif kind == "fire":
             self._fire(ev[1])
+        elif kind == "alive_sync":
+            self._on_alive_sync(ev[1])
 
     def _fire(self, trigger: str) -> None:
         getattr(self.model, trigger)()
@@ -505,6 +511,44 @@ class Supervisor:
             ctx.reason = reason
         self._fire("abort")
 
+    def _query_alive(self) -> dict[str, int]:
+        """Live tokens per role, asked from the router now (activation/reconcile threads only)."""
+        counts: dict[str, int] = {}
+        for r in self.session.liveliness().get(keys.alive_all(self.cell_id), timeout=1.0):
+            if r.ok is not None:
+                role = keys.role_from_alive_key(self.cell_id, str(r.ok.key_expr))
+                if role is not None and role != "supervisor":
+                    counts[role] = counts.get(role, 0) + 1
+        return counts
+
+    def _missing_workers(self) -> list[str]:
+        """Required roles with no live token, asked now rather than taken from the event count."""
+        try:
+            alive = self._query_alive()
+        except Exception:  # a closing session: fall back to what the events said
+            alive = dict(self._alive)
+        else:
+            self._events.put(("alive_sync", alive))
+        return [r for r in self.cfg.supervisor.required_workers if alive.get(r, 0) == 0]
+
+    def _on_alive_sync(self, counts: dict[str, int]) -> None:
+        # Liveliness events can arrive out of order around a reconnect (a frozen worker's late
+        # DELETE after its new PUT for the same key); the router's answer is the truth.
+        # Never an abort from here: losing a worker mid-cycle is the DELETE event's job.
+        fresh = {r: counts.get(r, 0) for r in keys.ROLES}
+        if any(fresh[r] != self._alive.get(r, 0) for r in keys.ROLES):
+            log.info("worker liveliness corrected from the router: %s (events said %s)", fresh, self._alive)
+            self._alive.update(fresh)
+            self._publish_status()
+
+    def _reconcile_alive(self) -> None:
+        """Every few seconds, correct the worker counts from a liveliness query (own thread)."""
+        while not self._stopped.wait(RECONCILE_S):
+            try:
+                self._events.put(("alive_sync", self._query_alive()))
+            except Exception:  # the session is closing
+                return
+
     # --- behaviours (run on activation threads) ----------------------------------------------
 
     def _idle_context(self) -> CycleContext:
@@ -518,7 +562,7 @@ class Supervisor:
         self._ctx = None
 
     def _b_open_cycle(self, run: StepRun) -> None:
-        missing = [r for r in self.cfg.supervisor.required_workers if self._alive.get(r, 0) == 0]
+        missing = self._missing_workers()
         if missing:
             raise WorkerUnavailable(f"no {', '.join(missing)} worker alive (liveliness); start the workers and retry")
 
@@ -551,7 +595,7 @@ class Supervisor:
         self._event("info", f"cycle {cycle_id} started ({ctx.mode})")
 
     def _b_resume_check(self, run: StepRun) -> None:
-        missing = [r for r in self.cfg.supervisor.required_workers if self._alive.get(r, 0) == 0]
+        missing = self._missing_workers()
         if missing:
             raise WorkerUnavailable(f"cannot resume: no {', '.join(missing)} worker alive")
 
