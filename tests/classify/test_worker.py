@@ -42,6 +42,7 @@ def test_worker_serves_refuses_and_keeps_serving(cfg: CellConfig, router, tiny_m
         server = BatchingClassifyServer(ws, cfg.cell_id, service)
         try:
             key = keys.classifier_classify(cfg.cell_id)
+            _wait_served(cs, key)
             rep, _ = request(cs, key, ClassifyRequest(surface="external"), ClassifyReply, timeout=10, payload=_png(0))
             assert rep.label in ("clean", "dirty") and rep.model_id.startswith("external-lite0-")
             with pytest.raises(WorkerFailed, match="cannot be decoded"):
@@ -73,12 +74,22 @@ def test_worker_serves_refuses_and_keeps_serving(cfg: CellConfig, router, tiny_m
             server.close()
 
 
+def _wait_served(session, key: str) -> None:  # noqa: ANN001
+    """Until the server's queryable has reached the client through the router (any reply will do)."""
+    deadline = time.monotonic() + 10
+    while not list(session.get(key, timeout=1.0)):
+        assert time.monotonic() < deadline, f"nobody serves {key} after 10 s"
+        time.sleep(0.05)
+
+
 def test_queued_requests_are_batched(cfg: CellConfig, router, tiny_models: Path) -> None:
     service = ClassifierService(tiny_models, "fp32", threads=1)
     with open_session(cfg, "client") as ws, open_session(cfg, "client") as cs:
         server = BatchingClassifyServer(ws, cfg.cell_id, service, max_batch=8)
         key = keys.classifier_classify(cfg.cell_id)
         try:
+            _wait_served(cs, key)
+            server.batches.clear()
             service._lock.acquire()  # hold the model so that the next requests queue up
             surfaces = ["external", "internal"] * 4
 
