@@ -30,6 +30,7 @@ __all__ = [
     "SupervisorConfig",
     "default_config_path",
     "load_config",
+    "output_overrides",
     "project_root",
     "safe_yaml_load",
 ]
@@ -40,6 +41,11 @@ PROJECT_ROOT = Path(__file__).resolve().parent.parent
 def project_root() -> Path:
     """The repository root of this checkout (holds ``config/``, ``states/``, ``models/``)."""
     return PROJECT_ROOT
+
+
+def output_overrides(folder: Path | str) -> list[str]:
+    """``--set`` overrides that keep a run's cycle logs, index and plan cache in ``folder``."""
+    return [f"recording.dir={folder}", f"recording.index={folder}/cells.db", f"planner.plans_dir={folder}/plans"]
 
 
 def default_config_path() -> Path:

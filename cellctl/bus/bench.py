@@ -13,8 +13,8 @@ from typing import Any
 
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as, encode
-from cellctl.bus.session import open_session
-from cellctl.config import load_config
+from cellctl.bus.session import open_session, private_bus_overrides
+from cellctl.config import load_config, output_overrides
 from cellctl.errors import ConfigError
 from cellctl.messages import Ack, Command, Status
 
@@ -34,27 +34,11 @@ def _summary(xs: list[float]) -> dict[str, float]:
     }
 
 
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def bench_bus(args: argparse.Namespace) -> dict[str, Any]:
     """Spawn ``cellctl run`` on a free loopback port and drive Reset/Stop cycles by query and put."""
     n = args.n or 300
-    port = _free_port()
-    ep = f'["tcp/127.0.0.1:{port}"]'
     tmp = tempfile.mkdtemp(prefix="cellctl-bench-bus-")
-    overrides = [
-        *args.overrides,
-        f"bus.listen={ep}",
-        f"bus.connect={ep}",
-        f"recording.dir={tmp}",
-        f"recording.index={tmp}/cells.db",
-    ]
+    overrides = [*args.overrides, *private_bus_overrides(), *output_overrides(tmp)]
     cfg = load_config(args.config, overrides)
     cmd = [sys.executable, "-m", "cellctl", "run"]
     for ov in overrides:

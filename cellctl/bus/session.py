@@ -18,7 +18,7 @@ from cellctl.bus.security import apply_security
 from cellctl.config import BusConfig, CellConfig
 from cellctl.errors import ConfigError
 
-__all__ = ["make_zenoh_config", "open_session"]
+__all__ = ["make_zenoh_config", "open_session", "private_bus_overrides"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -103,3 +103,14 @@ def open_session(cfg: CellConfig, mode: Mode) -> zenoh.Session:
         raise ConfigError(f"cannot open a Zenoh {mode} session on {endpoints}: {err} ({hint})") from err
     log.debug("zenoh %s session %s on %s", mode, session.info.zid(), endpoints)
     return session
+
+
+def private_bus_overrides() -> list[str]:
+    """``--set`` overrides that put a throw-away cell's bus on a free loopback port."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    ep = f'["tcp/127.0.0.1:{port}"]'
+    return [f"bus.listen={ep}", f"bus.connect={ep}"]

@@ -82,18 +82,14 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     from cellctl.bus import keys
     from cellctl.bus.plc_client import PlcClient
     from cellctl.bus.rpc import request
+    from cellctl.config import output_overrides
     from cellctl.messages import SimScenarioRequest, SimState
 
     now = _dt.datetime.now()
     out = Path(args.out) if args.out else Path("logs") / f"demo-{now:%Y%m%d-%H%M%S}"
     base_cfg = config_from_args(args)
     out = base_cfg.path(out)
-    overrides = [
-        *args.overrides,
-        f"recording.dir={out}",
-        f"recording.index={out / 'cells.db'}",
-        f"planner.plans_dir={out / 'plans'}",
-    ]
+    overrides = [*args.overrides, *output_overrides(out)]
     cfg = config_from_args(argparse.Namespace(config=args.config, overrides=overrides))
     c = cfg.cell_id
     _say(f"cellctl demo — cell {c!r} on {cfg.bus.listen}, outputs in {out}")

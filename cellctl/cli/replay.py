@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 import sys
 import tempfile
 import threading
@@ -33,26 +32,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(func=run_report)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def run_replay(args: argparse.Namespace) -> int:
     from cellctl.recording.replay import read_cycle, republish, verify
 
     if args.verify:
-        port = _free_port()
+        from cellctl.bus.session import private_bus_overrides
+        from cellctl.config import output_overrides
+
         tmp = tempfile.mkdtemp(prefix="cellctl-verify-")
-        ep = f'["tcp/127.0.0.1:{port}"]'
-        args.overrides = [
-            *args.overrides,
-            f"bus.listen={ep}",
-            f"bus.connect={ep}",
-            f"recording.dir={tmp}",
-            f"recording.index={tmp}/cells.db",
-        ]
+        args.overrides = [*args.overrides, *private_bus_overrides(), *output_overrides(tmp)]
         cfg = config_from_args(args)
         report = verify(args.file, cfg)
         print(json.dumps(report.as_dict(), indent=1))

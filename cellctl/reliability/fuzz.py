@@ -697,24 +697,12 @@ def run_fuzz(
 def bench_fuzz(args: argparse.Namespace) -> dict[str, Any]:
     """``cellctl bench fuzz``: a real cell on a private loopback port, ``--n`` cases from ``--seed``."""
     from cellctl.app import build_cell
-    from cellctl.bus.bench import _free_port
-    from cellctl.config import load_config
+    from cellctl.bus.session import private_bus_overrides
+    from cellctl.config import load_config, output_overrides
 
     n = args.n or 10_000
-    port = _free_port()
-    ep = f'["tcp/127.0.0.1:{port}"]'
     tmp = tempfile.mkdtemp(prefix="cellctl-bench-fuzz-")
-    cfg = load_config(
-        args.config,
-        [
-            *args.overrides,
-            f"bus.listen={ep}",
-            f"bus.connect={ep}",
-            f"recording.dir={tmp}/logs",
-            f"recording.index={tmp}/logs/cells.db",
-            *FUZZ_OVERRIDES,
-        ],
-    )
+    cfg = load_config(args.config, [*args.overrides, *private_bus_overrides(), *output_overrides(tmp), *FUZZ_OVERRIDES])
     try:
         # No identification: the cycle never gets past approaching (no vision imports needed).
         with build_cell(cfg, identification=(None, None)) as cell, slow_sim_robot(cfg):

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from cellctl.bus.plc_client import PlcClient
-from cellctl.config import CellConfig, load_config
+from cellctl.config import CellConfig, load_config, output_overrides
 from cellctl.errors import CellError
 
 __all__ = ["FAST_SIM", "SimCellRun", "running_sim_cell"]
@@ -54,13 +54,7 @@ def running_sim_cell(args: argparse.Namespace, name: str, base: list[str]) -> It
     from cellctl.app import build_cell
 
     out = Path(tempfile.mkdtemp(prefix=f"cellctl-{name}-"))
-    overrides = [
-        *base,
-        *args.overrides,
-        f"recording.dir={out}",
-        f"recording.index={out}/cells.db",
-        f"planner.plans_dir={out}/plans",
-    ]
+    overrides = [*base, *args.overrides, *output_overrides(out)]
     cfg = load_config(args.config, overrides)
     with build_cell(cfg, with_workers=True, config_file=args.config, overrides=overrides) as cell:
         with PlcClient(cfg, name) as plc:

@@ -13,50 +13,6 @@ from cellctl.messages import Command
 from cellctl.recording.index import CycleIndex
 from cellctl.supervisor.supervisor import Supervisor
 
-STOP_FROM = {
-    "Idle",
-    "Starting",
-    "Execute",
-    "Completing",
-    "Complete",
-    "Resetting",
-    "Holding",
-    "Held",
-    "Unholding",
-    "Suspending",
-    "Suspended",
-    "Unsuspending",
-}
-ABORT_FROM = {
-    "Clearing",
-    "Stopped",
-    "Starting",
-    "Idle",
-    "Suspended",
-    "Execute",
-    "Stopping",
-    "Holding",
-    "Held",
-    "Unholding",
-    "Suspending",
-    "Unsuspending",
-    "Resetting",
-    "Completing",
-    "Complete",
-}
-EXPECTED: dict[tuple[str, str], str] = {
-    ("Idle", "start"): "Starting",
-    ("Execute", "complete"): "Completing",
-    ("Execute", "hold"): "Holding",
-    ("Execute", "suspend"): "Suspending",
-    ("Complete", "reset"): "Resetting",
-    ("Stopped", "reset"): "Resetting",
-    ("Held", "unhold"): "Unholding",
-    ("Suspended", "unsuspend"): "Unsuspending",
-    ("Aborted", "clear"): "Clearing",
-    **{(s, "stop"): "Stopping" for s in STOP_FROM},
-    **{(s, "abort"): "Aborting" for s in ABORT_FROM},
-}
 STATES = [
     "Clearing",
     "Stopped",
@@ -76,6 +32,34 @@ STATES = [
     "Completing",
     "Complete",
 ]
+STOP_FROM = {
+    "Idle",
+    "Starting",
+    "Execute",
+    "Completing",
+    "Complete",
+    "Resetting",
+    "Holding",
+    "Held",
+    "Unholding",
+    "Suspending",
+    "Suspended",
+    "Unsuspending",
+}
+ABORT_FROM = set(STATES) - {"Aborting", "Aborted"}  # abort is allowed everywhere else
+EXPECTED: dict[tuple[str, str], str] = {
+    ("Idle", "start"): "Starting",
+    ("Execute", "complete"): "Completing",
+    ("Execute", "hold"): "Holding",
+    ("Execute", "suspend"): "Suspending",
+    ("Complete", "reset"): "Resetting",
+    ("Stopped", "reset"): "Resetting",
+    ("Held", "unhold"): "Unholding",
+    ("Suspended", "unsuspend"): "Unsuspending",
+    ("Aborted", "clear"): "Clearing",
+    **{(s, "stop"): "Stopping" for s in STOP_FROM},
+    **{(s, "abort"): "Aborting" for s in ABORT_FROM},
+}
 COMMANDS = ["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"]
 
 
