@@ -51,6 +51,11 @@ __all__ = ["D435_COLOR", "RenderParams", "RenderResult", "SimRenderer", "look_at
 D435_COLOR = Intrinsics(width=1280, height=720, fx=920.0, fy=920.0, cx=640.0, cy=360.0)
 """RealSense D435 colour stream defaults at 1280×720 (69° × 42° field of view)."""
 
+TILE_PIXELS = 1 << 15
+"""Pixels cast and shaded at once. A whole frame at once held ~130 MB of temporaries at
+640x360 and ~440 MB at 1280x720, and the camera worker's allocator kept each high-water
+mark (the soak's RSS steps); tiles bound that to ~28 MB at 1280x720, same image bit for bit."""
+
 # material ids
 M_FLOOR, M_WALL, M_BIN_EXT, M_BIN_INT, M_BOARD, M_BASE, M_ROBOT, M_CAMERA = range(8)
 
@@ -351,114 +356,141 @@ class SimRenderer:
         embree = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=embree, vertices=V.astype(np.float32), indices=F.astype(np.int32))
         W_, H_ = K.width, K.height
+        n_pix = W_ * H_
         d_cam = self._ray_dirs(K)
         R, o = T_world_cam[:3, :3], T_world_cam[:3, 3]
-        dirs = d_cam @ R.T.astype(np.float32)
-        origins = np.broadcast_to(o.astype(np.float32), dirs.shape)
-        res = embree.run(np.ascontiguousarray(origins, dtype=np.float32), dirs, output=1)
-        idx = np.flatnonzero(res["primID"] >= 0)
-        tri = res["primID"][idx].astype(np.int64)
-        loc = o + dirs[idx].astype(np.float64) * res["tfar"][idx, None].astype(np.float64)
-        tri_v = V[F[tri]]
-        face_n = np.cross(tri_v[:, 1] - tri_v[:, 0], tri_v[:, 2] - tri_v[:, 0])
-        face_n /= np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-300)
-        n_pix = W_ * H_
-        col = np.zeros((n_pix, 3))
-        # background (beyond the cabin, or no cell): dim grey
-        col[:] = 0.08
+        R32, o32 = R.T.astype(np.float32), o.astype(np.float32)
+        rgb = np.empty((n_pix, 3), dtype=np.uint8)
         depth = np.full(n_pix, np.inf, dtype=np.float32)
         surface = np.full(n_pix, -1, dtype=np.int8)
         pmask = np.zeros(n_pix, dtype=bool)
-        if len(idx):
-            p = loc
-            d = dirs[idx]
-            fn = face_n
-            fn = np.where((np.einsum("ij,ij->i", fn, d) > 0)[:, None], -fn, fn)
-            mat = M[tri]
-            depth[idx] = np.einsum("ij,ij->i", p - o, np.broadcast_to(R[:, 2], p.shape))
-            lights = np.array([[1.0, -1.2, 2.8], [-1.2, 0.8, 2.8]]) + np.asarray(P.light_offset)
-            diffuse = np.zeros(len(idx))
-            spec_b = np.zeros(len(idx))
-            spec_p = np.zeros(len(idx))
-            for L in lights:
-                ldir = L - p
-                dist = np.linalg.norm(ldir, axis=1)
-                ldir /= dist[:, None]
-                att = P.light_scale * 0.55 * (3.0 / (1.0 + dist**2 / 4.0))
-                ndl = np.clip(np.einsum("ij,ij->i", fn, ldir), 0, None)
-                diffuse += att * ndl
-                hv = ldir - d
-                hv /= np.linalg.norm(hv, axis=1, keepdims=True)
-                ndh = np.clip(np.einsum("ij,ij->i", fn, hv), 0, None)
-                spec_b += att * ndh**18
-                spec_p += att * ndh**400
-            light = P.ambient + diffuse
-            c = np.zeros((len(idx), 3))
-            # simple materials
-            c[mat == M_FLOOR] = 0.35
-            fl = mat == M_FLOOR
-            if fl.any():
-                chk = (np.floor(p[fl, 0] / 0.5) + np.floor(p[fl, 1] / 0.5)) % 2
-                c[fl] = (0.30 + 0.08 * chk)[:, None] * np.array([1.0, 1.0, 0.95])
-            c[mat == M_WALL] = np.array([0.62, 0.66, 0.70])
-            c[mat == M_BASE] = np.array([0.20, 0.22, 0.25])
-            c[mat == M_ROBOT] = np.array([0.72, 0.76, 0.80])
-            c[mat == M_CAMERA] = np.array([0.10, 0.10, 0.12])
-            col_hit = c * light[:, None]
-            # board texture
-            bd = mat == M_BOARD
-            if bd.any():
-                tex = self._board_texture(name)
-                bt = self.catalog.get(name)
-                w, h = bt.board.size_m
-                pb = (p[bd] - T_world_board[:3, 3]) @ T_world_board[:3, :3]
-                ty = np.clip((pb[:, 1] / h * tex.shape[0]).astype(int), 0, tex.shape[0] - 1)
-                tx = np.clip((pb[:, 0] / w * tex.shape[1]).astype(int), 0, tex.shape[1] - 1)
-                alb = 0.04 + 0.82 * tex[ty, tx]
-                col_hit[bd] = (alb * light[bd])[:, None] * np.array([1.0, 1.0, 0.98])
-            # stainless steel, both finishes, in the bin frame
-            st = (mat == M_BIN_EXT) | (mat == M_BIN_INT)
-            if st.any():
-                Tbw = invert(T_world_bin)
-                pbin = p[st] @ Tbw[:3, :3].T + Tbw[:3, 3]
-                nbin = fn[st] @ Tbw[:3, :3].T
-                horiz = np.abs(nbin[:, 2]) > 0.7
-                coord = np.where(horiz, pbin[:, 1], pbin[:, 2])  # grain: around the walls, along x on plates
-                streak = 0.6 * _STREAKS(coord, 0.00035) + 0.4 * _STREAKS(coord + 3.1, 0.0021)
-                ext = mat[st] == M_BIN_EXT
-                inn = ~ext
-                lig = light[st]
-                val = np.empty(len(lig))
-                # brushed: grey albedo with streaks, broad specular stretched by the grain
-                if ext.any():
-                    wav = value_noise3(pbin[ext] / 0.15, 99) - 0.5
-                    se = streak[ext]
-                    spec = 0.55 * spec_b[st][ext] * (1 + 0.5 * se)
-                    val[ext] = (0.50 + 0.07 * se + 0.05 * wav) * lig[ext] + spec
-                # polished: reflect a synthetic cabin (bright ceiling, light panels) + sharp highlight
-                if inn.any():
-                    dd = d[st][inn]
-                    nn = fn[st][inn]
-                    r = dd - 2 * np.einsum("ij,ij->i", dd, nn)[:, None] * nn
-                    env = 0.10 + 0.35 * np.clip(r[:, 2], 0, 1) ** 2
-                    panels = (np.abs(np.sin(r[:, 0] * 4.0 + r[:, 1] * 1.5)) > 0.92) & (r[:, 2] > 0.3)
-                    env = env + 0.9 * panels + 0.05 * (value_noise3(r * 3.0, 5) - 0.5)
-                    val[inn] = 0.16 * lig[inn] + 0.75 * env + 2.5 * spec_p[st][inn] + 0.02 * streak[inn]
-                tint = np.array([0.97, 0.99, 1.02])
-                sc = val[:, None] * tint
-                # powder: matte, covers the steel
-                a = powder.alpha(pbin, np.where(ext, EXTERNAL, INTERNAL), nbin)
-                if a.any():
-                    prgb = np.asarray(P.powder_rgb) * (0.25 + 0.9 * lig)[:, None]
-                    sc = sc * (1 - a[:, None]) + prgb * a[:, None]
-                col_hit[st] = sc
-                ids = idx[st]
-                surface[ids] = np.where(ext, EXTERNAL, INTERNAL)
-                pmask[ids] = a > 0.5
-            col[idx] = col_hit
+        # one generator drawn tile after tile gives the same noise as one whole-frame draw
         rng = np.random.default_rng([seed, 31337])
-        img = np.clip(col * P.exposure, 0, 1) ** (1 / 2.2) * 255.0
-        if P.noise_sigma > 0:
-            img = img + rng.normal(0, P.noise_sigma, img.shape)
-        rgb = np.clip(img, 0, 255).astype(np.uint8).reshape(H_, W_, 3)
-        return RenderResult(rgb, pmask.reshape(H_, W_), surface.reshape(H_, W_), depth.reshape(H_, W_))
+        for a in range(0, n_pix, TILE_PIXELS):
+            b = min(a + TILE_PIXELS, n_pix)
+            dirs = d_cam[a:b] @ R32
+            origins = np.broadcast_to(o32, dirs.shape)
+            res = embree.run(np.ascontiguousarray(origins), dirs, output=1)
+            hit = np.flatnonzero(res["primID"] >= 0)
+            # background (beyond the cabin, or no cell): dim grey
+            col = np.full((b - a, 3), 0.08)
+            if len(hit):
+                tri = res["primID"][hit].astype(np.int64)
+                d = dirs[hit]
+                p = o + d.astype(np.float64) * res["tfar"][hit, None].astype(np.float64)
+                ids = a + hit
+                depth[ids] = np.einsum("ij,ij->i", p - o, np.broadcast_to(R[:, 2], p.shape))
+                col[hit], surf, powder_seen = self._shade(
+                    name, V[F[tri]], M[tri], p, d, T_world_bin, T_world_board, P, powder
+                )
+                surface[ids] = surf
+                pmask[ids] = powder_seen
+            img = np.clip(col * P.exposure, 0, 1) ** (1 / 2.2) * 255.0
+            if P.noise_sigma > 0:
+                img = img + rng.normal(0, P.noise_sigma, img.shape)
+            rgb[a:b] = np.clip(img, 0, 255).astype(np.uint8)
+        return RenderResult(
+            rgb.reshape(H_, W_, 3), pmask.reshape(H_, W_), surface.reshape(H_, W_), depth.reshape(H_, W_)
+        )
+
+    def _shade(
+        self,
+        name: str,
+        tri_v: NDArray[np.float64],
+        mat: NDArray[np.int8],
+        p: NDArray[np.float64],
+        d: NDArray[np.float32],
+        T_world_bin: NDArray[np.float64],
+        T_world_board: NDArray[np.float64],
+        P: RenderParams,
+        powder: PowderField,
+    ) -> tuple[NDArray[np.float64], NDArray[np.int8], NDArray[np.bool_]]:
+        """Linear colour (M, 3), surface tag (M,) and powder-seen flag (M,) of M ray hits.
+
+        ``tri_v`` (M, 3, 3) are the hit triangles' corners, ``mat`` their materials, ``p`` the hit
+        points and ``d`` the unit ray directions, all in the world frame.
+        """
+        surface = np.full(len(p), -1, dtype=np.int8)
+        pmask = np.zeros(len(p), dtype=bool)
+        face_n = np.cross(tri_v[:, 1] - tri_v[:, 0], tri_v[:, 2] - tri_v[:, 0])
+        face_n /= np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-300)
+        fn = np.where((np.einsum("ij,ij->i", face_n, d) > 0)[:, None], -face_n, face_n)
+        lights = np.array([[1.0, -1.2, 2.8], [-1.2, 0.8, 2.8]]) + np.asarray(P.light_offset)
+        diffuse = np.zeros(len(p))
+        spec_b = np.zeros(len(p))
+        spec_p = np.zeros(len(p))
+        for L in lights:
+            ldir = L - p
+            dist = np.linalg.norm(ldir, axis=1)
+            ldir /= dist[:, None]
+            att = P.light_scale * 0.55 * (3.0 / (1.0 + dist**2 / 4.0))
+            ndl = np.clip(np.einsum("ij,ij->i", fn, ldir), 0, None)
+            diffuse += att * ndl
+            hv = ldir - d
+            hv /= np.linalg.norm(hv, axis=1, keepdims=True)
+            ndh = np.clip(np.einsum("ij,ij->i", fn, hv), 0, None)
+            spec_b += att * ndh**18
+            spec_p += att * ndh**400
+        light = P.ambient + diffuse
+        c = np.zeros((len(p), 3))
+        # simple materials
+        c[mat == M_FLOOR] = 0.35
+        fl = mat == M_FLOOR
+        if fl.any():
+            chk = (np.floor(p[fl, 0] / 0.5) + np.floor(p[fl, 1] / 0.5)) % 2
+            c[fl] = (0.30 + 0.08 * chk)[:, None] * np.array([1.0, 1.0, 0.95])
+        c[mat == M_WALL] = np.array([0.62, 0.66, 0.70])
+        c[mat == M_BASE] = np.array([0.20, 0.22, 0.25])
+        c[mat == M_ROBOT] = np.array([0.72, 0.76, 0.80])
+        c[mat == M_CAMERA] = np.array([0.10, 0.10, 0.12])
+        col_hit = c * light[:, None]
+        # board texture
+        bd = mat == M_BOARD
+        if bd.any():
+            tex = self._board_texture(name)
+            bt = self.catalog.get(name)
+            w, h = bt.board.size_m
+            pb = (p[bd] - T_world_board[:3, 3]) @ T_world_board[:3, :3]
+            ty = np.clip((pb[:, 1] / h * tex.shape[0]).astype(int), 0, tex.shape[0] - 1)
+            tx = np.clip((pb[:, 0] / w * tex.shape[1]).astype(int), 0, tex.shape[1] - 1)
+            alb = 0.04 + 0.82 * tex[ty, tx]
+            col_hit[bd] = (alb * light[bd])[:, None] * np.array([1.0, 1.0, 0.98])
+        # stainless steel, both finishes, in the bin frame
+        st = (mat == M_BIN_EXT) | (mat == M_BIN_INT)
+        if st.any():
+            Tbw = invert(T_world_bin)
+            pbin = p[st] @ Tbw[:3, :3].T + Tbw[:3, 3]
+            nbin = fn[st] @ Tbw[:3, :3].T
+            horiz = np.abs(nbin[:, 2]) > 0.7
+            coord = np.where(horiz, pbin[:, 1], pbin[:, 2])  # grain: around the walls, along x on plates
+            streak = 0.6 * _STREAKS(coord, 0.00035) + 0.4 * _STREAKS(coord + 3.1, 0.0021)
+            ext = mat[st] == M_BIN_EXT
+            inn = ~ext
+            lig = light[st]
+            val = np.empty(len(lig))
+            # brushed: grey albedo with streaks, broad specular stretched by the grain
+            if ext.any():
+                wav = value_noise3(pbin[ext] / 0.15, 99) - 0.5
+                se = streak[ext]
+                spec = 0.55 * spec_b[st][ext] * (1 + 0.5 * se)
+                val[ext] = (0.50 + 0.07 * se + 0.05 * wav) * lig[ext] + spec
+            # polished: reflect a synthetic cabin (bright ceiling, light panels) + sharp highlight
+            if inn.any():
+                dd = d[st][inn]
+                nn = fn[st][inn]
+                r = dd - 2 * np.einsum("ij,ij->i", dd, nn)[:, None] * nn
+                env = 0.10 + 0.35 * np.clip(r[:, 2], 0, 1) ** 2
+                panels = (np.abs(np.sin(r[:, 0] * 4.0 + r[:, 1] * 1.5)) > 0.92) & (r[:, 2] > 0.3)
+                env = env + 0.9 * panels + 0.05 * (value_noise3(r * 3.0, 5) - 0.5)
+                val[inn] = 0.16 * lig[inn] + 0.75 * env + 2.5 * spec_p[st][inn] + 0.02 * streak[inn]
+            tint = np.array([0.97, 0.99, 1.02])
+            sc = val[:, None] * tint
+            # powder: matte, covers the steel
+            a = powder.alpha(pbin, np.where(ext, EXTERNAL, INTERNAL), nbin)
+            if a.any():
+                prgb = np.asarray(P.powder_rgb) * (0.25 + 0.9 * lig)[:, None]
+                sc = sc * (1 - a[:, None]) + prgb * a[:, None]
+            col_hit[st] = sc
+            surface[st] = np.where(ext, EXTERNAL, INTERNAL)
+            pmask[st] = a > 0.5
+        return col_hit, surface, pmask
