@@ -18,6 +18,7 @@ from typing import Any
 from cellctl.errors import ClassifierError
 
 __all__ = [
+    "DATASET_NAME",
     "LABELS",
     "SURFACES",
     "capture_path",
@@ -32,6 +33,9 @@ SURFACES = ("external", "internal")
 LABELS = ("clean", "dirty")
 """Class names in index order: 0 = clean, 1 = dirty."""
 
+DATASET_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+"""A dataset the PLC may name (Start param ``dataset``): a plain folder name under
+``classifier.dataset_dir``, never a path — the PLC must not choose where the daemon writes."""
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 _JPEG_MAGIC = b"\xff\xd8\xff"
@@ -131,6 +135,6 @@ def store_image(cfg: Any, params: Mapping[str, Any], surface: str, cycle_id: str
         raise ClassifierError(f"collect mode needs start param label 'clean' or 'dirty', got {label!r}")
     root = cfg.path(cfg.classifier.dataset_dir)
     name = params.get("dataset")
-    if name is not None and (not isinstance(name, str) or Path(name).name != name or name in ("", ".", "..")):
+    if name is not None and not (isinstance(name, str) and DATASET_NAME.fullmatch(name)):
         raise ClassifierError(f"dataset {name!r:.80} is not a plain folder name under {str(root)!r}")
     return store_capture(root / name if name else root, surface, label, cycle_id, k, image)

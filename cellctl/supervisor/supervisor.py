@@ -19,7 +19,6 @@ import itertools
 import json
 import logging
 import queue
-import re
 import threading
 import time
 from collections.abc import Callable
@@ -32,6 +31,7 @@ from transitions.extensions.nesting import HierarchicalMachine, NestedState
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as, encode
 from cellctl.bus.rpc import request
+from cellctl.classify.collect import DATASET_NAME
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, ProtocolError, TransitionRejected, WorkerError, WorkerUnavailable
 from cellctl.messages import (
@@ -80,7 +80,6 @@ RECONCILE_S = 2.0
 """How often worker liveliness is re-read from the router (bounds a wrong count's lifetime)."""
 
 START_PARAMS = {"mode", "label", "surface", "perturb_m", "seed", "dataset"}
-DATASET_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 
 
 class _CellState(NestedState):
@@ -127,7 +126,6 @@ def validate_start_params(params: dict[str, Any]) -> dict[str, Any]:
         # numpy seeds the perturbation with it: a negative or huge seed would fail mid-cycle
         raise ProtocolError(f"start param seed={seed!r:.80}; expected an integer in [0, 2**63)")
     if "dataset" in params and not (isinstance(params["dataset"], str) and DATASET_NAME.fullmatch(params["dataset"])):
-        # a name under classifier.dataset_dir, never a path: the PLC must not choose where the daemon writes
         raise ProtocolError(
             f"start param dataset={params['dataset']!r:.80}; expected a dataset name (letters, digits, '.', '_', '-';"
             " at most 64, no path) stored under classifier.dataset_dir"
