@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import enum
+from collections.abc import Mapping
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -22,6 +23,7 @@ __all__ = [
     "MESSAGE_TYPES",
     "Ack",
     "ApproachReply",
+    "Admin",
     "ApproachRequest",
     "BinInfo",
     "CaptureReply",
@@ -36,6 +38,7 @@ __all__ = [
     "EventLevel",
     "Intrinsics",
     "JointState",
+    "LastCycle",
     "MoveReply",
     "MoveRequest",
     "PackMLCommand",
@@ -52,8 +55,11 @@ __all__ = [
     "SimScenarioRequest",
     "SimState",
     "SimStateRequest",
+    "StartParams",
     "Status",
     "StopRequest",
+    "UnitMode",
+    "UnitModeName",
     "ViewpointResult",
     "WireMessage",
     "now_iso",
@@ -130,10 +136,31 @@ class PackMLCommand(enum.IntEnum):
     complete = 10
 
 
-class Command(WireMessage):
-    """A PackML command from a PLC or operator on ``cell/<id>/cmd``.
+class UnitMode(enum.IntEnum):
+    """PackML unit modes with their PackTags ``UnitModeCurrent`` / ``UnitModeRequested`` codes."""
 
-    Exactly one of ``command`` (lower-case name) or ``cntrl_cmd`` (PackTags code) is given.
+    production = 1
+    maintenance = 2
+    manual = 3
+
+
+UnitModeName = Literal["production", "maintenance", "manual"]
+
+MAX_USER_CHARS = 64
+
+
+def _strict_code(v: Any, field: str, allowed: str) -> Any:
+    # Lax validation would read true as 1 and "2" as 2: a PLC sending those is broken.
+    if isinstance(v, bool | str):
+        raise ValueError(f"{field} must be an integer code {allowed}, got {type(v).__name__} {v!r}")
+    return v
+
+
+class Command(WireMessage):
+    """A PackML command or a unit-mode change request from a PLC or operator on ``cell/<id>/cmd``.
+
+    Exactly one of ``command`` (lower-case name), ``cntrl_cmd`` (PackTags code), ``unit_mode``
+    (mode name) or ``unit_mode_code`` (PackTags UnitMode code) is given.
     """
 
     type: Literal["cellctl/Command"] = "cellctl/Command"
@@ -142,21 +169,53 @@ class Command(WireMessage):
         Literal["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"] | None
     ) = None
     cntrl_cmd: int | None = Field(default=None, description="PackTags CntrlCmd code 1..10")
+    unit_mode: UnitModeName | None = Field(default=None, description="requested PackML unit mode")
+    unit_mode_code: int | None = Field(default=None, description="PackTags UnitModeRequested code 1..3")
     request_id: str | None = Field(default=None, max_length=128)
+    user: str | None = Field(
+        default=None, max_length=MAX_USER_CHARS, description="who sent it, e.g. 'hmi:alice' (printable)"
+    )
     params: dict[str, Any] = Field(default_factory=dict)
 
     @field_validator("cntrl_cmd", mode="before")
     @classmethod
     def _integer_code(cls, v: Any) -> Any:
-        # Lax validation would read true as 1 (Reset) and "2" as Start: a PLC sending those is broken.
-        if isinstance(v, bool | str):
-            raise ValueError(f"cntrl_cmd must be an integer code 1..10, got {type(v).__name__} {v!r}")
+        return _strict_code(v, "cntrl_cmd", "1..10")
+
+    @field_validator("unit_mode_code", mode="before")
+    @classmethod
+    def _integer_mode(cls, v: Any) -> Any:
+        return _strict_code(v, "unit_mode_code", "1..3")
+
+    @field_validator("user")
+    @classmethod
+    def _printable(cls, v: str | None) -> str | None:
+        if v is not None and not v.isprintable():
+            raise ValueError(f"user {v[:MAX_USER_CHARS]!r} must be printable characters only")
         return v
 
     @model_validator(mode="after")
     def _one_command(self) -> Command:
-        if (self.command is None) == (self.cntrl_cmd is None):
-            raise ValueError("give exactly one of 'command' (a PackML command name) or 'cntrl_cmd' (1..10)")
+        state_cmd = [f for f in ("command", "cntrl_cmd") if getattr(self, f) is not None]
+        mode_cmd = [f for f in ("unit_mode", "unit_mode_code") if getattr(self, f) is not None]
+        if mode_cmd and not state_cmd:
+            if len(mode_cmd) == 2:
+                raise ValueError("give exactly one of 'unit_mode' (a mode name) or 'unit_mode_code' (1..3), got both")
+            if self.unit_mode_code is not None and self.unit_mode_code not in {m.value for m in UnitMode}:
+                raise ValueError(
+                    f"unit_mode_code {self.unit_mode_code!r} is unknown; expected one of "
+                    + ", ".join(f"{m.value} {m.name}" for m in UnitMode)
+                )
+            return self
+        if mode_cmd:
+            raise ValueError(
+                f"a command carries either a PackML command or a unit mode change, got both {state_cmd + mode_cmd}"
+            )
+        if len(state_cmd) != 1:
+            raise ValueError(
+                "give exactly one of 'command' (a PackML command name) or 'cntrl_cmd' (1..10), or a unit mode"
+                f" change ('unit_mode' or 'unit_mode_code' 1..3); got {state_cmd or 'neither'}"
+            )
         if self.cntrl_cmd is not None and self.cntrl_cmd not in {c.value for c in PackMLCommand}:
             raise ValueError(
                 f"cntrl_cmd {self.cntrl_cmd!r} is unknown; expected one of "
@@ -165,11 +224,92 @@ class Command(WireMessage):
         return self
 
     @property
+    def requested_mode(self) -> UnitMode | None:
+        """The unit mode this command asks for, whichever way it was given; None for a PackML command."""
+        if self.unit_mode is not None:
+            return UnitMode[self.unit_mode]
+        if self.unit_mode_code is not None:
+            return UnitMode(self.unit_mode_code)
+        return None
+
+    @property
     def name(self) -> str:
-        """The command's lower-case PackML name, whichever way it was given."""
+        """The command's lower-case PackML name, whichever way it was given ('unit_mode' for a mode change)."""
         if self.command is not None:
             return self.command
-        return PackMLCommand(self.cntrl_cmd).name
+        if self.cntrl_cmd is not None:
+            return PackMLCommand(self.cntrl_cmd).name
+        return "unit_mode"
+
+
+START_PARAM_NAMES = ("mode", "label", "surface", "perturb_m", "seed", "dataset")
+
+
+class StartParams(WireMessage):
+    """The params of a Start command (``Command.params``), as the supervisor checks them.
+
+    On the wire they travel as a plain object inside the Command (no ``type``/``v`` there);
+    this model is their schema, checked by :meth:`from_params` before the cycle starts.
+    """
+
+    type: Literal["cellctl/StartParams"] = "cellctl/StartParams"
+    v: Literal[1] = 1
+    mode: Literal["evaluate", "collect"] = "evaluate"
+    label: Literal["clean", "dirty"] | None = Field(default=None, description="collect mode: the class of this bin")
+    surface: Literal["external", "internal"] | None = Field(
+        default=None, description="surface to inspect; default planner.surface of the config"
+    )
+    perturb_m: float = Field(default=0.0, ge=0.0, le=0.1, description="collect mode: random camera offset (m)")
+    seed: int = Field(default=0, ge=0, lt=2**63, description="seed of the perturbation")
+    dataset: str | None = Field(
+        default=None,
+        max_length=64,
+        description="collect mode: dataset folder name under classifier.dataset_dir (letters, digits, '.', '_', '-')",
+    )
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> StartParams:
+        """Check a Start command's params; raise ProtocolError naming the bad value."""
+        from cellctl.classify.collect import DATASET_NAME
+        from cellctl.errors import ProtocolError
+
+        unknown = set(params) - set(START_PARAM_NAMES)
+        if unknown:
+            raise ProtocolError(f"unknown start params {sorted(unknown)}; allowed: {sorted(START_PARAM_NAMES)}")
+        mode = params.get("mode", "evaluate")
+        if mode not in ("evaluate", "collect"):
+            raise ProtocolError(f"start param mode={mode!r}; expected 'evaluate' or 'collect'")
+        label = params.get("label")
+        if mode == "collect" and label not in ("clean", "dirty"):
+            raise ProtocolError(f"start param label={label!r}; collect mode needs label 'clean' or 'dirty'")
+        if "surface" in params and params["surface"] not in ("external", "internal"):
+            raise ProtocolError(f"start param surface={params['surface']!r}; expected 'external' or 'internal'")
+        perturb = params.get("perturb_m", 0.0)
+        if isinstance(perturb, bool) or not isinstance(perturb, int | float) or not 0 <= perturb <= 0.1:
+            raise ProtocolError(f"start param perturb_m={perturb!r:.80}; expected a number in [0, 0.1] m")
+        seed = params.get("seed", 0)
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+            # numpy seeds the perturbation with it: a negative or huge seed would fail mid-cycle
+            raise ProtocolError(f"start param seed={seed!r:.80}; expected an integer in [0, 2**63)")
+        dataset = params.get("dataset")
+        if "dataset" in params and not (isinstance(dataset, str) and DATASET_NAME.fullmatch(dataset)):
+            raise ProtocolError(
+                f"start param dataset={dataset!r:.80}; expected a dataset name (letters, digits, '.', '_', '-';"
+                " at most 64, no path) stored under classifier.dataset_dir"
+            )
+        return cls(
+            mode=mode,
+            # evaluate mode ignores a label (accepted as before, never used)
+            label=label if mode == "collect" else None,
+            surface=params.get("surface"),
+            perturb_m=float(perturb),
+            seed=seed,
+            dataset=dataset,
+        )
+
+    def as_params(self) -> dict[str, Any]:
+        """The params as a Command carries them (only those set)."""
+        return self.model_dump(exclude={"type", "v"}, exclude_none=True)
 
 
 class Ack(WireMessage):
@@ -182,6 +322,35 @@ class Ack(WireMessage):
     accepted: bool
     reason: str | None = None
     state: str
+    user: str | None = Field(default=None, description="the Command's user, echoed")
+    unit_mode: UnitModeName | None = Field(default=None, description="the unit mode after handling the command")
+
+
+class LastCycle(BaseModel):
+    """The last finished cycle, as Status.admin reports it."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    cycle_id: str
+    outcome: str
+    verdict: str | None = None
+    coverage: float | None = None
+    finished: str
+
+
+MAX_WARNINGS = 20
+
+
+class Admin(BaseModel):
+    """PackML Admin / PackTags counters and reasons; counters persist across restarts (the cycle index)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    prod_processed_count: int = Field(default=0, ge=0, description="bins inspected: cycles completed (any verdict)")
+    prod_defective_count: int = Field(default=0, ge=0, description="of those, verdict dirty")
+    stop_reason: str | None = Field(default=None, description="why the cell last went to Stopped/Aborted/Held")
+    warnings: list[str] = Field(default_factory=list, max_length=MAX_WARNINGS)
+    last_cycle: LastCycle | None = None
 
 
 class Status(WireMessage):
@@ -195,9 +364,11 @@ class Status(WireMessage):
     step: str | None = None
     cycle_id: str | None = None
     available_commands: list[str]
-    unit_mode: str = "production"
+    unit_mode: UnitModeName = "production"
+    unit_mode_code: int = Field(default=1, ge=1, le=3, description="PackTags UnitModeCurrent")
     last_error: str | None = None
     workers: dict[str, bool] = Field(default_factory=dict, description="liveliness of each worker role")
+    admin: Admin = Field(default_factory=Admin)
     stamp: str = Field(default_factory=now_iso)
 
 
@@ -548,6 +719,7 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
     m.model_fields["type"].default: m
     for m in (
         Command,
+        StartParams,
         Ack,
         Status,
         Event,

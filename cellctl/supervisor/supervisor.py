@@ -31,7 +31,6 @@ from transitions.extensions.nesting import HierarchicalMachine, NestedState
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as, encode
 from cellctl.bus.rpc import request
-from cellctl.classify.collect import DATASET_NAME
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, ProtocolError, TransitionRejected, WorkerError, WorkerUnavailable
 from cellctl.messages import (
@@ -43,6 +42,7 @@ from cellctl.messages import (
     Event,
     EventLevel,
     PoseMsg,
+    StartParams,
     Status,
     StopRequest,
 )
@@ -79,8 +79,6 @@ BEHAVIOURS = (
 RECONCILE_S = 2.0
 """How often worker liveliness is re-read from the router (bounds a wrong count's lifetime)."""
 
-START_PARAMS = {"mode", "label", "surface", "perturb_m", "seed", "dataset"}
-
 
 class _CellState(NestedState):
     # '_' is transitions' default separator; our state names use it (checking_cache).
@@ -107,30 +105,7 @@ def load_definitions(cfg_root: Path | None = None) -> tuple[PackMLDefinition, Cy
 
 def validate_start_params(params: dict[str, Any]) -> dict[str, Any]:
     """Check Start params; raise ProtocolError naming the bad value."""
-    unknown = set(params) - START_PARAMS
-    if unknown:
-        raise ProtocolError(f"unknown start params {sorted(unknown)}; allowed: {sorted(START_PARAMS)}")
-    mode = params.get("mode", "evaluate")
-    if mode not in ("evaluate", "collect"):
-        raise ProtocolError(f"start param mode={mode!r}; expected 'evaluate' or 'collect'")
-    label = params.get("label")
-    if mode == "collect" and label not in ("clean", "dirty"):
-        raise ProtocolError(f"start param label={label!r}; collect mode needs label 'clean' or 'dirty'")
-    if "surface" in params and params["surface"] not in ("external", "internal"):
-        raise ProtocolError(f"start param surface={params['surface']!r}; expected 'external' or 'internal'")
-    perturb = params.get("perturb_m", 0.0)
-    if isinstance(perturb, bool) or not isinstance(perturb, int | float) or not 0 <= perturb <= 0.1:
-        raise ProtocolError(f"start param perturb_m={perturb!r:.80}; expected a number in [0, 0.1] m")
-    seed = params.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
-        # numpy seeds the perturbation with it: a negative or huge seed would fail mid-cycle
-        raise ProtocolError(f"start param seed={seed!r:.80}; expected an integer in [0, 2**63)")
-    if "dataset" in params and not (isinstance(params["dataset"], str) and DATASET_NAME.fullmatch(params["dataset"])):
-        raise ProtocolError(
-            f"start param dataset={params['dataset']!r:.80}; expected a dataset name (letters, digits, '.', '_', '-';"
-            " at most 64, no path) stored under classifier.dataset_dir"
-        )
-    return {**params, "mode": mode}
+    return {**params, "mode": StartParams.from_params(params).mode}
 
 
 class Supervisor:
