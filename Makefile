@@ -27,6 +27,11 @@ system-deps:
 	  echo "installing libusb-1.0-0 (needed by open3d)"; \
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libusb-1.0-0; \
 	fi
+	@# The HMI's browser tests drive Debian's headless Chromium (no browser download).
+	@if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then \
+	  echo "installing chromium and chromium-driver (HMI browser tests)"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver; \
+	fi
 
 $(STAMP): pyproject.toml Makefile | system-deps
 	@test -x $(PY) || python3 -m venv $(VENV)
