@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import queue
 import statistics
 import subprocess
@@ -11,6 +10,7 @@ import tempfile
 import time
 from typing import Any
 
+from cellctl.bench_options import BenchOptions
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as, encode
 from cellctl.bus.session import open_session, private_bus_overrides
@@ -34,17 +34,20 @@ def _summary(xs: list[float]) -> dict[str, float]:
     }
 
 
-def bench_bus(args: argparse.Namespace) -> dict[str, Any]:
-    """Spawn ``cellctl run`` on a free loopback port and drive Reset/Stop cycles by query and put."""
-    n = args.n or 300
+def bench_bus(opts: BenchOptions) -> dict[str, Any]:
+    """Spawn ``cellctl run`` on a free loopback port and drive Reset/Stop cycles by query and put.
+
+    ``opts.n`` commands (default 300), alternating Reset and Stop, half by query, half by put.
+    """
+    n = opts.n or 300
     tmp = tempfile.mkdtemp(prefix="cellctl-bench-bus-")
-    overrides = [*args.overrides, *private_bus_overrides(), *output_overrides(tmp)]
-    cfg = load_config(args.config, overrides)
+    overrides = [*opts.overrides, *private_bus_overrides(), *output_overrides(tmp)]
+    cfg = load_config(opts.config, overrides)
     cmd = [sys.executable, "-m", "cellctl", "run"]
     for ov in overrides:
         cmd += ["--set", ov]
-    if args.config:
-        cmd += ["--config", args.config]
+    if opts.config:
+        cmd += ["--config", opts.config]
     daemon = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 30

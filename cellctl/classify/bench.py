@@ -10,7 +10,6 @@ and accuracy on a fresh held-out set drawn from the same source as the training 
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import tempfile
@@ -20,6 +19,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from cellctl.bench_options import BenchOptions
 
 __all__ = ["bench_classify"]
 
@@ -60,7 +61,7 @@ def _int8(model: Any, calib: list[np.ndarray]) -> Any:
         return convert_fx(prepared)
 
 
-def bench_classify(args: argparse.Namespace) -> dict[str, Any]:
+def bench_classify(opts: BenchOptions) -> dict[str, Any]:
     """Measure every variant; returns ``{"fp32": {...}, "fused": {...}, "int8": {...}, "setup": {...}}``."""
     import torch
 
@@ -68,12 +69,11 @@ def bench_classify(args: argparse.Namespace) -> dict[str, Any]:
     from cellctl.classify.evaluate import metrics
     from cellctl.classify.infer import SurfaceModel
     from cellctl.classify.synth import synth_dataset
-    from cellctl.config import load_config
 
-    cfg = load_config(args.config, args.overrides)
+    cfg = opts.load_config()
     threads = cfg.classifier.threads or os.cpu_count() or 1
     torch.set_num_threads(threads)
-    n = args.n or 200
+    n = opts.n or 200
     surface = "external"
     path = cfg.path(cfg.classifier.models_dir) / f"{surface}.pt"
     base = SurfaceModel.load(path, surface=surface, variant="fp32")
@@ -82,7 +82,7 @@ def bench_classify(args: argparse.Namespace) -> dict[str, Any]:
     n_acc = max(40, min(n, 400))
     with tempfile.TemporaryDirectory(prefix="cellctl-bench-") as tmp:
         print(f"bench: drawing {n_acc} held-out {source} images", file=sys.stderr)
-        synth_dataset(tmp, surface, n_acc, seed=10_000 + args.seed, source=source, size=size, config=cfg)
+        synth_dataset(tmp, surface, n_acc, seed=10_000 + opts.seed, source=source, size=size, config=cfg)
         items = split_dataset(tmp, surface, fractions=(0.0, 0.0, 1.0)).test
         images = [load_image(p) for p, _ in items]
         y = np.array([lab for _, lab in items])

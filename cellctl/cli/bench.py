@@ -1,6 +1,8 @@
 """``cellctl bench <what>``: measurements that print one JSON object on stdout.
 
-Each bench is ``module:function`` taking ``(args) -> dict``; progress goes to stderr.
+Each bench is a library function ``module:function`` taking a typed
+:class:`~cellctl.bench_options.BenchOptions` and returning a dict; this module only turns the
+flags into those options. Progress goes to stderr.
 """
 
 from __future__ import annotations
@@ -9,7 +11,9 @@ import argparse
 import importlib
 import json
 import sys
+from pathlib import Path
 
+from cellctl.bench_options import BenchOptions
 from cellctl.cli import add_config_arguments
 
 # name -> (module:function, help). Add yours here.
@@ -46,11 +50,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def options_from_args(args: argparse.Namespace) -> BenchOptions:
+    """The typed options of ``cellctl bench`` (``--cycles`` is the soak's name for ``--n``)."""
+    return BenchOptions(
+        n=args.cycles if args.cycles is not None else args.n,
+        seed=args.seed,
+        config=args.config,
+        overrides=tuple(args.overrides),
+        out=Path(args.out) if args.out else None,
+    )
+
+
 def run(args: argparse.Namespace) -> int:
-    if args.cycles is not None:
-        args.n = args.cycles
+    opts = options_from_args(args)
     mod, fn = BENCHES[args.what][0].split(":")
-    result = getattr(importlib.import_module(mod), fn)(args)
+    result = getattr(importlib.import_module(mod), fn)(opts)
     text = json.dumps(result, indent=2)
     print(text)
     if args.out:

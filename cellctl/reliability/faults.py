@@ -22,7 +22,6 @@ engineer would check:
 
 from __future__ import annotations
 
-import argparse
 import os
 import queue
 import signal
@@ -32,6 +31,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
+from cellctl.bench_options import BenchOptions
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as
 from cellctl.bus.plc_client import PlcClient
@@ -329,15 +329,18 @@ BENCH_STEPS = ("approaching", "identifying", "checking_cache", "scanning")
 """Steps long enough on the sim to be hit from a Status (classifying/reporting last < 1 ms)."""
 
 
-def bench_faults(args: argparse.Namespace) -> dict[str, Any]:
-    """Every worker × {kill, freeze} × step on the sim cell; detection times and recovery."""
+def bench_faults(opts: BenchOptions) -> dict[str, Any]:
+    """Every worker × {kill, freeze} × step on the sim cell; detection times and recovery.
+
+    ``opts.n`` (optional) keeps only the first n cases.
+    """
     from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
 
     reports: list[FaultReport] = []
-    with running_sim_cell(args, "faults", FAST_SIM) as run:
+    with running_sim_cell(opts, "faults", FAST_SIM) as run:
         cfg = run.cfg
         cases = [FaultCase(r, f, s) for r in cfg.supervisor.spawn_workers for f in FAULTS for s in BENCH_STEPS]
-        cases = cases[: args.n] if args.n else cases
+        cases = cases[: opts.n] if opts.n else cases
         inj = FaultInjector(cfg, run.plc, _ChildWorkers(run.cell.workers))
         try:
             for i, case in enumerate(cases, 1):

@@ -6,7 +6,6 @@ The daemon runs in this process and the sim workers as its child processes, exac
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -15,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cellctl.bench_options import BenchOptions
 from cellctl.bus.plc_client import PlcClient
 from cellctl.config import CellConfig, load_config, output_overrides
 from cellctl.errors import CellError
@@ -42,8 +42,8 @@ class SimCellRun:
 
 
 @contextmanager
-def running_sim_cell(args: argparse.Namespace, name: str, base: list[str]) -> Iterator[SimCellRun]:
-    """Start the sim cell with ``base`` + ``args.overrides``, wait for its workers, prime the plan cache.
+def running_sim_cell(opts: BenchOptions, name: str, base: list[str]) -> Iterator[SimCellRun]:
+    """Start the sim cell with ``base`` + ``opts.overrides``, wait for its workers, prime the plan cache.
 
     The first cycle on an empty plan cache ends ``replan_required``; this waits for that
     planning job, so measured cycles all find their plan.
@@ -54,9 +54,9 @@ def running_sim_cell(args: argparse.Namespace, name: str, base: list[str]) -> It
     from cellctl.app import build_cell
 
     out = Path(tempfile.mkdtemp(prefix=f"cellctl-{name}-"))
-    overrides = [*base, *args.overrides, *output_overrides(out)]
-    cfg = load_config(args.config, overrides)
-    with build_cell(cfg, with_workers=True, config_file=args.config, overrides=overrides) as cell:
+    overrides = [*base, *opts.overrides, *output_overrides(out)]
+    cfg = load_config(opts.config, overrides)
+    with build_cell(cfg, with_workers=True, config_file=opts.config, overrides=overrides) as cell:
         with PlcClient(cfg, name) as plc:
             roles = list(cfg.supervisor.spawn_workers)
             if not plc.wait_workers(roles, 300):

@@ -13,12 +13,13 @@ the controller's resources over many cycles, not about motion time; ``--set`` ch
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+from cellctl.bench_options import BenchOptions
 
 __all__ = ["ResourceSampler", "bench_soak", "growth"]
 
@@ -97,18 +98,18 @@ def _plot(samples: list[dict[str, Any]], names: list[str], path: Path) -> Path |
     return path
 
 
-def bench_soak(args: argparse.Namespace) -> dict[str, Any]:
-    """Run ``args.n`` cycles (default 50) back to back and report throughput and resource curves."""
+def bench_soak(opts: BenchOptions) -> dict[str, Any]:
+    """Run ``opts.n`` cycles (default 50) back to back and report throughput and resource curves."""
     import os
 
     from cellctl.errors import CellError
     from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
 
-    n = args.n or 50
+    n = opts.n or 50
     every = max(1, n // 100)
     outcomes: dict[str, int] = {}
     failures: list[str] = []
-    with running_sim_cell(args, "soak", FAST_SIM) as run:
+    with running_sim_cell(opts, "soak", FAST_SIM) as run:
         plc, cfg, out = run.plc, run.cfg, run.out
         roles = list(cfg.supervisor.spawn_workers)
         pids = {"daemon": os.getpid(), **{r: p.pid for r, p in run.cell.workers.procs.items()}}
@@ -147,7 +148,7 @@ def bench_soak(args: argparse.Namespace) -> dict[str, Any]:
         "failures": failures[:20],
         "elapsed_s": round(elapsed, 1),
         "cycles_per_hour": round(n / elapsed * 3600, 1),
-        "config": dict(o.split("=", 1) for o in [*FAST_SIM, *args.overrides]),
+        "config": dict(o.split("=", 1) for o in [*FAST_SIM, *opts.overrides]),
         "growth": verdict,
         "no_growth": all(v["ok"] is not False for per in verdict.values() for v in per.values()),
         "samples": sampler.samples,

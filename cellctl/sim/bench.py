@@ -6,12 +6,13 @@ repeated timings (``--n`` poses/configurations, default 2000).
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from typing import Any
 
 import numpy as np
+
+from cellctl.bench_options import BenchOptions
 
 __all__ = ["bench_sim"]
 
@@ -25,11 +26,11 @@ def _median_time(fn, reps: int) -> float:  # noqa: ANN001
     return float(np.median(ts))
 
 
-def bench_sim(args: argparse.Namespace) -> dict[str, Any]:
+def bench_sim(opts: BenchOptions) -> dict[str, Any]:
+    """``opts.n`` random configurations (default 2000) drawn from ``opts.seed``."""
     from tqdm import tqdm
     from ur_analytic_ik import ur10e
 
-    from cellctl.config import load_config
     from cellctl.geometry import robot_model as rm
     from cellctl.geometry.catalog import load_catalog
     from cellctl.geometry.transforms import invert
@@ -38,13 +39,13 @@ def bench_sim(args: argparse.Namespace) -> dict[str, Any]:
     from cellctl.sim.motion import plan_path
     from cellctl.sim.render import D435_COLOR, SimRenderer, scaled_intrinsics
 
-    n = args.n or 2000
-    rng = np.random.default_rng(args.seed)
-    cfg = load_config(args.config, args.overrides)
+    n = opts.n or 2000
+    rng = np.random.default_rng(opts.seed)
+    cfg = opts.load_config()
     cat = load_catalog(cfg.path(cfg.catalog))
     bt = cat.get("case_study")
     mesh = cat.load_mesh("case_study")
-    sc = scene.Scenario("case_study", dirty=True, seed=args.seed)
+    sc = scene.Scenario("case_study", dirty=True, seed=opts.seed)
     sc = sc.with_base(scene.park(sc, bt, mesh, 0.03, 2.0, 1))
     t0 = time.perf_counter()
     world = CollisionWorld(mesh, invert(sc.base()) @ sc.T_world_bin(bt), invert(sc.base()))

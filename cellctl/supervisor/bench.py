@@ -8,20 +8,22 @@ image handling, bus encode/decode). Classification overlaps the next move and is
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
 from typing import Any
 
+from cellctl.bench_options import BenchOptions
 
-def bench_cycle(args: argparse.Namespace) -> dict[str, Any]:
+
+def bench_cycle(opts: BenchOptions) -> dict[str, Any]:
+    """``opts.n`` measured cycles (default 3) after the plan-priming one."""
     from cellctl.errors import CellError
     from cellctl.reliability.sim_cell import running_sim_cell
 
-    n = args.n or 3
+    n = opts.n or 3
     runs = []
-    with running_sim_cell(args, "bench-cycle", ["robot.settle_s=0"]) as run:
+    with running_sim_cell(opts, "bench-cycle", ["robot.settle_s=0"]) as run:
         cfg, plc = run.cfg, run.plc
         for i in range(n):
             plc.to_idle()

@@ -15,7 +15,6 @@ Errors: ``trans_mm`` is the board-centre position error (the point the camera me
 
 from __future__ import annotations
 
-import argparse
 import time
 from collections.abc import Callable
 from typing import Any
@@ -23,6 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from cellctl.bench_options import BenchOptions
 from cellctl.errors import IdentificationError
 from cellctl.geometry.transforms import invert, pose_error
 from cellctl.messages import Intrinsics
@@ -438,22 +438,19 @@ def _figure(out: dict[str, Any], path: Any) -> None:
     plt.close(fig)
 
 
-def bench_pose(args: argparse.Namespace) -> dict[str, Any]:
+def bench_pose(opts: BenchOptions) -> dict[str, Any]:
     """``cellctl bench pose``: see the module docstring.
 
-    ``args.n`` views per distance (default 20). Renders with the twin's ray tracer when it is
+    ``opts.n`` views per distance (default 20). Renders with the twin's ray tracer when it is
     installed (else the exact pinhole renderer), the catalog board of ``sim.bin_type`` and a
-    7×5 board with 60 mm squares for comparison. Writes a PNG figure beside ``--out`` (or
+    7×5 board with 60 mm squares for comparison. Writes a PNG figure beside ``opts.out`` (or
     ``logs/bench/pose.png``).
     """
-    from pathlib import Path
-
-    from cellctl.cli import config_from_args
     from cellctl.geometry.catalog import load_catalog
 
-    cfg = config_from_args(args)
-    n = int(args.n or 20)
-    seed = int(args.seed)
+    cfg = opts.load_config()
+    n = opts.n or 20
+    seed = opts.seed
     intr = configured_intrinsics(cfg)
     catalog = load_catalog(cfg.path(cfg.catalog), root=cfg.root, verify_meshes=False)
     bin_type = cfg.sim.bin_type if cfg.sim.bin_type in catalog else catalog.names[0]
@@ -519,7 +516,7 @@ def bench_pose(args: argparse.Namespace) -> dict[str, Any]:
             "targets_met_fused_3_views": _targets(alt["fused_3_views"]["distances"]),
         }
     out["wall_s"] = round(time.perf_counter() - t0, 1)
-    fig = Path(args.out).with_suffix(".png") if getattr(args, "out", None) else cfg.path("logs/bench/pose.png")
+    fig = opts.out.with_suffix(".png") if opts.out is not None else cfg.path("logs/bench/pose.png")
     fig.parent.mkdir(parents=True, exist_ok=True)
     _figure(out, fig)
     out["figure"] = str(fig)

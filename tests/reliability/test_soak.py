@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import random
 
 import pytest
@@ -42,11 +41,11 @@ def test_too_few_samples_give_no_verdict() -> None:
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 def test_short_soak_of_the_sim_cell_completes_every_cycle_without_leaking_descriptors(port: int) -> None:
+    from cellctl.bench_options import BenchOptions
     from cellctl.reliability.soak import bench_soak
 
     ep = f'["tcp/127.0.0.1:{port}"]'
-    args = argparse.Namespace(n=25, config=None, overrides=[f"bus.listen={ep}", f"bus.connect={ep}"])
-    out = bench_soak(args)
+    out = bench_soak(BenchOptions(n=25, overrides=(f"bus.listen={ep}", f"bus.connect={ep}")))
     assert out["outcomes"] == {"completed": 25}, out["failures"]
     for name, per in out["growth"].items():
         assert per["fds"]["ok"] is not False, (name, per["fds"])

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import cv2
@@ -51,9 +50,10 @@ def test_sim_render_unknown_bin_is_a_clear_error(tmp_path: Path, capsys: pytest.
 
 @pytest.mark.slow
 def test_bench_sim_reports_the_three_figures() -> None:
+    from cellctl.bench_options import BenchOptions
     from cellctl.sim.bench import bench_sim
 
-    r = bench_sim(argparse.Namespace(n=200, seed=0, config=None, overrides=[]))
+    r = bench_sim(BenchOptions(n=200, seed=0))
     assert r["ik_fk_roundtrip_max_m"] < 1e-6
     for k in ("ik_us_per_pose", "collision_us_per_config", "render_ms_1280x720"):
         assert r[k] > 0
