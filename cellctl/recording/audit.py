@@ -6,6 +6,8 @@ What is checked (``cellctl audit verify``; the reasoning is in docs/decisions.md
 * each row's ``prev_hash`` against its predecessor in seq order (a deleted or reordered row);
 * seq numbers against each other and ``sqlite_sequence`` (a hint of deleted rows);
 * each closed row's MCAP against its ``log_sha256`` (an edited, truncated, replaced or missing log);
+* an interrupted row's recovered MCAP against its ``recovered_sha256`` (both files are evidence:
+  the cut-short original as found, and the valid copy that replay and report read);
 * every ``*.mcap`` under the logs folder is referenced by a row (the log of a deleted row);
 * optionally, a head hash recorded outside the cell is still in the chain (deleted newest rows).
 
@@ -46,6 +48,8 @@ class FindingKind(StrEnum):
     log_mismatch = "log_mismatch"
     log_unrecorded = "log_unrecorded"
     log_orphan = "log_orphan"
+    recovered_missing = "recovered_missing"
+    recovered_mismatch = "recovered_mismatch"
     running = "running"
     no_log = "no_log"
 
@@ -239,20 +243,46 @@ def _check_log(r: CycleRow) -> AuditFinding | None:
         return AuditFinding(
             FindingKind.no_log, f"{_name(r)} has no log: {path} was missing when the row closed", r.seq, r.cycle_id
         )
+    return _check_hash(r, "log", path, r.log_sha256, as_found, FindingKind.log_missing, FindingKind.log_mismatch)
+
+
+def _check_recovered(r: CycleRow) -> AuditFinding | None:
+    if r.row_hash is None or r.recovered_path is None:
+        return None
+    return _check_hash(
+        r,
+        "recovered log",
+        Path(r.recovered_path),
+        r.recovered_sha256,
+        f" (recovered from {r.log_path} when the supervisor restarted)",
+        FindingKind.recovered_missing,
+        FindingKind.recovered_mismatch,
+    )
+
+
+def _check_hash(
+    r: CycleRow,
+    what: str,
+    path: Path,
+    expected: str | None,
+    context: str,
+    missing: FindingKind,
+    mismatch: FindingKind,
+) -> AuditFinding | None:
     found = file_sha256(path)
     if found is None:
         return AuditFinding(
-            FindingKind.log_missing,
-            f"{_name(r)} log {path} is missing; expected a file with sha256 {r.log_sha256}",
+            missing,
+            f"{_name(r)} {what} {path} is missing; expected a file with sha256 {expected}",
             r.seq,
             r.cycle_id,
             str(path),
         )
-    if found != r.log_sha256:
+    if found != expected:
         return AuditFinding(
-            FindingKind.log_mismatch,
-            f"{_name(r)} log {path} ({path.stat().st_size} bytes) has sha256 {found}, expected"
-            f" {r.log_sha256}{as_found}: the file was edited, truncated or replaced",
+            mismatch,
+            f"{_name(r)} {what} {path} ({path.stat().st_size} bytes) has sha256 {found}, expected"
+            f" {expected}{context}: the file was edited, truncated or replaced",
             r.seq,
             r.cycle_id,
             str(path),
@@ -300,11 +330,15 @@ def verify_audit(
     referenced: set[Path] = set()
     for i, r in enumerate(rows, 1):
         referenced.add(Path(r.log_path).resolve())
-        finding = _check_log(r)
+        if r.recovered_path:
+            referenced.add(Path(r.recovered_path).resolve())
         if r.row_hash is not None and r.log_sha256 is not None:
             report.logs_checked += 1
-        if finding is not None:
-            report.findings.append(finding)
+        if r.row_hash is not None and r.recovered_path is not None:
+            report.logs_checked += 1
+        for finding in (_check_log(r), _check_recovered(r)):
+            if finding is not None:
+                report.findings.append(finding)
         if progress is not None:
             progress(i, len(rows))
     if logs_root.is_dir():
