@@ -1,4 +1,9 @@
-"""``cellctl replay`` (republish or verify a cycle log) and ``cellctl report`` (dirt map PNG)."""
+"""The cycle-log verbs: ``cellctl replay`` (republish or verify a cycle log), ``cellctl report``
+(summary, dirt map PNG) and ``cellctl recover`` (rewrite a cut-short MCAP into a valid one).
+
+An interrupted cycle's log was cut short by the crash; replay and report read the valid copy
+recovered when the supervisor restarted, after checking both files against the cycle index.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,7 @@ import json
 import sys
 import tempfile
 import threading
+from pathlib import Path
 
 from cellctl.cli import add_config_arguments, config_from_args
 
@@ -31,10 +37,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(r)
     r.set_defaults(func=run_report)
 
+    v = sub.add_parser(
+        "recover", help="rewrite a cut-short MCAP (no footer: a killed writer) into a valid, indexed one"
+    )
+    v.add_argument("file", help="the MCAP to recover; it is only read")
+    v.add_argument(
+        "--out", default=None, metavar="F", help="where to write (default: <stem>.recovered.mcap beside FILE)"
+    )
+    v.set_defaults(func=run_recover)
+
+
+def _log_to_read(file: str, index_path: Path) -> str:
+    """``file``, or the recovered copy if ``file`` is an interrupted cycle's log (hashes checked)."""
+    from cellctl.recording.audit import checked_log, find_cycle
+
+    row = find_cycle(index_path, log=file)
+    if row is None:
+        return file  # a log from elsewhere: read as it is
+    path = checked_log(row)
+    if path.resolve() != Path(file).resolve():
+        print(
+            f"cellctl replay: {file} is the cut-short log of interrupted cycle {row.cycle_id}; reading its"
+            f" recovered copy {path} (both sha256 match the index)",
+            file=sys.stderr,
+        )
+    return str(path)
+
 
 def run_replay(args: argparse.Namespace) -> int:
     from cellctl.recording.replay import read_cycle, republish, verify
 
+    cfg = config_from_args(args)
+    file = _log_to_read(args.file, cfg.path(cfg.recording.index))
     if args.verify:
         from cellctl.bus.session import private_bus_overrides
         from cellctl.config import output_overrides
@@ -42,16 +76,16 @@ def run_replay(args: argparse.Namespace) -> int:
         tmp = tempfile.mkdtemp(prefix="cellctl-verify-")
         args.overrides = [*args.overrides, *private_bus_overrides(), *output_overrides(tmp)]
         cfg = config_from_args(args)
-        report = verify(args.file, cfg)
+        report = verify(file, cfg)
         print(json.dumps(report.as_dict(), indent=1))
         return 0 if report.ok else 1
     from cellctl.bus.session import open_session
 
-    cfg = config_from_args(args)
-    rec = read_cycle(args.file)
+    rec = read_cycle(file)
     if rec.truncated:
         print(
-            f"cellctl replay: warning: {args.file} is damaged; replaying the intact part ({rec.skipped})",
+            f"cellctl replay: warning: {file} is damaged; replaying the intact part ({rec.skipped});"
+            " cellctl recover writes a valid copy",
             file=sys.stderr,
         )
     stop = threading.Event()
@@ -76,26 +110,25 @@ def run_replay(args: argparse.Namespace) -> int:
 
 
 def run_report(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     import numpy as np
 
     from cellctl.errors import RecordingError
     from cellctl.geometry.catalog import load_catalog
+    from cellctl.recording.audit import checked_log, find_cycle
     from cellctl.recording.dirt_map import draw_dirt_map
-    from cellctl.recording.index import CycleIndex
     from cellctl.recording.replay import read_cycle
 
     cfg = config_from_args(args)
-    idx = CycleIndex(cfg.path(cfg.recording.index))
-    row = idx.get(args.cycle_id)
-    idx.close()
+    row = find_cycle(cfg.path(cfg.recording.index), cycle_id=args.cycle_id)
     if row is None:
         raise RecordingError(f"cycle {args.cycle_id!r} is not in the index {cfg.path(cfg.recording.index)}")
-    rec = read_cycle(row.log_path)
+    log_file = checked_log(row)
+    rec = read_cycle(log_file)
     results = [m.json() for m in rec.messages if m.schema == "cellctl/CycleResult"]
+    if not results and row.outcome == "interrupted":
+        return _report_interrupted(row, rec, args.png)
     if not results:
-        raise RecordingError(f"cycle {args.cycle_id!r} has no result in {row.log_path} (outcome {row.outcome})")
+        raise RecordingError(f"cycle {args.cycle_id!r} has no result in {log_file} (outcome {row.outcome})")
     res = results[-1]
     summary = {k: res.get(k) for k in ("cycle_id", "outcome", "reason", "verdict", "coverage", "plan_id")}
     summary["bin"] = res.get("bin", {}).get("type")
@@ -124,4 +157,36 @@ def run_report(args: argparse.Namespace) -> int:
             np.array(cams) if cams else None,
         )
         print(f"wrote {args.png}", file=sys.stderr)
+    return 0
+
+
+def _report_interrupted(row, rec, png: str | None) -> int:  # noqa: ANN001 - CycleRow, RecordedCycle
+    """An interrupted cycle has no CycleResult: say what its recovered log holds, up to the cut."""
+    from cellctl.errors import RecordingError
+
+    statuses = [m.json() for m in rec.messages if m.schema == "cellctl/Status"]
+    last = statuses[-1] if statuses else {}
+    summary = {
+        "cycle_id": row.cycle_id,
+        "outcome": row.outcome,
+        "reason": row.reason,
+        "log": row.log_path,
+        "log_sha256": row.log_sha256,
+        "recovered_log": row.recovered_path,
+        "recovered_sha256": row.recovered_sha256,
+        "messages": len(rec.messages),
+        "images": sum(1 for m in rec.messages if m.schema == "foxglove.CompressedImage"),
+        "last_state": last.get("state", "") + (f".{last['step']}" if last.get("step") else ""),
+    }
+    print(json.dumps(summary, indent=1))
+    if png:
+        raise RecordingError(f"cycle {row.cycle_id!r} was interrupted: it has no dirt map to draw")
+    return 0
+
+
+def run_recover(args: argparse.Namespace) -> int:
+    from cellctl.recording.recover import recover_mcap
+
+    found = recover_mcap(args.file, args.out)
+    print(json.dumps(found.as_dict(), indent=1))
     return 0

@@ -26,7 +26,16 @@ from pathlib import Path
 from cellctl.errors import RecordingError
 from cellctl.recording.index import GENESIS, CycleRow, file_sha256, row_hash
 
-__all__ = ["AuditFinding", "AuditReport", "FindingKind", "Severity", "read_head", "verify_audit"]
+__all__ = [
+    "AuditFinding",
+    "AuditReport",
+    "FindingKind",
+    "Severity",
+    "checked_log",
+    "find_cycle",
+    "read_head",
+    "verify_audit",
+]
 
 
 class Severity(StrEnum):
@@ -140,6 +149,45 @@ def read_head(index_path: Path) -> CycleRow | None:
     rows, _ = _read(Path(index_path))
     chained = [r for r in rows if r.row_hash]
     return chained[-1] if chained else None
+
+
+def find_cycle(
+    index_path: Path | str, *, cycle_id: str | None = None, log: Path | str | None = None
+) -> CycleRow | None:
+    """The row of ``cycle_id``, or the row whose log or recovered log is the file ``log``; None if none.
+
+    Read-only, like the audit. An index that does not exist holds no row (a log from elsewhere).
+
+    Raises:
+        RecordingError: the index exists but is unreadable.
+    """
+    index_path = Path(index_path)
+    if not index_path.is_file():
+        return None
+    rows, _ = _read(index_path)
+    want = Path(log).resolve() if log is not None else None
+    for r in rows:
+        if cycle_id is not None and r.cycle_id == cycle_id:
+            return r
+        if want is not None and any(p and Path(p).resolve() == want for p in (r.log_path, r.recovered_path)):
+            return r
+    return None
+
+
+def checked_log(row: CycleRow) -> Path:
+    """The log to read for ``row`` (the recovered copy of an interrupted cycle), its hashes checked.
+
+    For an interrupted cycle both files are checked: the cut-short original against
+    ``log_sha256`` (the evidence) and the recovered copy against ``recovered_sha256``. A row
+    still running has no hash yet; its log is returned unchecked.
+
+    Raises:
+        RecordingError: a file is missing or differs from the hash its row recorded.
+    """
+    for finding in (_check_log(row), _check_recovered(row)):
+        if finding is not None and finding.severity is Severity.tamper:
+            raise RecordingError(f"refusing to read {_name(row)}: {finding.message}")
+    return Path(row.readable_log)
 
 
 def _name(r: CycleRow) -> str:
