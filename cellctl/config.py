@@ -28,6 +28,7 @@ __all__ = [
     "RobotConfig",
     "SimConfig",
     "SupervisorConfig",
+    "apply_overrides",
     "default_config_path",
     "load_config",
     "output_overrides",
@@ -300,6 +301,19 @@ def _set_dotted(data: dict[str, Any], dotted: str, raw_value: str) -> None:
     node[parts[-1]] = safe_yaml_load(raw_value, f"--set {dotted}")
 
 
+def apply_overrides(data: dict[str, Any], overrides: list[str] | None, flag: str = "--set") -> None:
+    """Apply ``key.path=value`` strings (values parsed as YAML) to a parsed config mapping.
+
+    Raises:
+        ConfigError: an override has no ``=`` or names a key below a non-section.
+    """
+    for ov in overrides or []:
+        if "=" not in ov:
+            raise ConfigError(f"{flag} {ov!r}: expected KEY.PATH=VALUE")
+        k, v = ov.split("=", 1)
+        _set_dotted(data, k.strip(), v)
+
+
 def load_config(path: Path | str | None = None, overrides: list[str] | None = None) -> CellConfig:
     """Load and validate a cell config.
 
@@ -319,11 +333,7 @@ def load_config(path: Path | str | None = None, overrides: list[str] | None = No
         data = {}
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: top level must be a mapping of sections, got {type(data).__name__}")
-    for ov in overrides or []:
-        if "=" not in ov:
-            raise ConfigError(f"--set {ov!r}: expected KEY.PATH=VALUE")
-        k, v = ov.split("=", 1)
-        _set_dotted(data, k.strip(), v)
+    apply_overrides(data, overrides)
     root = p.resolve().parent
     if root.name == "config":
         root = root.parent

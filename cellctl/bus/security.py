@@ -70,6 +70,11 @@ PRINCIPALS: dict[str, Principal] = {
     p.name: p
     for p in (
         Principal("plc", ("observe", "command"), "the line PLC: sends PackML commands, reads everything"),
+        Principal(
+            "hmi",
+            ("observe", "command"),
+            "the web HMI (cellctl hmi): commands for its logged-in users, reads everything; serves no worker key",
+        ),
         Principal("operator", ("observe",), "people and the cellctl CLI: status, acks, results, events, liveliness"),
         Principal("viewer", ("status",), "dashboards: the status key only"),
         Principal(

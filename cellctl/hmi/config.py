@@ -1,0 +1,119 @@
+"""The HMI's own configuration (``config/hmi.yaml``): where it listens, who may log in, limits.
+
+It is a separate file from the cell config because it holds the users' password hashes: it
+lives on the HMI host only, with mode 0600, and the daemon never reads it. Users are added with
+``cellctl hmi user add NAME --role operator`` (the password is read from the terminal and only
+its scrypt hash is stored).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, field_validator
+
+from cellctl.config import apply_overrides, explain_validation, project_root, safe_yaml_load
+from cellctl.errors import ConfigError
+
+__all__ = ["ROLES", "FoxgloveConfig", "HmiConfig", "HmiUser", "default_hmi_config_path", "load_hmi_config"]
+
+ROLES = ("operator", "maintenance")
+"""Who may do what on the HMI: ``operator`` sends PackML commands and acknowledges alarms;
+``maintenance`` may also change the unit mode. Without a login the HMI is read-only."""
+
+Role = Literal["operator", "maintenance"]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class HmiUser(_Model):
+    """One person who may log in. ``password_hash`` is ``scrypt$n$r$p$salt$hash`` (cellctl.hmi.auth)."""
+
+    name: str = Field(pattern=r"^[a-z][a-z0-9_.-]{0,31}$", description="login name, also in Command.user")
+    role: Role
+    password_hash: str = Field(pattern=r"^(scrypt|pbkdf2_sha256)\$", description="never the password itself")
+
+
+class FoxgloveConfig(_Model):
+    """The optional live Foxglove view served by the HMI process (cellctl.hmi.foxglove_live)."""
+
+    enabled: StrictBool = False
+    host: str = "127.0.0.1"
+    port: int = Field(default=8765, ge=1, le=65535)
+
+
+class HmiConfig(_Model):
+    """Everything ``cellctl hmi`` needs beyond the cell config."""
+
+    host: str = Field(default="127.0.0.1", description="bind address; loopback unless a reverse proxy fronts it")
+    port: int = Field(default=8080, ge=1, le=65535)
+    users: list[HmiUser] = Field(default_factory=list, description="without users the HMI is read-only")
+    session_idle_s: float = Field(default=1800.0, gt=0, le=7 * 86400, description="logout after this idle time")
+    session_max_s: float = Field(default=12 * 3600.0, gt=0, le=30 * 86400, description="a shift, at most")
+    cookie_secure: StrictBool = Field(default=False, description="set the cookie's Secure flag (behind HTTPS)")
+    login_failures: int = Field(default=5, ge=1, le=100, description="failed logins allowed per window ...")
+    login_window_s: float = Field(default=60.0, gt=0, le=3600, description="... per user name and per client")
+    command_timeout_s: float = Field(default=5.0, gt=0, le=60, description="wait this long for the Ack")
+    stale_s: float = Field(default=3.0, gt=0, le=60, description="no Status for this long: 'cell unreachable'")
+    events_kept: int = Field(default=500, ge=10, le=100000)
+    max_query_bytes: int = Field(default=2048, ge=256, le=65536, description="longer query strings get 414")
+    max_body_bytes: int = Field(default=16384, ge=1024, le=1 << 20, description="larger request bodies get 413")
+    foxglove: FoxgloveConfig = Field(default_factory=FoxgloveConfig)
+
+    @field_validator("users")
+    @classmethod
+    def _unique(cls, v: list[HmiUser]) -> list[HmiUser]:
+        names = [u.name for u in v]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"user names must be unique; repeated: {dup}")
+        return v
+
+    def user(self, name: str) -> HmiUser | None:
+        return next((u for u in self.users if u.name == name), None)
+
+
+def default_hmi_config_path() -> Path:
+    return project_root() / "config" / "hmi.yaml"
+
+
+def load_hmi_config(path: Path | str | None = None, overrides: list[str] | None = None) -> HmiConfig:
+    """Load ``config/hmi.yaml`` (a missing default file means: defaults, no users).
+
+    Raises:
+        ConfigError: an explicitly named file is missing, or the file does not validate (the
+            message names each key, its value and what is allowed).
+    """
+    p = Path(path) if path is not None else default_hmi_config_path()
+    data: object = {}
+    if p.is_file():
+        data = safe_yaml_load(p.read_text(), str(p)) or {}
+    elif path is not None:
+        raise ConfigError(f"HMI config file {str(p)!r} does not exist; create it with `cellctl hmi user add`")
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: top level must be a mapping of HMI settings, got {type(data).__name__}")
+    apply_overrides(data, overrides, "--hmi-set")
+    try:
+        return HmiConfig.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(explain_validation(err, HmiConfig, str(p))) from err
+
+
+def save_hmi_config(cfg: HmiConfig, path: Path) -> Path:
+    """Write the HMI config with mode 0600 from the first byte (it holds password hashes)."""
+    import yaml
+
+    text = "# cellctl HMI config (cellctl hmi user add/remove edits it; password hashes only, never passwords)\n"
+    text += yaml.safe_dump(cfg.model_dump(mode="json", exclude_defaults=True), sort_keys=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.unlink(missing_ok=True)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,350 @@
+// cellctl HMI: one script for every page. Live data come from /api/stream (server-sent events);
+// commands are POSTs carrying the session's CSRF token and a fresh nonce.
+"use strict";
+
+const PAGE = document.body.dataset.page;
+const ABNORMAL = new Set(["Aborting", "Aborted"]);
+const WARN = new Set(["Holding", "Held", "Suspending", "Suspended"]);
+const STEPS = ["approaching", "identifying", "checking_cache", "replanning", "scanning", "classifying", "reporting"];
+const MODES = ["production", "maintenance", "manual"];
+let session = { user: null };
+let last = null; // the last update from the stream
+
+const $ = (id) => document.getElementById(id);
+function el(tag, attrs = {}, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "class") e.className = v; else if (k.startsWith("on")) e.addEventListener(k.slice(2), v); else e.setAttribute(k, v);
+  }
+  for (const c of children) e.append(c instanceof Node ? c : document.createTextNode(c == null ? "" : String(c)));
+  return e;
+}
+function setText(id, v) { const e = $(id); if (e) e.textContent = v == null || v === "" ? "—" : String(v); }
+function nonce() {
+  const b = new Uint8Array(18); crypto.getRandomValues(b);
+  return btoa(String.fromCharCode(...b)).replace(/\+/g, "-").replace(/\//g, "_").replace(/=+$/, "");
+}
+function time(iso) { if (!iso) return "—"; const d = new Date(iso); return isNaN(d) ? iso : d.toLocaleString(); }
+function pct(x) { return x == null ? "—" : (100 * x).toFixed(2) + " %"; }
+
+async function post(url, body) {
+  const r = await fetch(url, {
+    method: "POST", credentials: "same-origin",
+    headers: { "Content-Type": "application/json", "X-CSRF-Token": session.csrf || "" },
+    body: JSON.stringify(body || {}),
+  });
+  let data = {};
+  try { data = await r.json(); } catch (e) { data = { error: `HTTP ${r.status}` }; }
+  if (r.status === 401) { session = { user: null }; renderWho(); }
+  return { ok: r.ok, status: r.status, data };
+}
+
+async function loadSession() {
+  const r = await fetch("/api/session", { credentials: "same-origin" });
+  session = await r.json();
+  renderWho();
+}
+
+function renderWho() {
+  const logged = !!session.user;
+  $("who-name").textContent = logged ? `${session.user} (${session.role})` : (session.expired ? "session expired: read-only" : "read-only");
+  $("login-link").classList.toggle("hidden", logged);
+  $("logout-btn").classList.toggle("hidden", !logged);
+  if (last) render(last);
+}
+
+$("logout-btn").addEventListener("click", async () => {
+  await post("/api/logout", {});
+  session = { user: null }; renderWho();
+});
+for (const a of document.querySelectorAll("[data-nav]")) a.classList.toggle("active", a.dataset.nav === PAGE);
+
+// --- the stream ---------------------------------------------------------------------------------
+
+function connect() {
+  const es = new EventSource("/api/stream");
+  es.addEventListener("update", (ev) => { last = JSON.parse(ev.data); render(last); });
+  es.addEventListener("reach", (ev) => { if (last) { Object.assign(last, JSON.parse(ev.data)); render(last); } });
+  es.onerror = () => showUnreachable("HMI server unreachable: reconnecting …");
+}
+
+function showUnreachable(text) {
+  const b = $("unreachable");
+  b.textContent = text || ""; b.classList.toggle("hidden", !text);
+}
+
+function render(d) {
+  const st = d.status;
+  showUnreachable(d.reachable ? "" : `CELL UNREACHABLE: ${d.error || "no status"}${st ? ` (last known state ${st.state})` : ""}`);
+  if (st) {
+    setText("cell-name", st.cell);
+    const chip = $("hdr-state");
+    chip.textContent = d.reachable ? st.state : `${st.state}?`;
+    chip.className = "state-chip" + (ABNORMAL.has(st.state) || !d.reachable ? " abnormal" : WARN.has(st.state) ? " warn" : "");
+    setText("hdr-mode", st.unit_mode);
+  }
+  const open = (d.alarms || []).filter((a) => !a.acked_by).length;
+  const ac = $("alarm-count"); ac.textContent = open; ac.classList.toggle("hidden", open === 0);
+  if (PAGE === "overview") renderOverview(d);
+  else if (PAGE === "live") renderLive(d);
+  else if (PAGE === "events") renderEvents(d);
+  else if (PAGE === "history") historyTick(d);
+}
+
+// --- overview ------------------------------------------------------------------------------------
+
+const LAYOUT = {
+  Unholding: [1, 0], Held: [2, 0], Holding: [3, 0],
+  Idle: [0, 1], Starting: [1, 1], Execute: [2, 1], Completing: [3, 1], Complete: [4, 1],
+  Resetting: [0, 2], Unsuspending: [1, 2], Suspended: [2, 2], Suspending: [3, 2],
+  Stopped: [0, 3], Stopping: [1, 3], Clearing: [2, 3], Aborted: [3, 3], Aborting: [4, 3],
+};
+const BW = 112, BH = 34, GX = 172, GY = 80, OX = 10, OY = 16;
+function centre(name) { const [c, r] = LAYOUT[name]; return [OX + c * GX + BW / 2, OY + r * GY + BH / 2]; }
+function clip(x0, y0, x1, y1) {
+  // where the line from the centre (x0,y0) towards (x1,y1) leaves the box
+  const dx = x1 - x0, dy = y1 - y0;
+  const t = Math.min(dx ? (BW / 2) / Math.abs(dx) : Infinity, dy ? (BH / 2) / Math.abs(dy) : Infinity);
+  return [x0 + dx * t, y0 + dy * t];
+}
+const SVGNS = "http://www.w3.org/2000/svg";
+function svg(tag, attrs, text) {
+  const e = document.createElementNS(SVGNS, tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+  if (text != null) e.textContent = text;
+  return e;
+}
+let packml = null;
+async function drawPackml() {
+  packml = await (await fetch("/api/packml")).json();
+  const root = $("packml");
+  root.replaceChildren();
+  const defs = svg("defs", {});
+  const marker = svg("marker", { id: "arrow", viewBox: "0 0 10 10", refX: "9", refY: "5", markerWidth: "7", markerHeight: "7", orient: "auto-start-reverse" });
+  marker.append(svg("path", { d: "M 0 0 L 10 5 L 0 10 z", fill: "#777" }));
+  defs.append(marker); root.append(defs);
+  for (const e of packml.edges) {
+    if (e.label === "stop" || e.label === "abort" || !LAYOUT[e.from] || !LAYOUT[e.to]) continue;
+    const [ax, ay] = centre(e.from), [bx, by] = centre(e.to);
+    const [sx, sy] = clip(ax, ay, bx, by), [tx, ty] = clip(bx, by, ax, ay);
+    const skip = Math.abs(ax - bx) > GX * 1.5 && Math.abs(ay - by) < 1; // same row, over a box: bend below
+    const d = skip ? `M ${sx} ${ay + BH / 2} Q ${(ax + bx) / 2} ${ay + BH / 2 + 34} ${tx} ${by + BH / 2}` : `M ${sx} ${sy} L ${tx} ${ty}`;
+    root.append(svg("path", { d, class: "edge", "marker-end": "url(#arrow)" }));
+    if (e.label !== "SC") {
+      const mx = skip ? (ax + bx) / 2 : (sx + tx) / 2, my = skip ? ay + BH / 2 + 22 : (sy + ty) / 2 - 3;
+      root.append(svg("text", { x: mx + 3, y: my, class: "edge-label" }, e.label));
+    }
+  }
+  for (const s of packml.states) {
+    if (!LAYOUT[s.name]) continue;
+    const [c, r] = LAYOUT[s.name];
+    const g = svg("g", { id: `st-${s.name}`, "data-state": s.name });
+    g.append(svg("rect", { x: OX + c * GX, y: OY + r * GY, width: BW, height: BH, rx: s.acting ? 12 : 2, class: s.acting ? "acting" : "wait" }));
+    g.append(svg("text", { x: OX + c * GX + BW / 2, y: OY + r * GY + BH / 2 + 4, "text-anchor": "middle" }, s.name));
+    root.append(g);
+  }
+  if (last) render(last);
+}
+
+function renderOverview(d) {
+  const st = d.status;
+  if (!st) return;
+  for (const g of document.querySelectorAll("#packml g[data-state]")) {
+    const cur = g.dataset.state === st.state;
+    g.classList.toggle("current", cur);
+    g.classList.toggle("abnormal", cur && ABNORMAL.has(st.state));
+    g.classList.toggle("warn", cur && WARN.has(st.state));
+  }
+  setText("ov-state", `${st.state} (${st.state_code})`);
+  $("ov-state").className = ABNORMAL.has(st.state) ? "abnormal" : WARN.has(st.state) ? "warn" : "";
+  setText("ov-mode", `${st.unit_mode}${st.unit_mode_code ? ` (${st.unit_mode_code})` : ""}`);
+  setText("ov-step", st.step);
+  setText("ov-cycle", st.cycle_id);
+  $("ov-error").textContent = st.last_error || "none";
+  $("ov-error").className = st.last_error ? "abnormal" : "";
+  // command buttons: only what the cell accepts now, only for a logged-in user
+  const box = $("cmd-buttons");
+  const can = !!session.user && d.reachable;
+  const want = can ? st.available_commands : [];
+  if (box.dataset.cmds !== want.join(",")) {
+    box.dataset.cmds = want.join(",");
+    box.replaceChildren(...want.map((c) => el("button", { id: `cmd-${c}`, type: "button", onclick: () => sendCommand({ command: c }) }, c[0].toUpperCase() + c.slice(1))));
+  }
+  $("cmd-hint").textContent = !session.user ? "Log in to command the cell." : !d.reachable ? "The cell is unreachable: no commands." : `Commands allowed in ${st.state}.`;
+  const modes = $("mode-buttons");
+  const maint = can && session.role === "maintenance";
+  modes.classList.toggle("hidden", !maint);
+  if (maint && !modes.childElementCount) {
+    modes.append(...MODES.map((m) => el("button", { id: `mode-${m}`, type: "button", onclick: () => sendCommand({ unit_mode: m }) }, `Mode: ${m}`)));
+  }
+  const ws = $("workers");
+  ws.replaceChildren(...Object.entries(st.workers || {}).map(([r, up]) => el("li", { class: up ? "up" : "down" }, `${r}: ${up ? "alive" : "MISSING"}`)));
+  const ad = st.admin || {};
+  setText("ad-processed", ad.prod_processed_count);
+  setText("ad-defective", ad.prod_defective_count);
+  setText("ad-stop", ad.stop_reason || "none");
+  const lc = ad.last_cycle;
+  const link = $("ad-last"); link.replaceChildren();
+  if (lc) link.append(el("a", { href: `/history?cycle=${encodeURIComponent(lc.cycle_id)}` }, lc.cycle_id), ` ${lc.outcome}${lc.verdict ? ", " + lc.verdict : ""}`);
+  else link.textContent = "—";
+  $("ad-warnings").textContent = (ad.warnings || []).join("; ") || "none";
+  $("ad-warnings").className = (ad.warnings || []).length ? "warn" : "";
+}
+
+async function sendCommand(body) {
+  const out = $("cmd-result");
+  out.textContent = "sending …"; out.className = "small";
+  const r = await post("/api/cmd", { ...body, params: {}, nonce: nonce() });
+  const what = body.command || `unit mode ${body.unit_mode}`;
+  if (r.ok) { out.textContent = `${what}: accepted (${r.data.ack.state})`; }
+  else { out.textContent = `${what}: ${r.data.error || "HTTP " + r.status}`; out.className = "small error-text"; }
+}
+
+// --- live ------------------------------------------------------------------------------------------
+
+let liveImageSeq = null;
+function renderLive(d) {
+  const lv = d.live, st = d.status;
+  const box = $("stations");
+  if (!box.childElementCount) box.append(...STEPS.map((s) => el("li", { id: `station-${s}` }, s.replace("_", " "))));
+  if (!lv) { setText("lv-cycle", "no cycle yet"); return; }
+  setText("lv-cycle", lv.cycle_id);
+  const running = st && st.cycle_id === lv.cycle_id && st.step;
+  const cur = running ? st.step : lv.step;
+  const finished = !!lv.outcome;
+  STEPS.forEach((s) => {
+    const li = $(`station-${s}`);
+    li.classList.toggle("current", !finished && s === cur);
+    li.classList.toggle("done", (lv.steps_seen || []).includes(s) && (finished || s !== cur));
+  });
+  setText("lv-k", lv.viewpoint); setText("lv-n", lv.n_viewpoints);
+  const frac = lv.n_viewpoints ? Math.min(1, (finished ? lv.n_viewpoints : lv.captured) / lv.n_viewpoints) : (finished ? 1 : 0);
+  $("lv-bar").style.width = `${(100 * frac).toFixed(1)}%`;
+  const state = st && (st.cycle_id === lv.cycle_id || finished) ? st.state : lv.state;
+  let text = state || "—";
+  if (finished) text += ` — ${lv.outcome}${lv.verdict ? ", verdict " + lv.verdict : ""}${lv.coverage != null ? ", coverage " + pct(lv.coverage) : ""}`;
+  const oc = $("lv-outcome"); oc.textContent = text;
+  oc.className = "outcome" + (ABNORMAL.has(state) || lv.outcome === "failed" || lv.outcome === "aborted" ? " state-chip abnormal" : "");
+  if (lv.image_seq != null && lv.image_seq !== liveImageSeq) {
+    liveImageSeq = lv.image_seq;
+    const img = $("lv-img");
+    img.src = `/api/live/image?seq=${lv.image_seq}`;
+    img.classList.remove("hidden"); $("lv-noimg").classList.add("hidden");
+  }
+  $("lv-heat").textContent = lv.heat_map ? "Heat map shown over the image." : "Heat map: the classifier sends none.";
+  $("lv-views").replaceChildren(...lv.verdicts.map((v) => el("tr", {}, el("td", {}, v.n),
+    el("td", { class: v.label === "dirty" ? "verdict-dirty" : "" }, v.label || `error: ${v.error || "?"}`),
+    el("td", {}, v.p_dirty == null ? "—" : v.p_dirty.toFixed(3)))));
+  const dirty = lv.verdicts.filter((v) => v.label === "dirty").length;
+  $("lv-summary").textContent = `${lv.verdicts.length} classified, ${dirty} dirty${lv.reason ? " · " + lv.reason : ""}`;
+}
+
+// --- history ---------------------------------------------------------------------------------------
+
+let histLastCycle = undefined, selected = null;
+function historyTick(d) {
+  const lc = d.status && d.status.admin && d.status.admin.last_cycle ? d.status.admin.last_cycle.cycle_id : null;
+  if (lc !== histLastCycle) { histLastCycle = lc; loadHistory(); }
+}
+async function loadHistory() {
+  const q = new URLSearchParams();
+  for (const [k, v] of new FormData($("filters"))) if (v) q.set(k, v);
+  const r = await fetch(`/api/cycles?${q}`);
+  const data = await r.json();
+  $("hist-error").textContent = r.ok ? "" : data.error;
+  if (!r.ok) return;
+  $("hist-rows").replaceChildren(...data.cycles.map((c) => {
+    const tr = el("tr", { "data-cycle": c.cycle_id, onclick: () => openCycle(c.cycle_id) },
+      el("td", { class: "mono" }, c.cycle_id), el("td", {}, time(c.started)),
+      el("td", {}, c.duration_s == null ? "—" : `${c.duration_s.toFixed(1)} s`),
+      el("td", { class: c.outcome === "failed" || c.outcome === "aborted" || c.outcome === "interrupted" ? "level-error" : "" }, c.outcome || "running"),
+      el("td", { class: c.verdict === "dirty" ? "verdict-dirty" : "" }, c.verdict || "—"),
+      el("td", {}, c.bin_type || "—"), el("td", { class: "small" }, (c.reason || "").slice(0, 90)));
+    if (c.cycle_id === selected) tr.classList.add("selected");
+    return tr;
+  }));
+}
+async function openCycle(id) {
+  selected = id;
+  for (const tr of document.querySelectorAll("#hist-rows tr")) tr.classList.toggle("selected", tr.dataset.cycle === id);
+  history.replaceState(null, "", `/history?cycle=${encodeURIComponent(id)}`);
+  const r = await fetch(`/api/cycles/${encodeURIComponent(id)}/record`);
+  const d = await r.json();
+  if (!r.ok) { $("hist-error").textContent = d.error; return; }
+  $("detail").classList.remove("hidden");
+  const res = d.result || {}, row = d.row;
+  setText("dt-id", id);
+  setText("dt-outcome", `${row.outcome || "running"}${row.reason ? " — " + row.reason : ""}`);
+  setText("dt-verdict", row.verdict);
+  $("dt-verdict").className = row.verdict === "dirty" ? "verdict-dirty" : "";
+  setText("dt-coverage", pct(res.coverage));
+  setText("dt-time", `${time(row.started)} → ${time(row.finished)}${row.duration_s != null ? ` (${row.duration_s.toFixed(1)} s)` : ""}`);
+  setText("dt-bin", row.bin_type);
+  setText("dt-plan", `${row.plan_id || "—"}${res.plan_adjusted ? " (adjusted to the measured pose)" : ""}`);
+  const au = d.audit || {};
+  $("dt-audit").textContent = au.status === "ok" ? `ok — chain ${au.chain_ok ? "intact" : "BROKEN"}, head #${au.head ? au.head.seq : "?"}` : `${au.status}${au.findings && au.findings.length ? ": " + au.findings.map((f) => f.message).join("; ") : au.error ? ": " + au.error : ""}`;
+  $("dt-audit").className = au.status === "tamper" || au.chain_ok === false ? "abnormal" : "";
+  const lg = $("dt-log");
+  lg.href = `/api/cycles/${encodeURIComponent(id)}/log`; lg.classList.toggle("hidden", !d.log);
+  const img = $("dt-dirt");
+  img.classList.add("hidden"); $("dt-nodirt").classList.remove("hidden");
+  if (res.dirt_map) {
+    $("dt-nodirt").textContent = "drawing the dirt map …";
+    img.onload = () => { img.classList.remove("hidden"); $("dt-nodirt").classList.add("hidden"); };
+    img.onerror = () => { $("dt-nodirt").textContent = "no dirt map"; };
+    img.src = `/api/cycles/${encodeURIComponent(id)}/dirt_map.png`;
+  } else { $("dt-nodirt").textContent = "no dirt map"; }
+  $("dt-views").replaceChildren(...d.images.map((v) => el("figure", { class: "thumb" + (v.label === "dirty" ? " dirty" : "") },
+    el("img", { src: `/api/cycles/${encodeURIComponent(id)}/images/${v.image}`, alt: `view ${v.index}`, loading: "lazy" }),
+    el("figcaption", {}, `view ${v.index ?? "?"}: ${v.label || "—"}${v.p_dirty != null ? ` p=${v.p_dirty.toFixed(2)}` : ""}`))));
+  if (!d.images.length) $("dt-views").append(el("p", { class: "muted" }, "no scanning images in this cycle"));
+}
+
+// --- events ----------------------------------------------------------------------------------------
+
+function renderEvents(d) {
+  const logged = !!session.user;
+  $("alarm-hint").classList.toggle("hidden", logged);
+  $("alarms").replaceChildren(...(d.alarms || []).map((a) => el("tr", {},
+    el("td", {}, time(a.stamp)), el("td", { class: a.acked_by ? "" : `level-${a.level}` }, a.level),
+    el("td", {}, a.text), el("td", { class: "mono small" }, a.cycle_id || "—"),
+    el("td", {}, a.acked_by ? `${a.acked_by}, ${time(a.acked_at)}` : logged
+      ? el("button", { type: "button", id: `ack-${a.id}`, onclick: () => ackAlarm(a.id) }, "Acknowledge") : "open"))));
+  if (!(d.alarms || []).length) $("alarms").append(el("tr", {}, el("td", { colspan: 5, class: "muted" }, "no alarms")));
+  $("events").replaceChildren(...(d.events || []).map((e) => el("tr", {},
+    el("td", {}, time(e.stamp)), el("td", { class: `level-${e.level}` }, e.level), el("td", { class: "small" }, e.source), el("td", {}, e.text))));
+}
+async function ackAlarm(id) {
+  const r = await post(`/api/alarms/${id}/ack`, { nonce: nonce() });
+  if (!r.ok) alert(r.data.error);
+}
+
+// --- login -----------------------------------------------------------------------------------------
+
+function initLogin() {
+  $("login-form").addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const r = await fetch("/api/login", {
+      method: "POST", credentials: "same-origin", headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ user: $("login-user").value, password: $("login-password").value }),
+    });
+    const data = await r.json();
+    if (r.ok) { location.href = "/"; return; }
+    $("login-msg").textContent = data.error || `HTTP ${r.status}`;
+    $("login-password").value = "";
+  });
+}
+
+// --- start -----------------------------------------------------------------------------------------
+
+loadSession().then(() => {
+  if (PAGE === "login") { initLogin(); return; }
+  if (PAGE === "overview") drawPackml();
+  if (PAGE === "history") {
+    $("filters").addEventListener("submit", (ev) => { ev.preventDefault(); loadHistory(); });
+    const id = new URLSearchParams(location.search).get("cycle");
+    loadHistory().then(() => { if (id) openCycle(id); });
+    histLastCycle = null;
+  }
+  connect();
+});
