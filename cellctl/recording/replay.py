@@ -2,8 +2,10 @@
 supervisor against the recorded worker replies (``verify``, a regression test for logs).
 
 Reading is tolerant: a truncated file (a crash mid-cycle) yields every message up to the
-damage and says what was skipped; a file that is not MCAP, or that holds a message of a newer
-schema version than this cellctl speaks, is refused with a clear error.
+damage and says what was skipped (``cellctl recover`` writes such a file's valid copy; an
+interrupted cycle's copy is made when the supervisor restarts); a file that is not MCAP, or
+that holds a message of a newer schema version than this cellctl speaks, is refused with a
+clear error.
 """
 
 from __future__ import annotations
@@ -148,6 +150,8 @@ class VerifyReport:
     states_replayed: list[str]
     requests: int
     skipped: str | None = None
+    interrupted: bool = False
+    """The log ends at a crash (no CycleResult): checked up to the cut, the replay aborted there."""
 
     def as_dict(self) -> dict[str, Any]:
         return self.__dict__ | {}
@@ -182,6 +186,12 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     The replay workers check that every request equals the recorded one and answer with the
     recorded reply (images included); the supervisor's state sequence and its CycleResult
     must match the recording, times and ids aside.
+
+    An interrupted cycle's log (its recovered copy: no CycleResult) is checked up to the cut:
+    every recorded request and the recorded states up to the crash must match, and the first
+    request on a key past its recorded replies (the one in flight at the crash, if it was
+    logged, must equal it) is answered with an error, and so is every later one on that key;
+    what the replayed cycle does past the cut is not compared.
     """
     from cellctl.app import build_cell
     from cellctl.bus import keys
@@ -203,8 +213,9 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
             k = m.topic[: -len("/reply")]
             by_key[k].append((pending.pop(k, {}), m))
     results = [m.json() for m in rec.messages if m.schema == "cellctl/CycleResult"]
-    if not results:
-        raise RecordingError(f"{str(path)!r} holds no CycleResult (an interrupted cycle cannot be verified)")
+    interrupted = not results
+    in_flight = dict(pending)  # requests recorded without a reply: in flight when the log was cut
+    reached_cut: list[str] = []
     commands = [m.json() for m in rec.messages if m.schema == "cellctl/Command" and m.topic == keys.cmd(cid)]
     starts = [c for c in commands if c.get("command") == "start" or c.get("cntrl_cmd") == 2]
     recorded_states = _state_sequence([m.json() for m in rec.messages if m.schema == "cellctl/Status"])
@@ -214,6 +225,16 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     def answer(key: str):  # noqa: ANN202
         def handler(req: Any, payload: bytes | None) -> Any:
             with lock:
+                if interrupted and not by_key[key]:
+                    # past the recording on this key; other keys go on (classify runs beside scanning)
+                    want = in_flight.pop(key, None)
+                    reached_cut.append(key)
+                    got = _strip(json.loads(req.model_dump_json()))
+                    if want is not None and got != _strip(want):
+                        differences.append(
+                            f"the request in flight at the cut on {key} differs: recorded {_strip(want)} replayed {got}"
+                        )
+                    raise RecordingError(f"replay: the recording ends before this request on {key} (interrupted cycle)")
                 if not by_key[key]:
                     raise RecordingError(f"replay: unexpected extra request on {key}")
                 want, reply = by_key[key].popleft()
@@ -296,9 +317,18 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     outside = ("Idle", "Stopped", "Resetting", "Complete", "Aborted")  # published after the log closed
     rec_cycle_states = [s for s in recorded_states if s.split(".")[0] not in outside]
     rep_cycle_states = [s for s in replayed_states if s.split(".")[0] not in outside]
-    if rec_cycle_states != rep_cycle_states:
+    if interrupted:
+        if rec_cycle_states != rep_cycle_states[: len(rec_cycle_states)]:
+            differences.append(f"states up to the cut differ: recorded {rec_cycle_states} replayed {rep_cycle_states}")
+        if not reached_cut and replayed is not None:
+            differences.append(f"the replayed cycle ended ({replayed.outcome}) without reaching the recorded cut")
+    elif rec_cycle_states != rep_cycle_states:
         differences.append(f"states differ: recorded {rec_cycle_states} replayed {rep_cycle_states}")
-    if replayed is not None and _strip(results[-1]) != _strip(json.loads(replayed.model_dump_json())):
+    if (
+        not interrupted
+        and replayed is not None
+        and _strip(results[-1]) != _strip(json.loads(replayed.model_dump_json()))
+    ):
         differences.append(
             f"result differs: recorded {_strip(results[-1])} replayed {_strip(json.loads(replayed.model_dump_json()))}"
         )
@@ -312,4 +342,5 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
         rep_cycle_states,
         sum(1 for m in rec.messages if m.topic.endswith("/request")),
         rec.skipped,
+        interrupted,
     )
