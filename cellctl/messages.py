@@ -147,6 +147,7 @@ class UnitMode(enum.IntEnum):
 UnitModeName = Literal["production", "maintenance", "manual"]
 
 MAX_USER_CHARS = 64
+MAX_REQUEST_ID_CHARS = 128
 
 
 def _strict_code(v: Any, field: str, allowed: str) -> Any:
@@ -171,7 +172,7 @@ class Command(WireMessage):
     cntrl_cmd: int | None = Field(default=None, description="PackTags CntrlCmd code 1..10")
     unit_mode: UnitModeName | None = Field(default=None, description="requested PackML unit mode")
     unit_mode_code: int | None = Field(default=None, description="PackTags UnitModeRequested code 1..3")
-    request_id: str | None = Field(default=None, max_length=128)
+    request_id: str | None = Field(default=None, max_length=MAX_REQUEST_ID_CHARS)
     user: str | None = Field(
         default=None, max_length=MAX_USER_CHARS, description="who sent it, e.g. 'hmi:alice' (printable)"
     )

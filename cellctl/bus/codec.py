@@ -8,9 +8,17 @@ from typing import TypeVar
 from pydantic import ValidationError
 
 from cellctl.errors import ProtocolError
-from cellctl.messages import MESSAGE_TYPES, WireMessage
+from cellctl.messages import MAX_REQUEST_ID_CHARS, MESSAGE_TYPES, WireMessage
 
-__all__ = ["MAX_JSON_DEPTH", "MAX_PAYLOAD_BYTES", "decode", "decode_as", "encode", "json_schemas"]
+__all__ = [
+    "MAX_JSON_DEPTH",
+    "MAX_PAYLOAD_BYTES",
+    "decode",
+    "decode_as",
+    "encode",
+    "json_schemas",
+    "peek_request_id",
+]
 
 MAX_PAYLOAD_BYTES = 64 * 1024
 """Largest control payload accepted; images travel separately and are not decoded here."""
@@ -108,6 +116,30 @@ def decode(
         return model.model_validate(obj)
     except ValidationError as err:
         raise ProtocolError(f"invalid {kind}: {_explain(err)}") from err
+
+
+def peek_request_id(data: bytes | bytearray | memoryview | str, max_bytes: int = MAX_PAYLOAD_BYTES) -> str | None:
+    """The ``request_id`` of a payload that may not decode as a message, when it can be read.
+
+    Read with the same strict parser as :func:`decode`: a JSON object whose ``request_id`` is a
+    string of at most :data:`MAX_REQUEST_ID_CHARS`; anything else gives None. Lets a reject of
+    a wrong ``type``/``v`` still name the request it answers.
+    """
+    raw = bytes(data, "utf-8") if isinstance(data, str) else bytes(data)
+    if len(raw) > max_bytes:
+        return None
+    try:
+        obj = _parse(raw)
+    except ProtocolError:
+        return None
+    rid = obj.get("request_id") if isinstance(obj, dict) else None
+    if not isinstance(rid, str) or len(rid) > MAX_REQUEST_ID_CHARS:
+        return None
+    try:
+        rid.encode("utf-8")  # JSON may spell a lone surrogate (\ud800): not text, and no Ack could carry it
+    except UnicodeEncodeError:
+        return None
+    return rid
 
 
 def decode_as(model: type[M], data: bytes | bytearray | memoryview | str, max_bytes: int = MAX_PAYLOAD_BYTES) -> M:

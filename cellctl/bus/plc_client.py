@@ -12,12 +12,14 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import zenoh
+
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as, encode
 from cellctl.bus.session import open_session
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, WorkerTimeout
-from cellctl.messages import Ack, Command, CycleResult, Event, PlanJobProgress, Status
+from cellctl.messages import Ack, Command, CycleResult, Event, PlanJobProgress, Status, UnitModeName
 
 __all__ = ["PlcClient"]
 
@@ -66,15 +68,32 @@ class PlcClient:
             )
 
     def command(self, name: str, timeout: float = 10.0, **params: Any) -> Ack:
-        """Send one command by query and return its Ack.
+        """Send one PackML command by query and return its Ack.
 
         Raises:
             WorkerTimeout: no Ack within ``timeout`` (the daemon is not running or not answering).
         """
-        cmd = Command(command=name, request_id=f"{self.name}-{next(self._seq)}", params=params)
-        replies = list(self.session.get(keys.cmd(self.cell), payload=encode(cmd), timeout=timeout))
+        return self.send(Command(command=name, request_id=self._next_id(), params=params), timeout)
+
+    def unit_mode(self, mode: UnitModeName, timeout: float = 10.0, user: str | None = None) -> Ack:
+        """Request a PackML unit mode (``production``, ``maintenance``, ``manual``) and return the Ack."""
+        return self.send(Command(unit_mode=mode, user=user, request_id=self._next_id()), timeout)
+
+    def _next_id(self) -> str:
+        return f"{self.name}-{next(self._seq)}"
+
+    def send(self, cmd: Command, timeout: float = 10.0) -> Ack:
+        """Send a built Command by query (the path with a guaranteed reply) and return its Ack."""
+        replies = list(
+            self.session.get(
+                keys.cmd(self.cell),
+                payload=encode(cmd),
+                timeout=timeout,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
+        )
         if not replies or replies[0].ok is None:
-            raise WorkerTimeout(f"no Ack for {name!r} from cell {self.cell!r} within {timeout:g} s (daemon down?)")
+            raise WorkerTimeout(f"no Ack for {cmd.name!r} from cell {self.cell!r} within {timeout:g} s (daemon down?)")
         return decode_as(Ack, replies[0].ok.payload.to_bytes())
 
     def wait_for(self, pred: Callable[[Status], bool], timeout: float) -> Status | None:

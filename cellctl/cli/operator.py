@@ -12,11 +12,19 @@ from cellctl.cli import add_config_arguments, config_from_args
 from cellctl.errors import CellError, WorkerTimeout, WorkerUnavailable
 
 COMMANDS = ["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"]
+UNIT_MODES = ["production", "maintenance", "manual"]
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("cmd", help="send a PackML command to the cell and print the Ack")
-    p.add_argument("command", choices=COMMANDS)
+    p = sub.add_parser("cmd", help="send a PackML command (or a unit mode change) to the cell and print the Ack")
+    p.add_argument("command", nargs="?", choices=COMMANDS, help="the PackML command (omit with --unit-mode)")
+    p.add_argument(
+        "--unit-mode",
+        choices=UNIT_MODES,
+        default=None,
+        help="request this PackML unit mode instead of a command (accepted in Stopped, Idle, Aborted)",
+    )
+    p.add_argument("--user", default=None, help="who sends it, recorded and echoed in the Ack (e.g. hmi:alice)")
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="start params, e.g. mode=collect")
     p.add_argument("--wait", metavar="STATE", default=None, help="then wait until the cell reaches this PackML state")
     p.add_argument("--timeout", type=float, default=30.0, help="seconds for the Ack and for --wait")
@@ -50,6 +58,8 @@ def _parse_params(items: list[str]) -> dict:
 
 
 def run_cmd(args: argparse.Namespace) -> int:
+    import zenoh
+
     from cellctl.bus import keys
     from cellctl.bus.codec import decode_as, encode
     from cellctl.bus.security import acl_hint
@@ -57,7 +67,17 @@ def run_cmd(args: argparse.Namespace) -> int:
     from cellctl.messages import Ack, Command, Status
 
     cfg = config_from_args(args)
-    cmd = Command(command=args.command, request_id=f"cli-{time.time_ns()}", params=_parse_params(args.param))
+    if (args.command is None) == (args.unit_mode is None):
+        raise CellError("cellctl cmd: give a PackML command or --unit-mode MODE (exactly one)")
+    if args.unit_mode is not None and args.param:
+        raise CellError(f"cellctl cmd: --unit-mode takes no --param, got {args.param}")
+    cmd = Command(
+        command=args.command,
+        unit_mode=args.unit_mode,
+        user=args.user,
+        request_id=f"cli-{time.time_ns()}",
+        params=_parse_params(args.param),
+    )
     with open_session(cfg, "client") as s:
         statuses: queue.Queue[Status] = queue.Queue()
         sub = s.declare_subscriber(
@@ -69,7 +89,8 @@ def run_cmd(args: argparse.Namespace) -> int:
                 keys.cmd_ack(cfg.cell_id), lambda smp: acks.put(decode_as(Ack, smp.payload.to_bytes()))
             )
             time.sleep(0.1)  # let the subscription reach the router before the put
-            s.put(keys.cmd(cfg.cell_id), encode(cmd))
+            # BLOCK: the default (DROP) may drop a put at a full transmission queue, and nothing would answer
+            s.put(keys.cmd(cfg.cell_id), encode(cmd), congestion_control=zenoh.CongestionControl.BLOCK)
             try:
                 while True:
                     ack = acks.get(timeout=args.timeout)

@@ -9,23 +9,35 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
+
+import numpy as np
+import zenoh
 
 from cellctl.bus import keys
 from cellctl.bus.rpc import request
 from cellctl.config import CellConfig
-from cellctl.errors import CellError, WorkerError
+from cellctl.errors import CellError, WorkerError, WorkerUnavailable
 from cellctl.messages import (
     ApproachReply,
+    ClassifyReply,
     CycleOutcome,
     ErrorReply,
     EventLevel,
+    Intrinsics,
+    PlanLookupReply,
+    StartParams,
     ViewpointResult,
     WireMessage,
 )
-from cellctl.recording.cycle_log import CycleLog
+from cellctl.supervisor.recorder import Recorder
 
-__all__ = ["Cancelled", "CycleContext", "StepRun"]
+if TYPE_CHECKING:  # the daemon imports neither at start: vision pulls OpenCV in
+    from cellctl.geometry.catalog import Catalog
+    from cellctl.vision.fuse import FusedIdentification
+    from cellctl.vision.identify import Identification
+
+__all__ = ["INITIAL_CONTEXT", "Cancelled", "CycleContext", "Identify", "StepRun"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -37,35 +49,55 @@ class Cancelled(CellError):
     """The step was cancelled (Stop, Abort, Hold, Suspend, worker lost); its result is void."""
 
 
+INITIAL_CONTEXT = (
+    "cycle_id",
+    "mode",
+    "params",
+    "started",
+    "observation_index",
+    "identify_attempts",
+    "next_viewpoint",
+    "viewpoints",
+    "classifications",
+)
+"""Blackboard fields every cycle starts with set; the rest start as ``None`` and are written by steps.
+
+The loader checks each step's ``READS`` against these plus what earlier steps ``WRITE``."""
+
+Identify = Callable[[np.ndarray, Intrinsics, np.ndarray, "Catalog | None"], "Identification"]
+"""``identify(image_bgr, intrinsics, T_base_cam, catalog) -> Identification``."""
+
+
 @dataclass
 class CycleContext:
     """The blackboard of one inspection cycle; steps read and write it, one at a time."""
 
     cycle_id: str
     cfg: CellConfig
-    session: Any
-    log: CycleLog
+    session: zenoh.Session | None
+    log: Recorder
     mode: str = "evaluate"
-    params: dict[str, Any] = field(default_factory=dict)
+    params: StartParams = field(default_factory=StartParams)
     started: str = ""
+    log_rel: str | None = None
     post_event: Callable[[str, str], None] = lambda level, text: None
-    identify: Callable[..., Any] | None = None
-    catalog: Any = None
+    identify: Identify | None = None
+    catalog: Catalog | None = None
 
     observation_index: int = 0
     identify_attempts: int = 0
     approach: ApproachReply | None = None
-    identification: Any = None
+    identification: Identification | FusedIdentification | None = None
     bin_type: str | None = None
-    T_base_bin: Any = None
-    plan: Any = None
+    T_base_bin: np.ndarray | None = None
+    plan: PlanLookupReply | None = None
     planner_job_id: str | None = None
     next_viewpoint: int = 0
     viewpoints: list[ViewpointResult] = field(default_factory=list)
-    classifications: dict[int, Future] = field(default_factory=dict)
-    verdict: str | None = None
+    classifications: dict[int, Future[ClassifyReply]] = field(default_factory=dict)
+    verdict: Literal["clean", "dirty"] | None = None
     coverage: float | None = None
-    dirt_map: dict[str, Any] | None = None
+    dirt_map: dict[str, Any] | None = None  # JSON for the CycleResult, as recording.dirt_map reads it
     outcome: CycleOutcome | None = None
     reason: str | None = None
     saved_step: str | None = None
@@ -74,6 +106,11 @@ class CycleContext:
     rpc_seconds: dict[str, float] = field(default_factory=dict)
     rpc_count: int = 0
     _pool: ThreadPoolExecutor | None = None
+
+    @property
+    def surface(self) -> str:
+        """The surface this cycle inspects: the Start param, else the config's default."""
+        return self.params.surface or self.cfg.planner.surface
 
     @property
     def pool(self) -> ThreadPoolExecutor:
@@ -133,6 +170,8 @@ class StepRun:
         own so overlapping time is not subtracted from the step's wall time.
         """
         self.checkpoint()
+        if self.ctx.session is None:
+            raise WorkerUnavailable(f"no bus session to ask the {role} worker for {op}", role=role)
         k = key or keys.worker_op(self.ctx.cfg.cell_id, role, op)
         t = timeout if timeout is not None else getattr(self.ctx.cfg.supervisor.timeouts, op, None)
         t = t if t is not None else self.ctx.cfg.supervisor.timeouts.default

@@ -24,6 +24,7 @@ __all__ = [
     "Exit",
     "PackMLDefinition",
     "PackMLState",
+    "StepIO",
     "load_cycle",
     "load_packml",
     "mermaid",
@@ -93,6 +94,48 @@ class CycleState:
 class CycleDefinition:
     initial: str
     states: dict[str, CycleState] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class StepIO:
+    """What a step reads from and writes to the cycle's blackboard (FlexBE input/output keys)."""
+
+    reads: frozenset[str] = frozenset()
+    writes: frozenset[str] = frozenset()
+
+
+def _check_data_flow(
+    path: Path, initial: str, states: dict[str, CycleState], io: Mapping[str, StepIO], provided: frozenset[str]
+) -> None:
+    """Refuse a state whose step reads a field that is not written on every path to it.
+
+    A forward must-analysis over the cycle graph: what is surely set on entering a state is what
+    the initial context provides (for the initial state) intersected over every edge into it.
+    """
+    preds: dict[str, list[str]] = {name: [] for name in states}
+    for st in states.values():
+        for dest in st.on.values():
+            if not isinstance(dest, Exit):
+                preds[dest].append(st.name)
+    every = provided.union(*(x.writes for x in io.values()))
+    surely: dict[str, frozenset[str]] = {name: every for name in states}
+    surely[initial] = provided
+    changed = True
+    while changed:
+        changed = False
+        for name in states:
+            if name == initial:
+                continue  # its first entry has only the initial context
+            new = frozenset.intersection(every, *(surely[p] | io[states[p].step].writes for p in preds[name]))
+            if new != surely[name]:
+                surely[name], changed = new, True
+    for name, st in states.items():
+        missing = io[st.step].reads - surely[name]
+        if missing:
+            raise ConfigError(
+                f"{path}: states.{name}: step {st.step!r} reads {sorted(missing)}, which no step writes on every"
+                f" path from {initial!r} to it (nor does the cycle's initial context provide it)"
+            )
 
 
 def _read(path: Path) -> dict[str, Any]:
@@ -196,16 +239,25 @@ def load_packml(path: Path | None = None, behaviours: Iterable[str] = ()) -> Pac
     return PackMLDefinition(initial, states, commands, state_complete)
 
 
-def load_cycle(path: Path | None = None, steps: Mapping[str, Iterable[str]] | None = None) -> CycleDefinition:
+def load_cycle(
+    path: Path | None = None,
+    steps: Mapping[str, Iterable[str]] | None = None,
+    io: Mapping[str, StepIO] | None = None,
+    initial_context: Iterable[str] = (),
+) -> CycleDefinition:
     """Load ``states/cycle.yaml`` and check every step and outcome against the code.
 
     Args:
         steps: step name → its declared outcomes, as the code provides them.
+        io: step name → the blackboard fields it reads and writes; when given, every state's
+            step must find what it reads written on every path from ``initial``.
+        initial_context: the fields every cycle starts with set.
 
     Raises:
         ConfigError: unknown step, an outcome the step does not declare, an outcome of the step
             left unmapped, an unknown destination, a state unreachable from ``initial``,
-            or a state name with ``.`` (the nesting separator).
+            a state name with ``.`` (the nesting separator), or a step reading a field that
+            no step writes before it.
     """
     path = path or project_root() / "states" / "cycle.yaml"
     data = _read(path)
@@ -257,6 +309,8 @@ def load_cycle(path: Path | None = None, steps: Mapping[str, Iterable[str]] | No
     unreachable = sorted(set(states) - seen)
     if unreachable:
         raise ConfigError(f"{path}: states {unreachable} cannot be reached from {initial!r}")
+    if io is not None:
+        _check_data_flow(path, initial, states, io, frozenset(initial_context))
     return CycleDefinition(initial, states)
 
 

@@ -14,13 +14,19 @@ class Step(ABC):
     """One state of the inspection cycle.
 
     A step declares every outcome it can return in ``OUTCOMES``; ``states/cycle.yaml`` must
-    map each of them. ``execute`` runs on a step thread, never on the dispatcher; it raises
-    a CellError to fail (the runner turns that into outcome ``failed`` with the reason).
+    map each of them. It declares the :class:`CycleContext` fields it ``READS`` and ``WRITES``;
+    a field it only consults when set (``approach`` in approaching) is not a read. ``execute``
+    runs on a step thread, never on the dispatcher; it raises a CellError to fail (the runner
+    turns that into outcome ``failed`` with the reason).
     """
 
     NAME: ClassVar[str]
     OUTCOMES: ClassVar[tuple[str, ...]]
     DESCRIPTION: ClassVar[str] = ""
+    READS: ClassVar[tuple[str, ...]] = ()
+    """Blackboard fields this step needs set (FlexBE input keys); the loader checks a writer precedes it."""
+    WRITES: ClassVar[tuple[str, ...]] = ()
+    """Blackboard fields this step sets for the steps after it (output keys)."""
 
     @abstractmethod
     def execute(self, run: StepRun) -> str:

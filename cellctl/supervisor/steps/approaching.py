@@ -11,6 +11,8 @@ class Approaching(Step):
     NAME = "approaching"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "park beside the bin (first attempt) and move to observation pose k"
+    READS = ("observation_index",)
+    WRITES = ("approach",)
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx

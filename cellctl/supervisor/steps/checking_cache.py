@@ -12,13 +12,15 @@ class CheckingCache(Step):
     NAME = "checking_cache"
     OUTCOMES = ("hit", "miss", "failed")
     DESCRIPTION = "plan-cache lookup + tolerance check + viewpoint adjustment (in the planner worker)"
+    READS = ("bin_type", "T_base_bin", "params", "mode")
+    WRITES = ("plan",)
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
         req = PlanLookupRequest(
             bin_type=ctx.bin_type or "",
             bin_pose=PoseMsg.from_matrix(ctx.T_base_bin),
-            surface=ctx.params.get("surface", ctx.cfg.planner.surface),
+            surface=ctx.surface,
             # data collection visits every reachable viewpoint, not only the tour
             all_reachable=ctx.mode == "collect",
         )

@@ -13,6 +13,8 @@ class Classifying(Step):
     NAME = "classifying"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "wait for outstanding classifications; verdict = dirty if any viewpoint is dirty"
+    READS = ("classifications", "viewpoints", "mode")
+    WRITES = ("viewpoints", "verdict")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx

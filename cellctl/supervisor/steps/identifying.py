@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from cellctl.errors import CameraError, IdentificationError, WorkerFailed
 from cellctl.messages import ApproachReply, ApproachRequest, CaptureReply, CaptureRequest, EventLevel
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
+
+if TYPE_CHECKING:
+    from cellctl.vision.identify import Identification
 
 _MAGIC = {"png": b"\x89PNG\r\n\x1a\n", "jpeg": b"\xff\xd8\xff"}
 
@@ -39,8 +44,10 @@ class Identifying(Step):
     NAME = "identifying"
     OUTCOMES = ("succeeded", "retry", "failed")
     DESCRIPTION = "ChArUco → bin type + T_base_bin; fuses several views if configured; retries from the next pose"
+    READS = ("approach", "observation_index", "identify_attempts")
+    WRITES = ("identify_attempts", "observation_index", "identification", "bin_type", "T_base_bin")
 
-    def _view(self, run: StepRun, T_base_cam: np.ndarray):  # noqa: ANN202 - an Identification
+    def _view(self, run: StepRun, T_base_cam: np.ndarray) -> Identification:
         ctx = run.ctx
         reply, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
         data = captured_image(reply, image)
@@ -66,7 +73,7 @@ class Identifying(Step):
                 ctx.observation_index += 1
                 return "retry"
             raise IdentificationError(f"bin not identified after {attempts} observation poses: {err}") from err
-        views = [ident]
+        views: list[Identification] = [ident]
         for k in range(1, ctx.cfg.supervisor.identify_views):
             # Extra views from the next observation poses; a view that fails is skipped, the
             # fused estimate uses the ones that worked.

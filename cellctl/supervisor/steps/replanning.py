@@ -15,6 +15,8 @@ class Replanning(Step):
     NAME = "replanning"
     OUTCOMES = ("submitted", "plan_ready", "failed")
     DESCRIPTION = "submit an offline planning job; end with replan_required (or wait, by config)"
+    READS = ("bin_type", "T_base_bin", "params")
+    WRITES = ("planner_job_id", "outcome", "reason")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
@@ -22,7 +24,7 @@ class Replanning(Step):
         req = PlanJobRequest(
             bin_type=ctx.bin_type or "",
             bin_pose=PoseMsg.from_matrix(ctx.T_base_bin),
-            surface=ctx.params.get("surface", pc.surface),
+            surface=ctx.surface,
             seed_pct=pc.seed_pct,
             mode=pc.mode,
             seed=pc.seed,

@@ -31,7 +31,7 @@ def dirt_map(plan, viewpoints, mesh=None, surface: str = "external") -> tuple[di
     if mesh is not None:
         total = mesh.n_faces
         on_surface = mesh.surface == (0 if surface == "external" else 1)
-        areas = mesh.face_areas()
+        areas = mesh.areas
         idx = np.fromiter(seen, dtype=np.int64, count=len(seen))
         idx = idx[(idx >= 0) & (idx < total)]
         coverage = float(areas[idx][on_surface[idx]].sum() / areas[on_surface].sum()) if on_surface.any() else None
@@ -47,12 +47,13 @@ class Reporting(Step):
     NAME = "reporting"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "coverage + dirt map for the CycleResult"
+    READS = ("plan", "viewpoints", "params")
+    WRITES = ("dirt_map", "coverage", "outcome")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
         mesh = ctx.catalog.load_mesh(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
-        surface = ctx.params.get("surface", ctx.cfg.planner.surface)
-        ctx.dirt_map, ctx.coverage = dirt_map(ctx.plan, ctx.viewpoints, mesh, surface)
+        ctx.dirt_map, ctx.coverage = dirt_map(ctx.plan, ctx.viewpoints, mesh, ctx.surface)
         if mesh is not None:
             self._scene(ctx, mesh)
         ctx.outcome = CycleOutcome.completed

@@ -39,15 +39,18 @@ class Scanning(Step):
     NAME = "scanning"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "move → settle → capture per viewpoint; classification overlaps the next move"
+    READS = ("plan", "params", "mode", "next_viewpoint", "viewpoints", "classifications")
+    WRITES = ("viewpoints", "classifications", "next_viewpoint")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
         plan = ctx.plan
-        surface = ctx.params.get("surface", ctx.cfg.planner.surface)
+        assert plan is not None  # READS plan: the loader checked a step wrote it
+        surface = ctx.surface
         collect = ctx.mode == "collect"
         settle = ctx.cfg.robot.settle_s
-        perturb = float(ctx.params.get("perturb_m", 0.0)) if collect else 0.0
-        seed = int(ctx.params.get("seed", 0))
+        perturb = ctx.params.perturb_m if collect else 0.0
+        seed = ctx.params.seed
         bin_type = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
         for k in range(ctx.next_viewpoint, len(plan.viewpoints)):
             vp = plan.viewpoints[k]
@@ -77,8 +80,8 @@ class Scanning(Step):
             if collect:
                 from cellctl.classify.collect import store_image
 
-                store_image(ctx.cfg, ctx.params, surface, ctx.cycle_id, vp.index, data)
-                result = result.model_copy(update={"label": ctx.params.get("label")})
+                store_image(ctx.cfg, ctx.params.as_params(), surface, ctx.cycle_id, vp.index, data)
+                result = result.model_copy(update={"label": ctx.params.label})
             else:
                 image = data
                 if bin_type is not None and ctx.T_base_bin is not None:

@@ -1,0 +1,164 @@
+"""The open cycle: its blackboard, its record, and how it ends (result, index row, Admin counters)."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import itertools
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from cellctl.bus import keys
+from cellctl.bus.rpc import request
+from cellctl.config import CellConfig
+from cellctl.errors import ProtocolError, WorkerError
+from cellctl.messages import CycleOutcome, CycleResult, StartParams, StopRequest
+from cellctl.recording.index import CycleIndex
+from cellctl.supervisor.admin import AdminBook
+from cellctl.supervisor.context import CycleContext, Identify
+from cellctl.supervisor.publisher import Outbox
+from cellctl.supervisor.recorder import CycleRecorder, NullRecorder, Recorder, assemble_result, new_cycle_id
+
+__all__ = ["KEEP_RESULTS", "CycleKeeper"]
+
+KEEP_RESULTS = 50
+"""Finished results kept in memory (tests and benches read the last ones)."""
+
+
+class CycleKeeper:
+    """Opens, records and closes cycles; thread-safe where activations and the dispatcher meet.
+
+    Args:
+        robot_alive: whether a robot worker holds a liveliness token (no stop request otherwise).
+    """
+
+    def __init__(
+        self,
+        cfg: CellConfig,
+        session: Any,
+        index: CycleIndex,
+        outbox: Outbox,
+        admin: AdminBook,
+        robot_alive: Callable[[], bool],
+        *,
+        identify: Identify | None = None,
+        catalog: Any = None,
+    ) -> None:
+        self.cfg = cfg
+        self.session = session
+        self.index = index
+        self.outbox = outbox
+        self.admin = admin
+        self.robot_alive = robot_alive
+        self.identify = identify
+        self.catalog = catalog
+        self.ctx: CycleContext | None = None
+        self.start_params = StartParams()
+        self.results: list[CycleResult] = []
+        self._seq = itertools.count(1)
+        self._lock = threading.Lock()  # finalize runs on activations and on the dispatcher (shutdown)
+
+    @property
+    def open_ctx(self) -> CycleContext | None:
+        """The cycle's blackboard while its log is open, else None."""
+        ctx = self.ctx
+        return ctx if ctx is not None and not ctx.finished else None
+
+    @property
+    def record(self) -> Recorder | None:
+        ctx = self.open_ctx
+        return ctx.log if ctx is not None else None
+
+    def event(self, level: str, text: str) -> None:
+        ctx = self.ctx
+        self.outbox.announce(level, text, ctx.cycle_id if ctx is not None else None, self.record)
+
+    def idle_context(self) -> CycleContext:
+        """A blackboard for activations outside a cycle (Resetting, Clearing): records nothing."""
+        return CycleContext(cycle_id="", cfg=self.cfg, session=self.session, log=NullRecorder())
+
+    def open(self) -> CycleContext:
+        """Open a cycle (dispatcher, on entering Starting): index row, MCAP, blackboard.
+
+        Done before the Start Ack is sent, so the Start command and its Ack are the first things
+        the cycle log holds.
+        """
+        now = _dt.datetime.now(_dt.UTC)
+        cycle_id = new_cycle_id(now, next(self._seq))
+        params = self.start_params
+        rec = CycleRecorder(self.cfg, self.index, cycle_id, now, params.mode)
+        self.ctx = CycleContext(
+            cycle_id=cycle_id,
+            cfg=self.cfg,
+            session=self.session,
+            log=rec,
+            mode=params.mode,
+            params=params,
+            started=now.isoformat(timespec="milliseconds"),
+            log_rel=rec.rel,
+            post_event=self.event,
+            identify=self.identify,
+            catalog=self.catalog,
+        )
+        self.event("info", f"cycle {cycle_id} started ({params.mode})")
+        return self.ctx
+
+    def note(self, reason: str, *, failed: bool = False) -> None:
+        """Give the open cycle its reason (the first one wins); ``failed`` also sets outcome failed."""
+        ctx = self.open_ctx
+        if ctx is None:
+            return
+        if failed:
+            ctx.outcome, ctx.reason = CycleOutcome.failed, reason
+        else:
+            ctx.reason = ctx.reason or reason
+
+    def finalize(self, default_outcome: CycleOutcome, reason: str | None = None) -> CycleResult | None:
+        """Close the open cycle: result into the log, log closed, index row closed, result published."""
+        with self._lock:
+            ctx = self.open_ctx
+            if ctx is None:
+                return None
+            ctx.finished = True
+        ctx.shutdown()
+        res = assemble_result(ctx, default_outcome, reason)
+        ctx.log.close(res)
+        self.outbox.result(res)
+        self.admin.cycle_finished(res)
+        self.results.append(res)
+        del self.results[:-KEEP_RESULTS]
+        return res
+
+    def stop_robot(self, reason: str) -> None:
+        """Ask the robot to stop now, recorded in the open cycle's log; never raises."""
+        if not self.robot_alive() or self.session is None:
+            return
+        key = keys.robot_op(self.cfg.cell_id, "stop")
+        msg = StopRequest(reason=reason)
+        rec = self.record
+        try:
+            if rec is not None:
+                rec.write_message(f"{key}/request", msg)
+            reply, _ = request(
+                self.session, key, msg, StopRequest, timeout=self.cfg.supervisor.timeouts.stop, role="robot"
+            )
+            if rec is not None:
+                rec.write_message(f"{key}/reply", reply)
+        except (WorkerError, ProtocolError) as err:
+            # A robot that cannot confirm the stop is logged loudly; the state machine still
+            # goes to the safe state and commands no further motion.
+            self.event("error", f"robot stop not confirmed: {err}")
+
+    def shutdown(self, state: str) -> str | None:
+        """Close an open cycle as aborted because the supervisor stops; return the reason, if any."""
+        ctx = self.open_ctx
+        if ctx is None:
+            return None
+        self.stop_robot("supervisor shutdown")
+        ctx.outcome = ctx.outcome or CycleOutcome.aborted
+        ctx.reason = ctx.reason or f"supervisor shut down in {state}"
+        self.finalize(CycleOutcome.aborted)
+        return ctx.reason
+
+    def reset(self) -> None:
+        self.ctx = None

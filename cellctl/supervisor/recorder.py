@@ -1,0 +1,148 @@
+"""What a cycle leaves behind: its MCAP log, its index row and its :class:`CycleResult`.
+
+A :class:`Recorder` is what steps and the dispatcher write to. :class:`CycleRecorder` records
+one cycle (MCAP via :class:`~cellctl.recording.cycle_log.CycleLog` plus the index row);
+:class:`NullRecorder` stands in outside a cycle (Resetting, Clearing) and writes nothing.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from abc import ABC, abstractmethod
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from cellctl.bus import keys
+from cellctl.config import CellConfig
+from cellctl.messages import BinInfo, CycleOutcome, CycleResult, PoseMsg, WireMessage
+from cellctl.recording.cycle_log import CycleLog
+from cellctl.recording.index import CycleIndex, file_sha256
+
+if TYPE_CHECKING:
+    from cellctl.supervisor.context import CycleContext
+
+__all__ = ["CycleRecorder", "NullRecorder", "Recorder", "assemble_result", "new_cycle_id"]
+
+
+class Recorder(ABC):
+    """Where a cycle's messages, images and events go (thread-safe in every implementation)."""
+
+    path: Path | None
+    """The log file, or None when nothing is written."""
+    rel: str | None
+    """The log path as the CycleResult names it (relative to the config root)."""
+
+    @abstractmethod
+    def write_json(self, topic: str, schema: str, obj: dict[str, Any] | bytes) -> None: ...
+
+    @abstractmethod
+    def write_message(self, topic: str, msg: WireMessage) -> None: ...
+
+    @abstractmethod
+    def event(self, level: int, text: str) -> None: ...
+
+    @abstractmethod
+    def image(self, topic: str, data: bytes, fmt: str, frame_id: str = "camera") -> None: ...
+
+    @abstractmethod
+    def close(self, result: CycleResult) -> None:
+        """Record the result and close the log and the index row."""
+
+
+class NullRecorder(Recorder):
+    """Recorder of activations outside a cycle: accepts everything, keeps nothing."""
+
+    path = None
+    rel = None
+
+    def write_json(self, topic: str, schema: str, obj: dict[str, Any] | bytes) -> None:
+        pass
+
+    def write_message(self, topic: str, msg: WireMessage) -> None:
+        pass
+
+    def event(self, level: int, text: str) -> None:
+        pass
+
+    def image(self, topic: str, data: bytes, fmt: str, frame_id: str = "camera") -> None:
+        pass
+
+    def close(self, result: CycleResult) -> None:
+        pass
+
+
+def new_cycle_id(now: _dt.datetime, seq: int) -> str:
+    """``YYYYmmddTHHMMSS-mmm-<seq>``: sortable, unique within one supervisor run."""
+    return f"{now:%Y%m%dT%H%M%S}-{now.microsecond // 1000:03d}-{seq}"
+
+
+class CycleRecorder(Recorder):
+    """The record of one cycle: opens its index row, then its MCAP (in that order).
+
+    The row first: a crash between the two leaves a row that restart marks interrupted (no log
+    yet), never a log that no row accounts for (an orphan to the audit).
+    """
+
+    def __init__(self, cfg: CellConfig, index: CycleIndex, cycle_id: str, now: _dt.datetime, mode: str) -> None:
+        self.cell_id = cfg.cell_id
+        self.index = index
+        self.cycle_id = cycle_id
+        rel = Path(cfg.recording.dir) / f"{now:%Y-%m-%d}" / f"{cycle_id}.mcap"
+        self.rel = str(rel)
+        self.path = cfg.path(rel)
+        index.begin(cycle_id, cfg.cell_id, str(self.path), now.isoformat(timespec="milliseconds"))
+        self._log = CycleLog(self.path, cycle_id, {"cell": cfg.cell_id, "mode": mode})
+
+    def write_json(self, topic: str, schema: str, obj: dict[str, Any] | bytes) -> None:
+        self._log.write_json(topic, schema, obj)
+
+    def write_message(self, topic: str, msg: WireMessage) -> None:
+        self._log.write_message(topic, msg)
+
+    def event(self, level: int, text: str) -> None:
+        self._log.event(level, text)
+
+    def image(self, topic: str, data: bytes, fmt: str, frame_id: str = "camera") -> None:
+        self._log.image(topic, data, fmt, frame_id)
+
+    def close(self, result: CycleResult) -> None:
+        self._log.write_message(keys.result(self.cell_id), result)
+        self._log.close({"outcome": result.outcome.value, "reason": result.reason or ""})
+        self.index.finish(
+            self.cycle_id,
+            result.outcome.value,
+            verdict=result.verdict,
+            bin_type=result.bin.type,
+            plan_id=result.plan_id,
+            reason=result.reason,
+            log_sha256=file_sha256(self.path),
+            finished=result.finished,
+        )
+
+
+def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: str | None = None) -> CycleResult:
+    """The CycleResult of a finished cycle from its blackboard (the verdict only when completed)."""
+    outcome = ctx.outcome or default_outcome
+    plan = ctx.plan
+    return CycleResult(
+        cycle_id=ctx.cycle_id,
+        outcome=outcome,
+        reason=ctx.reason or reason,
+        bin=BinInfo(
+            type=ctx.bin_type, pose=PoseMsg.from_matrix(ctx.T_base_bin) if ctx.T_base_bin is not None else None
+        ),
+        plan_id=plan.plan_id if plan is not None else None,
+        plan_adjusted=plan.adjusted if plan is not None else None,
+        planner_job_id=ctx.planner_job_id,
+        verdict=ctx.verdict if outcome == CycleOutcome.completed else None,
+        viewpoints=ctx.viewpoints,
+        coverage=ctx.coverage,
+        dirt_map=ctx.dirt_map,
+        log=ctx.log_rel,
+        timing={
+            "steps_s": {k: round(v, 4) for k, v in ctx.step_seconds.items()},
+            "rpc_s": {k: round(v, 4) for k, v in ctx.rpc_seconds.items()},
+            "rpc_count": ctx.rpc_count,
+        },
+        started=ctx.started,
+    )

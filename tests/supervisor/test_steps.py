@@ -1,0 +1,178 @@
+"""Each cycle step on its own: a scripted StepRun answers the worker calls (no Zenoh, no machine)."""
+
+from __future__ import annotations
+
+from concurrent.futures import Future
+
+import numpy as np
+import pytest
+
+from cellctl.errors import ClassifierError, IdentificationError, PlanCacheError, WorkerFailed
+from cellctl.messages import (
+    ApproachReply,
+    CaptureReply,
+    ClassifyReply,
+    CycleOutcome,
+    MoveReply,
+    PlanJobReply,
+    PlanLookupReply,
+    PlannedViewpoint,
+    StartParams,
+    ViewpointResult,
+)
+from cellctl.supervisor.context import INITIAL_CONTEXT, CycleContext
+from cellctl.supervisor.steps import STEPS
+from cellctl.supervisor.steps.approaching import Approaching
+from cellctl.supervisor.steps.checking_cache import CheckingCache
+from cellctl.supervisor.steps.classifying import Classifying
+from cellctl.supervisor.steps.identifying import Identifying
+from cellctl.supervisor.steps.replanning import Replanning
+from cellctl.supervisor.steps.reporting import Reporting
+from cellctl.supervisor.steps.scanning import Scanning
+from tests.fakes.workers import CAM_POSE, INTRINSICS, _png, fake_identify
+from tests.supervisor._scripted import ListRecorder, ScriptedRun, context
+
+APPROACH = ApproachReply(joints=[0.0] * 6, flange_pose=CAM_POSE, camera_pose=CAM_POSE)
+CAPTURE = (CaptureReply(format="png", intrinsics=INTRINSICS, camera_pose=CAM_POSE), _png())
+T_BIN = np.eye(4)
+
+
+def _plan(n: int = 3) -> PlanLookupReply:
+    vps = [
+        PlannedViewpoint(index=i, camera_pose=CAM_POSE, joints=[0.1 * i] * 6, faces=[2 * i, 2 * i + 1])
+        for i in range(n)
+    ]
+    return PlanLookupReply(hit=True, plan_id="plan-1", viewpoints=vps, mesh_faces=10)
+
+
+def _done(reply: ClassifyReply) -> Future:
+    f: Future = Future()
+    f.set_result(reply)
+    return f
+
+
+def test_every_step_declares_fields_of_the_context() -> None:
+    fields = set(CycleContext.__dataclass_fields__)
+    assert set(INITIAL_CONTEXT) <= fields
+    for name, step in STEPS.items():
+        assert set(step.READS) <= fields, name
+        assert set(step.WRITES) <= fields, name
+
+
+def test_approaching_parks_first_then_only_moves_the_arm(cfg) -> None:  # noqa: ANN001
+    ctx = context(cfg)
+    run = ScriptedRun(ctx, {("robot", "approach"): (APPROACH, None)})
+    assert Approaching()(run) == "succeeded"
+    assert ctx.approach == APPROACH and run.calls[0][2].park is True
+    ctx.observation_index = 1
+    Approaching()(run)
+    assert run.calls[1][2].park is False and run.calls[1][2].observation_index == 1
+
+
+def test_identifying_sets_the_bin_and_records_the_image(cfg) -> None:  # noqa: ANN001
+    rec = ListRecorder()
+    ctx = context(cfg, log=rec, approach=APPROACH, identify=fake_identify)
+    run = ScriptedRun(ctx, {("camera", "capture"): CAPTURE})
+    assert Identifying()(run) == "succeeded"
+    assert ctx.bin_type == "case_study" and ctx.T_base_bin is not None and ctx.T_base_bin.shape == (4, 4)
+    assert ("/camera/image", "foxglove.CompressedImage") in rec.records
+    assert ("/bin/pose", "foxglove.PoseInFrame") in rec.records
+
+
+def test_identifying_retries_from_the_next_pose_then_fails(cfg) -> None:  # noqa: ANN001
+    def blind(*a):  # noqa: ANN002, ANN202
+        raise IdentificationError("no board in view")
+
+    cfg.supervisor.identify_attempts = 2
+    ctx = context(cfg, approach=APPROACH, identify=blind)
+    run = ScriptedRun(ctx, {("camera", "capture"): CAPTURE})
+    assert Identifying()(run) == "retry"
+    assert ctx.observation_index == 1 and ctx.identify_attempts == 1
+    with pytest.raises(IdentificationError, match="not identified after 2 observation poses: no board in view"):
+        Identifying()(run)
+
+
+def test_checking_cache_hit_miss_and_a_hit_without_viewpoints(cfg) -> None:  # noqa: ANN001
+    ctx = context(cfg, params=StartParams(surface="internal"), bin_type="case_study", T_base_bin=T_BIN)
+    run = ScriptedRun(ctx, {("planner", "lookup"): (_plan(), None)})
+    assert CheckingCache()(run) == "hit"
+    assert ctx.plan is not None and ctx.plan.plan_id == "plan-1"
+    assert run.calls[0][2].surface == "internal"  # the Start param, not the config default
+    run.script[("planner", "lookup")] = (PlanLookupReply(hit=False, reason="pose out of tolerance"), None)
+    assert CheckingCache()(run) == "miss"
+    assert ("info", "no usable plan: pose out of tolerance") in run.events
+    run.script[("planner", "lookup")] = (PlanLookupReply(hit=True, plan_id="p"), None)
+    with pytest.raises(PlanCacheError, match="hit on plan 'p' but no viewpoints"):
+        CheckingCache()(run)
+
+
+def test_replanning_submits_and_ends_with_replan_required(cfg) -> None:  # noqa: ANN001
+    ctx = context(cfg, bin_type="case_study", T_base_bin=T_BIN, approach=APPROACH)
+    run = ScriptedRun(ctx, {("planner", "jobs"): (PlanJobReply(job_id="job-7"), None)})
+    assert Replanning()(run) == "submitted"
+    assert ctx.planner_job_id == "job-7" and ctx.outcome == CycleOutcome.replan_required
+    assert run.calls[0][2].q_start == [0.0] * 6  # the tour starts where the arm is
+
+
+def test_scanning_visits_every_viewpoint_and_a_refused_one_costs_only_coverage(cfg) -> None:  # noqa: ANN001
+    def move(req):  # noqa: ANN001, ANN202
+        if req.joints == [0.1] * 6:
+            raise WorkerFailed("viewpoint in collision", role="robot")
+        return MoveReply(joints=req.joints, camera_pose=CAM_POSE), None
+
+    ctx = context(cfg, plan=_plan(3))
+    run = ScriptedRun(
+        ctx,
+        {
+            ("robot", "move"): move,
+            ("camera", "capture"): CAPTURE,
+            ("classifier", "classify"): (ClassifyReply(label="clean", p_dirty=0.1, model_id="m"), None),
+        },
+    )
+    try:
+        assert Scanning()(run) == "succeeded"
+        assert [v.index for v in ctx.viewpoints] == [0, 1, 2]
+        assert ctx.viewpoints[1].error == "viewpoint in collision" and ctx.next_viewpoint == 3
+        assert sorted(ctx.classifications) == [0, 2]
+        assert ctx.classifications[0].result(timeout=5).label == "clean"
+    finally:
+        ctx.shutdown()
+
+
+def test_scanning_fails_when_no_viewpoint_was_reached(cfg) -> None:  # noqa: ANN001
+    def refuse(req):  # noqa: ANN001, ANN202
+        raise WorkerFailed("unreachable", role="robot")
+
+    ctx = context(cfg, plan=_plan(2))
+    with pytest.raises(WorkerFailed, match="reached none of the 2 planned viewpoints"):
+        Scanning()(ScriptedRun(ctx, {("robot", "move"): refuse}))
+
+
+def test_classifying_decides_dirty_if_any_viewpoint_is_dirty(cfg) -> None:  # noqa: ANN001
+    ctx = context(cfg, viewpoints=[ViewpointResult(index=0), ViewpointResult(index=1)])
+    ctx.classifications = {
+        0: _done(ClassifyReply(label="clean", p_dirty=0.1, model_id="m")),
+        1: _done(ClassifyReply(label="dirty", p_dirty=0.8, uncertain=True, model_id="m")),
+    }
+    assert Classifying()(ScriptedRun(ctx, {})) == "succeeded"
+    assert ctx.verdict == "dirty" and [v.label for v in ctx.viewpoints] == ["clean", "dirty"]
+    assert ctx.classifications == {}
+
+
+def test_classifying_without_any_label_fails(cfg) -> None:  # noqa: ANN001
+    ctx = context(cfg, viewpoints=[ViewpointResult(index=0, error="unreachable")])
+    with pytest.raises(ClassifierError, match="no viewpoint was classified"):
+        Classifying()(ScriptedRun(ctx, {}))
+
+
+def test_reporting_maps_dirt_and_coverage_and_completes(cfg) -> None:  # noqa: ANN001
+    vps = [
+        ViewpointResult(index=0, label="clean"),
+        ViewpointResult(index=1, label="dirty"),
+        ViewpointResult(index=2, error="x"),
+    ]
+    ctx = context(cfg, plan=_plan(3), viewpoints=vps)
+    assert Reporting()(ScriptedRun(ctx, {})) == "succeeded"
+    assert ctx.dirt_map == {"faces_total": 10, "seen_dirty": [2, 3], "seen_clean": [0, 1], "unseen_count": 6}
+    assert ctx.coverage == pytest.approx(0.4)
+    assert ctx.outcome == CycleOutcome.completed
