@@ -170,7 +170,7 @@ class Hmi:
 
     def __init__(self, cfg: CellConfig, hcfg: HmiConfig, clock: Callable[[], float] = time.monotonic) -> None:
         self.cfg, self.hcfg = cfg, hcfg
-        self.link = CellLink(cfg, stale_s=hcfg.stale_s, events_kept=hcfg.events_kept)
+        self.link = CellLink(cfg, hcfg.stale_s, hcfg.events_kept, reopen_s=max(3 * hcfg.stale_s, 2.0))
         self.records = CycleRecords(cfg)
         self.foxglove: Any = None
         if hcfg.foxglove.enabled:
@@ -381,7 +381,7 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         try:
             cmd = Command(**fields, request_id=hmi.link.next_request_id(s.user), user=f"hmi:{s.user}")
         except ValidationError as err:
-            raise HttpError(422, "; ".join(str(e["msg"]).removeprefix("Value error, ") for e in err.errors())) from None
+            raise HttpError(422, _explain(err)) from None
         what = cmd.name if (cmd.command or cmd.cntrl_cmd) else f"unit mode {cmd.unit_mode or cmd.unit_mode_code}"
         try:
             ack = hmi.link.send(cmd, hc.command_timeout_s)
@@ -547,6 +547,17 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         app.add_api_route(f"/{route}", page_route(pages[name]), methods=["GET"], include_in_schema=False)
 
     return app
+
+
+def _explain(err: ValidationError) -> str:
+    """One clause per problem: the field, what is wrong, the value sent."""
+    out = []
+    for e in err.errors():
+        loc = ".".join(str(x) for x in e.get("loc", ()))
+        msg = str(e["msg"]).removeprefix("Value error, ")
+        got = f" (got {e['input']!r})" if loc and not isinstance(e.get("input"), dict) else ""
+        out.append(f"{loc + ': ' if loc else ''}{msg}{got}"[:300])
+    return "; ".join(out)
 
 
 def _cross_origin(request: Request) -> str | None:
