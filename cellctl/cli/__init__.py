@@ -30,6 +30,7 @@ VERB_MODULES = (
     "cellctl.cli.vision",
     "cellctl.cli.sim",
     "cellctl.cli.plan",
+    "cellctl.cli.gateway",
     "cellctl.cli.hmi",
 )
 
