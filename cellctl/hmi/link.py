@@ -214,7 +214,8 @@ class CellLink:
         reachable = st is not None and age is not None and age <= self.stale_s and self._session is not None
         out: dict[str, Any] = {"reachable": reachable, "age_s": None if age is None else round(age, 3)}
         if not reachable:
-            out["error"] = err or f"no Status from cell {self.cell!r} for {age:.0f} s"
+            silent = "yet" if age is None else f"for {age:.0f} s"
+            out["error"] = err or f"no Status from cell {self.cell!r} {silent}"
         out["status"] = st.model_dump(mode="json") if st is not None else None
         return out
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cellctl.bus import keys
+from cellctl.bus import keys, topics
 from cellctl.recording.replay import MCAP_MAGIC, RecordedMessage
 
 __all__ = ["LiveCycle", "McapTail"]
@@ -112,14 +112,14 @@ class LiveCycle:
         c = self.cell
         self.messages += 1
         t = m.topic
-        if t == "/camera/image":
+        if t == topics.CAMERA_IMAGE:
             self._last_image = m.data  # decoded lazily: only the newest image is shown
             self.image_seq += 1
             return
-        if t == "/camera/pose":
+        if t == topics.CAMERA_POSE:
             self.captured += 1
             return
-        if t == f"{keys.robot_op(c, 'move')}/request" and self.n_viewpoints is not None:
+        if t == topics.request(keys.robot_op(c, "move")) and self.n_viewpoints is not None:
             self.moves += 1
             return
         try:
@@ -130,9 +130,9 @@ class LiveCycle:
             self.step, self.state = obj.get("step"), obj.get("state")
             if self.step and self.step not in self.steps_seen:
                 self.steps_seen.append(self.step)
-        elif t == f"{keys.worker_op(c, 'planner', 'lookup')}/reply" and obj.get("hit"):
+        elif t == topics.reply(keys.worker_op(c, "planner", "lookup")) and obj.get("hit"):
             self.n_viewpoints = len(obj.get("viewpoints") or [])
-        elif t == f"{keys.classifier_classify(c)}/reply":
+        elif t == topics.reply(keys.classifier_classify(c)):
             if obj.get("type") == "cellctl/ClassifyReply":
                 self.verdicts.append(
                     {
@@ -144,7 +144,7 @@ class LiveCycle:
                 )
             else:
                 self.verdicts.append({"n": len(self.verdicts) + 1, "label": None, "error": obj.get("reason")})
-        elif t == "/bin/identification":
+        elif t == topics.BIN_IDENTIFICATION:
             self.bin_type = obj.get("bin_type") or self.bin_type
         elif t == keys.result(c):
             self.result = obj

@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from cellctl.bus import keys
+from cellctl.bus import keys, topics
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, RecordingError
 from cellctl.recording.index import CycleRow
@@ -189,10 +189,10 @@ class CycleRecords:
         pending_image: int | None = None
         n_image = 0
         for m in rec.messages:
-            if m.topic == "/camera/image":
+            if m.topic == topics.CAMERA_IMAGE:
                 pending_image = n_image
                 n_image += 1
-            elif m.topic == "/camera/pose" and pending_image is not None:
+            elif m.topic == topics.CAMERA_POSE and pending_image is not None:
                 images.append({"image": pending_image})  # a scanning capture (identification has no pose)
                 pending_image = None
             elif m.topic == keys.result(c):
@@ -230,7 +230,7 @@ class CycleRecords:
         import base64
 
         rec = self._read(self.log_file(cycle_id))
-        imgs = rec.on("/camera/image")
+        imgs = rec.on(topics.CAMERA_IMAGE)
         if not 0 <= n < len(imgs):
             raise NotFound(f"cycle {cycle_id!r} has {len(imgs)} images; image {n} does not exist")
         obj = imgs[n].json()
