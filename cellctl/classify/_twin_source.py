@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from cellctl.classify.sample import MIN_CONTRAST, MIN_VISIBLE_FRACTION, Sample
 from cellctl.errors import ClassifierError
 
 __all__ = ["make_twin_source"]
@@ -60,7 +61,6 @@ def _planned_views(cfg: Any, names: list[str], surface: str) -> dict[str, list[n
 
 def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: Any) -> Callable:
     """A ``draw(rng, dirty) -> Sample`` function rendering with :class:`cellctl.sim.render.SimRenderer`."""
-    from cellctl.classify.synth import MIN_CONTRAST, MIN_VISIBLE_FRACTION, Sample
     from cellctl.config import load_config
     from cellctl.geometry.catalog import EXTERNAL, INTERNAL, load_catalog
     from cellctl.geometry.transforms import rotation_about, transform_from

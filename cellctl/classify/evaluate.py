@@ -1,9 +1,8 @@
 """Evaluation of a clean/dirty model: accuracy, confusion, false-clean rate, ROC AUC, threshold.
 
 Conventions: label 1 = dirty is the positive class; a *false clean* is a dirty image called
-clean (the costly error: a dirty bin goes back into production). The decision rule is
-``dirty if p_dirty >= threshold``; an image is *uncertain* (flagged for a human check) when
-``|logit(p_dirty) − logit(threshold)| < band``.
+clean (the costly error: a dirty bin goes back into production). The decision rule (dirty
+at ``p_dirty >= threshold``, *uncertain* within a logit band) is :mod:`cellctl.classify.decision`.
 """
 
 from __future__ import annotations
@@ -15,21 +14,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from cellctl.classify.decision import is_uncertain, logit
 from cellctl.errors import ClassifierError
 
-__all__ = ["choose_threshold", "evaluate_folder", "is_uncertain", "metrics", "roc_auc", "roc_curve"]
-
-_EPS = 1e-6
-
-
-def _logit(p: np.ndarray | float) -> np.ndarray:
-    q = np.clip(np.asarray(p, np.float64), _EPS, 1 - _EPS)
-    return np.log(q / (1 - q))
-
-
-def is_uncertain(p_dirty: ArrayLike, threshold: float, band: float) -> np.ndarray:
-    """True where ``p_dirty`` lies within ``band`` logits of the threshold."""
-    return np.abs(_logit(np.asarray(p_dirty)) - _logit(threshold)) < band
+__all__ = ["choose_threshold", "evaluate_folder", "metrics", "roc_auc", "roc_curve"]
 
 
 def roc_curve(p: ArrayLike, y: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -83,7 +71,7 @@ def choose_threshold(p: ArrayLike, y: ArrayLike, target_false_clean: float, cap:
     t_fc = float(dirty[m])
     below = p[(y == 0) & (p < t_fc)]
     c_max = float(below.max()) if len(below) else 0.0
-    t = float(1.0 / (1.0 + np.exp(-(_logit(c_max) + _logit(t_fc)) / 2.0)))
+    t = float(1.0 / (1.0 + np.exp(-(logit(c_max) + logit(t_fc)) / 2.0)))
     t = min(t, float(np.nextafter(t_fc, 0.0)))  # the m-th dirty image itself stays dirty
     return float(min(max(t, 1e-4), cap))
 

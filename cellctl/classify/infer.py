@@ -27,7 +27,7 @@ from torch import nn
 
 from cellctl.classify.collect import LABELS, SURFACES, check_surface
 from cellctl.classify.data import prepare
-from cellctl.classify.evaluate import is_uncertain
+from cellctl.classify.decision import is_uncertain
 from cellctl.classify.nets import ARCHS, build_model
 from cellctl.errors import ClassifierError
 

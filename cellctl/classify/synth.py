@@ -8,13 +8,14 @@ Sources:
 * ``procedural`` — :mod:`cellctl.classify.texture` (steel + powder images with exact masks);
   used by the tests and when no renderer is available.
 
-Label rule (both sources): a pixel shows powder when its powder opacity is ≥ 0.5 and (twin)
-the powder changes the pixel by at least :data:`MIN_CONTRAST` grey levels against the same
-render without powder (same light, same sensor noise), so powder washed out by glare or lost
-in the dark does not count as visible. An image is **dirty** when at least
-:data:`MIN_VISIBLE_FRACTION` of its pixels show powder, **clean** when no powder lies in view
-at all. Images in between (a few visible powder pixels, or powder in view but not visible) are
-discarded and drawn again, so every stored label is true by construction.
+Label rule (both sources, :mod:`cellctl.classify.sample`): a pixel shows powder when its
+powder opacity is ≥ 0.5 and (twin) the powder changes the pixel by at least
+:data:`~cellctl.classify.sample.MIN_CONTRAST` grey levels against the same render without powder
+(same light, same sensor noise), so powder washed out by glare or lost in the dark does not
+count as visible. An image is **dirty** when at least
+:data:`~cellctl.classify.sample.MIN_VISIBLE_FRACTION` of its pixels show powder, **clean** when
+no powder lies in view at all. Images in between (a few visible powder pixels, or powder in view
+but not visible) are discarded and drawn again, so every stored label is true by construction.
 
 Half the draws are clean (no powder seeded) and half dirty (powder amount varied). Lighting,
 exposure and camera noise are varied per image from a seeded RNG. ``shifted=True`` draws from
@@ -30,62 +31,18 @@ import json
 import sys
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 from tqdm import tqdm
 
 from cellctl.classify.collect import LABELS, check_surface
+from cellctl.classify.sample import MIN_VISIBLE_FRACTION, POWDER_ALPHA, Sample, label_from_mask
 from cellctl.errors import ClassifierError
 
-__all__ = [
-    "MIN_CONTRAST",
-    "MIN_VISIBLE_FRACTION",
-    "POWDER_ALPHA",
-    "Sample",
-    "label_from_mask",
-    "synth_dataset",
-]
-
-MIN_VISIBLE_FRACTION = 0.003
-"""Smallest fraction of the frame showing powder for a *dirty* label (0.3 %: ~50 px at 128²)."""
-POWDER_ALPHA = 0.5
-"""Powder opacity at which a pixel counts as showing powder."""
-MIN_CONTRAST = 12
-"""Grey levels (8-bit, any channel) by which powder must change a pixel to count as visible."""
-
-
-@dataclass(frozen=True)
-class Sample:
-    """One rendered image: RGB uint8 ``(H, W, 3)``, powder opacity ``(H, W)`` in [0, 1], params."""
-
-    rgb: NDArray[np.uint8]
-    powder: NDArray[np.float32]
-    params: dict[str, Any]
-
-
-def label_from_mask(
-    powder: NDArray[np.floating], min_fraction: float = MIN_VISIBLE_FRACTION, present: float | None = None
-) -> str | None:
-    """``"dirty"``, ``"clean"`` or ``None`` (ambiguous: discard) from a visible-powder map.
-
-    Args:
-        powder: per-pixel visible powder opacity (or 0/1 visibility) of the image.
-        min_fraction: smallest visible fraction for *dirty*.
-        present: fraction of pixels where powder lies in view at all, visible or not (e.g.
-            washed out by glare). An image with powder present but not visible enough is
-            ambiguous, never *clean*.
-    """
-    frac = float((np.asarray(powder) >= POWDER_ALPHA).mean())
-    if frac >= min_fraction:
-        return "dirty"
-    if frac == 0.0 and not present:
-        return "clean"
-    return None
+__all__ = ["synth_dataset"]
 
 
 def _procedural_source(surface: str, size: int, shifted: bool) -> Callable[[np.random.Generator, bool], Sample]:

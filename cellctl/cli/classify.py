@@ -148,7 +148,7 @@ def run_eval(args: argparse.Namespace) -> int:
     from cellctl.classify.evaluate import evaluate_folder
 
     if args.recalibrate:
-        from cellctl.classify.train import calibrate
+        from cellctl.classify.calibration import calibrate
 
         card = calibrate(_model_path(args), args.data, target_false_clean=args.target_false_clean)
         print(

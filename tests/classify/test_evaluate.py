@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cellctl.classify.evaluate import choose_threshold, is_uncertain, metrics, roc_auc, roc_curve
+from cellctl.classify.decision import is_uncertain
+from cellctl.classify.evaluate import choose_threshold, metrics, roc_auc, roc_curve
 from cellctl.errors import ClassifierError
 
 
@@ -50,7 +51,7 @@ def test_metrics_confusion_and_uncertain_band() -> None:
 
 def test_temperature_fit_recovers_the_scale() -> None:
     """Margins sharpened ×4 are scaled back to about T = 4 (calibration keeps the ranking)."""
-    from cellctl.classify.train import fit_temperature
+    from cellctl.classify.calibration import fit_temperature
 
     rng = np.random.default_rng(0)
     z_true = rng.normal(0, 2, 4000)

@@ -1,9 +1,11 @@
-"""Backbones: upstream state_dict names load strictly; bad files are refused clearly."""
+"""Backbones: upstream state_dict names load strictly, outputs match upstream and a committed
+reference; bad files are refused clearly."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -17,6 +19,8 @@ from cellctl.classify.nets import (
     load_imagenet_weights,
 )
 from cellctl.errors import ClassifierError
+from cellctl.hashing import file_sha256
+from tests.classify.data import make_lite0_reference
 
 
 def test_resnet18_has_torchvision_keys_and_shapes() -> None:
@@ -66,19 +70,50 @@ def test_mismatched_or_missing_weights_are_refused(tmp_path: Path) -> None:
         build_model("vgg")
 
 
-def test_lite0_loads_the_packaged_imagenet_checkpoint_strictly_and_matches_upstream() -> None:
-    """Our Lite0 reproduces efficientnet-lite-pytorch's output with the shipped weights."""
+def test_lite0_reproduces_its_committed_reference_outputs() -> None:
+    """Logits and pooled features with the shipped weights match ``data/lite0_reference.npz``.
+
+    Fails when the network (or the packaged weights) changes its outputs; regenerate the file
+    with ``python -m tests.classify.data.make_lite0_reference`` only for an intended change.
+    """
+    ref = np.load(make_lite0_reference.REFERENCE)
+    assert str(ref["weights_sha256"]) == file_sha256(lite0_imagenet_path()), "the packaged ImageNet weights changed"
+    model = make_lite0_reference.reference_model()
+    x = make_lite0_reference.reference_input()
+    with torch.no_grad():
+        logits, features = model(x).numpy(), model.features(x).numpy()
+    assert logits.shape == (3, 1000) and features.shape == (3, 1280)
+    np.testing.assert_allclose(features, ref["features"], rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(logits, ref["logits"], rtol=1e-4, atol=1e-4)
+    assert logits.argmax(1).tolist() == ref["logits"].argmax(1).tolist()
+
+
+def test_the_reference_check_would_catch_a_changed_network() -> None:
+    """One perturbed weight moves the outputs far beyond the tolerance used above."""
+    ref = np.load(make_lite0_reference.REFERENCE)
+    model = make_lite0_reference.reference_model()
+    with torch.no_grad():
+        model._blocks[7]._depthwise_conv.weight[0, 0, 1, 1] += 0.5
+        logits = model(make_lite0_reference.reference_input()).numpy()
+    assert np.abs(logits - ref["logits"]).max() > 1e-2
+
+
+def test_lite0_matches_the_upstream_implementation_with_the_packaged_weights() -> None:
+    """Our Lite0 loads the packaged checkpoint strictly and reproduces ``efficientnet-lite-pytorch``."""
+    from efficientnet_lite_pytorch import EfficientNet  # dev dependency (pyproject [dev])
+
     sd = torch.load(lite0_imagenet_path(), map_location="cpu", weights_only=True)
     ours = EfficientNetLite0(num_classes=1000)
     ours.load_state_dict(sd, strict=True)
     ours.eval()
-    upstream_mod = pytest.importorskip("efficientnet_lite_pytorch")
-    ref = upstream_mod.EfficientNet.from_name("efficientnet-lite0", image_size=128)
-    ref.load_state_dict(sd)
+    ref = EfficientNet.from_name("efficientnet-lite0", image_size=128)
+    ref.load_state_dict(sd, strict=True)
     ref.eval()
-    x = torch.randn(2, 3, 128, 128, generator=torch.Generator().manual_seed(0))
+    x = make_lite0_reference.reference_input()
     with torch.no_grad():
-        assert torch.allclose(ours(x), ref(x), atol=1e-4)
+        a, b = ours(x), ref(x)
+    assert a.shape == b.shape == (3, 1000)
+    assert torch.allclose(a, b, atol=1e-4), float((a - b).abs().max())
 
 
 def test_backbone_parameter_selection() -> None:

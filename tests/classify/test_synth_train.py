@@ -13,7 +13,8 @@ import pytest
 from cellctl.classify.data import load_image
 from cellctl.classify.evaluate import evaluate_folder
 from cellctl.classify.infer import SurfaceModel
-from cellctl.classify.synth import MIN_VISIBLE_FRACTION, label_from_mask, synth_dataset
+from cellctl.classify.sample import MIN_VISIBLE_FRACTION, label_from_mask
+from cellctl.classify.synth import synth_dataset
 from cellctl.errors import ClassifierError
 
 
@@ -129,6 +130,35 @@ def test_paper_preset_runs_both_phases_live(tiny_data: Path, tmp_path: Path) -> 
     card = train(tiny_data, "internal", tmp_path / "p.pt", preset="paper", input_size=64, max_epochs=(2, 1), threads=2)
     assert card["phases"]["head"]["optimizer"] == "sgd" and card["phases"]["head"]["lr_step"] == 5
     assert card["phases"]["finetune"]["unfreeze"] == 1.0 and not card["phases"]["finetune"]["cached"]
+    assert card["phases"]["head"]["cached"] is True  # phase 1 always trains on cached features
     rows = list(csv.DictReader(open(tmp_path / "p.csv")))
     assert [r["phase"] for r in rows] == ["head", "head", "finetune"]
     assert float(rows[2]["lr"]) == 1e-4
+
+
+def test_the_card_records_what_each_phase_trained_on(tiny_models: Path) -> None:
+    """Default preset: the head on cached pooled features, the fine-tune on cached prefix activations."""
+    card = json.loads((tiny_models / "external.json").read_text())
+    assert card["preset"] == "default"
+    assert card["phases"]["head"]["cached"] is True
+    assert card["phases"]["finetune"]["cached"] is True
+    assert card["best_epoch"]["phase"] in ("head", "finetune") and card["best_epoch"]["global_epoch"] >= 1
+
+
+def test_recalibrate_refits_threshold_and_keeps_card_and_weights_together(
+    tiny_data: Path, tiny_models: Path, tmp_path: Path
+) -> None:
+    """``cellctl eval --recalibrate``: a new target moves the threshold; card and weights still match."""
+    from cellctl.classify.calibration import calibrate
+
+    for ext in (".pt", ".json"):
+        (tmp_path / f"m{ext}").write_bytes((tiny_models / f"external{ext}").read_bytes())
+    before = json.loads((tmp_path / "m.json").read_text())
+    card = calibrate(tmp_path / "m.pt", tiny_data, target_false_clean=0.2, threads=2)
+    assert card["decision"]["target_false_clean"] == 0.2 and "calibrated" in card
+    assert card["sha256"] == hashlib.sha256((tmp_path / "m.pt").read_bytes()).hexdigest() != before["sha256"]
+    assert json.loads((tmp_path / "m.json").read_text()) == card
+    model = SurfaceModel.load(tmp_path / "m.pt", surface="external")  # refuses a card of other weights
+    assert model.threshold == card["threshold"] and model.temperature == card["temperature"]
+    with pytest.raises(ClassifierError, match="was trained on"):
+        calibrate(tmp_path / "m.pt", tmp_path, threads=2)
