@@ -14,10 +14,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cellctl.cli import add_config_arguments, config_from_args
 from cellctl.errors import PlanningError
+from cellctl.surface import SURFACES
+
+if TYPE_CHECKING:
+    from cellctl.planning.plan import Plan
 
 __all__ = ["plan_summary", "register", "run"]
 
@@ -28,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--bin", dest="bin_type", help="bin type from the catalog")
     src.add_argument("--mesh", help="any triangle mesh file in metres, bin frame (origin: top opening, +Z up)")
     p.add_argument("--base", required=True, help='robot base pose in the bin frame: "X Y Z YAW_DEG" (m, deg)')
-    p.add_argument("--surface", choices=("external", "internal"), default=None)
+    p.add_argument("--surface", choices=SURFACES, default=None)
     p.add_argument("--seed-pct", type=float, default=None, help="p_SP: seeds as %% of the surface's faces")
     p.add_argument("--mode", choices=("fast", "paper"), default=None)
     p.add_argument("--seed", type=int, default=None)
@@ -57,21 +61,26 @@ def parse_base(text: str) -> tuple[float, float, float, float]:
     return vals[0], vals[1], vals[2], vals[3]
 
 
-def plan_summary(plan: dict[str, Any]) -> dict[str, Any]:
-    """The ``--json`` object: counts, area, times, tour cost (+ ids and the empty-plan reason)."""
+def plan_summary(plan: Plan) -> dict[str, Any]:
+    """The ``--json`` object: counts, area, times, tour cost (+ ids and the empty-plan reason).
+
+    The sub-objects are the plan file's (:meth:`~cellctl.planning.plan.Plan.to_json`), so the
+    summary and the file always agree.
+    """
+    body = plan.to_json()
     return {
-        "plan_id": plan["plan_id"],
-        "bin_type": plan["bin_type"],
-        "surface": plan["surface"],
-        "mode": plan["mode"],
-        "seed_pct": plan["params"]["seed_pct"],
-        "counts": plan["counts"],
-        "stage_counts": plan["stage_counts"],
-        "area": plan["area"],
-        "times_s": plan["times_s"],
-        "tour_cost": plan["tour_cost"],
-        "coverage": plan["coverage"],
-        "reason": plan["reason"],
+        "plan_id": plan.plan_id,
+        "bin_type": plan.bin_type,
+        "surface": plan.surface,
+        "mode": plan.mode,
+        "seed_pct": plan.params.seed_pct,
+        "counts": body["counts"],
+        "stage_counts": body["stage_counts"],
+        "area": body["area"],
+        "times_s": body["times_s"],
+        "tour_cost": plan.tour_cost,
+        "coverage": plan.coverage,
+        "reason": plan.reason,
     }
 
 
@@ -95,10 +104,9 @@ def run(args: argparse.Namespace) -> int:
         seed_pct=args.seed_pct if args.seed_pct is not None else pc.seed_pct,
         mode=args.mode or pc.mode,
         seed=args.seed if args.seed is not None else pc.seed,
+        paper_budget_s=float(args.paper_budget) if args.paper_budget is not None else PlanParams.paper_budget_s,
+        paper_fallback=not args.paper_strict,
     )
-    if args.paper_budget is not None:
-        params.paper_budget_s = float(args.paper_budget)
-    params.paper_fallback = not args.paper_strict
     plan = make_plan(
         mesh,
         base_pose_from_xyz_yaw(x, y, z, yaw),
@@ -117,14 +125,14 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary, indent=2, default=lambda o: float(o) if isinstance(o, np.floating) else str(o)))
     else:
-        c = plan["counts"]
+        c = plan.counts
         print(
-            f"plan {plan['plan_id']} → {out}: {len(plan['viewpoints'])} viewpoints "
-            f"(generated {c['generated']}, filtered {c['filtered']}, reachable {c['reachable']}, "
-            f"greedy {c['greedy']}, optimal cover {c['optimal_cover']}), coverage {100 * plan['coverage']:.1f} %, "
-            f"{plan['times_s']['total']:.1f} s"
+            f"plan {plan.plan_id} → {out}: {len(plan.viewpoints)} viewpoints "
+            f"(generated {c.generated}, filtered {c.filtered}, reachable {c.reachable}, "
+            f"greedy {c.greedy}, optimal cover {c.optimal_cover}), coverage {100 * plan.coverage:.1f} %, "
+            f"{plan.times_s.total:.1f} s"
         )
-    if plan["reason"]:
-        print(f"cellctl plan: empty plan: {plan['reason']}", file=sys.stderr)
+    if plan.reason:
+        print(f"cellctl plan: empty plan: {plan.reason}", file=sys.stderr)
         return 3
     return 0

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -179,35 +179,62 @@ class BinType(_Model):
         return self.board.T_bin_board_matrix()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class BinMesh:
-    """A bin mesh in its bin frame.
+    """A bin mesh in its bin frame: the one bin-mesh type of the catalog, the twin and the planner.
+
+    The derived per-face arrays are computed once, on construction (the planner reads them
+    in every stage). ``eq=False``: meshes compare (and hash) by identity, arrays have no
+    truth value.
 
     Attributes:
         vertices: (V, 3) float64, metres, bin frame.
         faces: (F, 3) int64 vertex indices, counter-clockwise seen from the side the normal points to.
         surface: (F,) uint8, :data:`EXTERNAL` or :data:`INTERNAL` per face.
+        name: bin type or file name.
+        sha256: hash of the mesh file (or of the arrays of a generated mesh); "" when unknown.
+        watertight: every edge is shared by exactly two faces; None when not checked.
+        normals: (F, 3) unit normals (derived).
+        areas: (F,) m² (derived).
+        centroids: (F, 3) m (derived).
     """
 
     vertices: NDArray[np.float64]
     faces: NDArray[np.int64]
     surface: NDArray[np.uint8]
+    name: str = "mesh"
+    sha256: str = ""
+    watertight: bool | None = None
+    normals: NDArray[np.float64] = field(init=False, repr=False)
+    areas: NDArray[np.float64] = field(init=False, repr=False)
+    centroids: NDArray[np.float64] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        v = self.vertices[self.faces]
+        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        object.__setattr__(self, "normals", n / np.maximum(length, 1e-300))
+        object.__setattr__(self, "areas", 0.5 * length[:, 0])
+        object.__setattr__(self, "centroids", v.mean(axis=1))
 
     @property
     def n_faces(self) -> int:
         return int(self.faces.shape[0])
 
-    def face_normals(self) -> NDArray[np.float64]:
-        v = self.vertices[self.faces]
-        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    @property
+    def internal(self) -> NDArray[np.bool_]:
+        """(F,) True for faces of the internal surface (inside the container)."""
+        return np.asarray(self.surface == INTERNAL)
 
-    def face_areas(self) -> NDArray[np.float64]:
-        v = self.vertices[self.faces]
-        return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+    def surface_mask(self, surface: str) -> NDArray[np.bool_]:
+        """(F,) True for the faces of ``surface`` ("external" or "internal").
 
-    def face_centroids(self) -> NDArray[np.float64]:
-        return self.vertices[self.faces].mean(axis=1)
+        Raises:
+            ConfigError: an unknown surface name.
+        """
+        if surface not in SURFACES:
+            raise ConfigError(f"surface {surface!r} is unknown; expected one of {sorted(SURFACES)}")
+        return np.asarray(self.surface == SURFACES[surface])
 
     def to_trimesh(self):  # noqa: ANN201 - trimesh.Trimesh, imported lazily
         import trimesh

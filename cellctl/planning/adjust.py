@@ -12,17 +12,34 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from cellctl.geometry.catalog import BinMesh
 from cellctl.geometry.transforms import invert, pose_error
-from cellctl.planning.mesh import BinMesh
+from cellctl.planning.plan import Plan, PlannedViewpoint, ReachableViewpoint
 from cellctl.planning.planfile import list_plans
 from cellctl.planning.robot import RobotModel
 
-__all__ = ["LookupResult", "adjust_plan", "lookup_plan"]
+__all__ = ["AdjustedViewpoint", "LookupResult", "adjust_plan", "lookup_plan"]
+
+
+@dataclass(frozen=True)
+class AdjustedViewpoint:
+    """A plan's viewpoint re-expressed at the measured bin pose (what the robot is sent to).
+
+    Attributes:
+        index: visiting rank.
+        T_base_cam: (4, 4) camera optical pose in the robot base frame at the measured bin pose.
+        q: (6,) joint angles re-solved next to the planned ones, rad.
+        faces: ids of the surface faces it sees.
+    """
+
+    index: int
+    T_base_cam: NDArray[np.float64]
+    q: NDArray[np.float64]
+    faces: tuple[int, ...]
 
 
 @dataclass
@@ -33,7 +50,7 @@ class LookupResult:
         hit: a usable (possibly adjusted) plan was found.
         reason: why not (or a note on the hit).
         plan_id: the plan looked at.
-        viewpoints: visiting order; each ``{"index", "T_base_cam" (4x4), "q" (6), "faces"}``.
+        viewpoints: visiting order, at the measured bin pose.
         coverage: fraction of the surface's area the plan sees.
         adjusted: the viewpoints were re-expressed at a different bin pose.
         translation_mm, rotation_deg: measured-vs-planned bin pose difference.
@@ -42,7 +59,7 @@ class LookupResult:
     hit: bool
     reason: str
     plan_id: str | None = None
-    viewpoints: list[dict[str, Any]] = field(default_factory=list)
+    viewpoints: list[AdjustedViewpoint] = field(default_factory=list)
     coverage: float = 0.0
     adjusted: bool = False
     translation_mm: float | None = None
@@ -50,37 +67,37 @@ class LookupResult:
 
 
 def adjust_plan(
-    plan: dict[str, Any],
+    plan: Plan,
     T_base_bin: NDArray[np.float64],
     mesh: BinMesh,
     robot: RobotModel,
     use_all: bool = False,
-) -> tuple[list[dict[str, Any]] | None, str]:
+) -> tuple[list[AdjustedViewpoint] | None, str]:
     """Re-express a plan's viewpoints at ``T_base_bin``; None + reason if any fails.
 
     Args:
         use_all: take every reachable viewpoint (data collection) instead of the tour.
     """
-    from cellctl.planning.collision import CollisionWorld
+    from cellctl.planning.collision import PlanningWorld
     from cellctl.planning.reach import wrap_towards
 
-    world = CollisionWorld(mesh, robot, invert(T_base_bin), margin=float(plan["params"].get("margin", 0.005)))
-    src = plan["viewpoints"]
+    world = PlanningWorld(mesh, robot, invert(T_base_bin), margin=float(plan.params.margin))
+    src: list[PlannedViewpoint] | list[ReachableViewpoint] = list(plan.viewpoints)
     if use_all:
         # every reachable viewpoint, visited nearest-neighbour in joint space from the start
-        src = list(plan["reachable"])
-        q = np.asarray(plan["q_start"], dtype=np.float64)
-        ordered = []
-        while src:
-            k = int(np.argmin([np.linalg.norm(np.asarray(v["q"]) - q) for v in src]))
-            ordered.append(src.pop(k))
-            q = np.asarray(ordered[-1]["q"])
+        left = list(plan.reachable)
+        q = plan.q_start
+        ordered: list[ReachableViewpoint] = []
+        while left:
+            k = int(np.argmin([np.linalg.norm(v.q - q) for v in left]))
+            ordered.append(left.pop(k))
+            q = ordered[-1].q
         src = ordered
-    out: list[dict[str, Any]] = []
+    out: list[AdjustedViewpoint] = []
     Q = []
     for k, vp in enumerate(src):
-        T = np.asarray(T_base_bin) @ np.asarray(vp["T_bin_cam"])
-        q_plan = np.asarray(vp["q"], dtype=np.float64)
+        T = np.asarray(T_base_bin) @ vp.T_bin_cam
+        q_plan = vp.q
         S = robot.ik_cam(T)
         if len(S) == 0:
             return None, f"viewpoint {k} is out of reach at the measured bin pose"
@@ -92,7 +109,7 @@ def adjust_plan(
                 "(> 0.5 rad): the arm would change configuration"
             )
         Q.append(q)
-        out.append({"index": k, "T_base_cam": T.tolist(), "q": q.tolist(), "faces": list(vp["faces"])})
+        out.append(AdjustedViewpoint(index=k, T_base_cam=T, q=q, faces=tuple(int(f) for f in vp.faces)))
     if not Q:
         return out, "empty plan"
     Qa = np.array(Q)
@@ -102,7 +119,7 @@ def adjust_plan(
         return None, f"viewpoint {k} collides at the measured bin pose ({', '.join(world.sim.explain(Qa[k]))})"
     if not use_all:
         # consecutive moves the plan made as straight joint motions must stay free
-        straight = [k for k, vp in enumerate(src) if not vp.get("approach")]
+        straight = [k for k, vp in enumerate(plan.viewpoints) if len(vp.approach) == 0]
         pairs = [(k - 1, k) for k in straight if k > 0]
         if pairs:
             A = Qa[[a for a, _ in pairs]]
@@ -134,36 +151,36 @@ def lookup_plan(
     if not plans:
         return LookupResult(False, f"no plan for bin type {bin_type!r}, {surface} surface{note}")
     rid = robot.model_id()
-    good = [p for p in plans if p.get("mesh_sha256") == mesh.sha256 and p.get("robot_model_id") == rid]
+    good = [p for p in plans if p.mesh_sha256 == mesh.sha256 and p.robot_model_id == rid]
     if not good:
         p = plans[0]
-        what = "mesh hash" if p.get("mesh_sha256") != mesh.sha256 else "robot model"
-        return LookupResult(False, f"plan {p['plan_id']} was made for another {what}; replan{note}", p["plan_id"])
-    good = [p for p in good if p.get("viewpoints")] or good
+        what = "mesh hash" if p.mesh_sha256 != mesh.sha256 else "robot model"
+        return LookupResult(False, f"plan {p.plan_id} was made for another {what}; replan{note}", p.plan_id)
+    good = [p for p in good if p.viewpoints] or good
 
-    def err(p: dict[str, Any]) -> tuple[float, float]:
-        dt, dr = pose_error(np.asarray(p["T_base_bin"]), T_base_bin)
+    def err(p: Plan) -> tuple[float, float]:
+        dt, dr = pose_error(p.base.T_base_bin, T_base_bin)
         return dt * 1000.0, float(np.degrees(dr))
 
     best = min(good, key=lambda p: err(p)[0] / tolerance_mm + err(p)[1] / tolerance_deg)
     dmm, ddeg = err(best)
-    res = LookupResult(False, "", best["plan_id"], translation_mm=dmm, rotation_deg=ddeg)
-    if not best.get("viewpoints"):
-        res.reason = f"plan {best['plan_id']} is empty: {best.get('reason')}"
+    res = LookupResult(False, "", best.plan_id, translation_mm=dmm, rotation_deg=ddeg)
+    if not best.viewpoints:
+        res.reason = f"plan {best.plan_id} is empty: {best.reason}"
         return res
     if dmm > tolerance_mm or ddeg > tolerance_deg:
         res.reason = (
-            f"bin pose differs from plan {best['plan_id']} by {dmm:.1f} mm / {ddeg:.2f} deg; "
+            f"bin pose differs from plan {best.plan_id} by {dmm:.1f} mm / {ddeg:.2f} deg; "
             f"tolerance is {tolerance_mm:g} mm / {tolerance_deg:g} deg"
         )
         return res
     vps, why = adjust_plan(best, T_base_bin, mesh, robot, use_all)
     if vps is None:
-        res.reason = f"plan {best['plan_id']} cannot be adjusted: {why}"
+        res.reason = f"plan {best.plan_id} cannot be adjusted: {why}"
         return res
     res.hit = True
     res.viewpoints = vps
-    res.coverage = float(best.get("coverage", 0.0))
+    res.coverage = float(best.coverage)
     res.adjusted = dmm > 1e-3 or ddeg > 1e-4
     res.reason = "within tolerance" + ("" if why == "ok" else why[2:]) + note
     return res

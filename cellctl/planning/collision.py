@@ -1,10 +1,12 @@
-"""Batch collision queries for planning, on top of the twin's :mod:`cellctl.sim.collision`.
+"""Batch collision queries for planning: an adapter of the twin's :class:`cellctl.sim.collision.CollisionWorld`.
 
-The planner uses exactly the checker the simulated robot uses (capsules vs a distance grid
-of the bin, floor, cabin walls, mobile base, self-collision), so a plan the planner calls
-collision-free is one the sim robot will execute. This adapter adds what planning needs:
-the bin-frame set-up (floor under the bin), a camera-body-only check for the viewpoint
-filter, and batched straight-line motion checks for every pair of a distance matrix at once.
+There is one collision world (the sim's, in the robot base frame); :class:`PlanningWorld`
+wraps it, it does not re-implement it. So the planner uses exactly the checker the simulated
+robot uses (capsules vs a distance grid of the bin, floor, cabin walls, mobile base,
+self-collision), and a plan the planner calls collision-free is one the sim robot will
+execute. This adapter adds what planning needs: the bin-frame set-up (floor under the bin),
+a camera-body-only check for the viewpoint filter, and batched straight-line motion checks
+for every pair of a distance matrix at once.
 """
 
 from __future__ import annotations
@@ -12,15 +14,18 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cellctl.geometry.catalog import BinMesh
 from cellctl.geometry.transforms import invert
-from cellctl.planning.mesh import BinMesh
 from cellctl.planning.robot import RobotModel
 
-__all__ = ["CollisionWorld"]
+__all__ = ["PlanningWorld"]
 
 
-class CollisionWorld:
-    """Robot + camera vs bin, floor, walls and mobile base, batched over configurations.
+class PlanningWorld:
+    """Robot + camera vs bin, floor, walls and mobile base, batched over configurations (bin frame).
+
+    The checks themselves are :attr:`sim`'s (a :class:`cellctl.sim.collision.CollisionWorld`);
+    OMPL's validity checker and the reachability stage call this adapter.
 
     Args:
         mesh: the bin mesh (bin frame).
@@ -39,7 +44,7 @@ class CollisionWorld:
         margin: float = 0.005,
         floor_z: float | None = None,
     ) -> None:
-        from cellctl.sim.collision import CollisionWorld as SimWorld
+        from cellctl.sim.collision import CollisionWorld
 
         self.robot = robot
         self.T_bin_base = np.asarray(T_bin_base, dtype=np.float64)
@@ -47,7 +52,7 @@ class CollisionWorld:
         z0 = float(mesh.vertices[:, 2].min()) if floor_z is None else float(floor_z)
         T_bin_world = np.eye(4)
         T_bin_world[2, 3] = z0  # world = floor under the bin origin (the sim's convention)
-        self.sim = SimWorld(mesh, self.T_base_bin, T_base_world=self.T_base_bin @ T_bin_world, margin=margin)
+        self.sim = CollisionWorld(mesh, self.T_base_bin, T_base_world=self.T_base_bin @ T_bin_world, margin=margin)
         self.floor_z = z0
         self.margin = float(margin)
 

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from cellctl.planning.collision import CollisionWorld
-from cellctl.planning.mesh import BinMesh
+from cellctl.geometry.catalog import BinMesh
+from cellctl.planning.collision import PlanningWorld
 from cellctl.planning.raycast import RayCaster
 from cellctl.planning.viewpoints import Viewpoints
 
@@ -36,6 +36,6 @@ def occlusion_filter(vp: Viewpoints, mesh: BinMesh, rays: RayCaster) -> NDArray[
     return rays.first_hit_is(o, v / dist[:, None], vp.seed_face, dist)
 
 
-def camera_collision_filter(vp: Viewpoints, world: CollisionWorld) -> NDArray[np.bool_]:
+def camera_collision_filter(vp: Viewpoints, world: PlanningWorld) -> NDArray[np.bool_]:
     """Keep viewpoints where the camera body (and its mount) clears the bin and the floor."""
     return world.camera_free(vp.T)

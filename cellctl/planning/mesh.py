@@ -1,64 +1,30 @@
 """Load and check a bin mesh for planning; tell its external from its internal surface.
 
+The mesh type is :class:`cellctl.geometry.catalog.BinMesh` (the catalog's and the twin's);
+this module adds what planning needs on top of the catalog reader: any trimesh-readable
+file, vertex merging, zero-area faces dropped, watertightness, and surface tags inferred
+when a mesh has none.
+
 The bin frame (ARCHITECTURE §5): origin at the centre of the top opening, +Z up, metres.
 """
 
 from __future__ import annotations
 
-import hashlib
-from dataclasses import dataclass
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.errors import PlanningError
+from cellctl.geometry.catalog import EXTERNAL, INTERNAL, BinMesh
+from cellctl.hashing import bytes_sha256, file_sha256
 
-__all__ = ["BinMesh", "infer_surface_tags", "load_bin_mesh", "load_catalog_mesh", "mesh_from_arrays"]
+__all__ = ["infer_surface_tags", "load_bin_mesh", "load_catalog_mesh", "mesh_from_arrays"]
 
 MAX_BIN_EXTENT_M = 5.0  # a washable pharmaceutical bin is ~0.5–2 m; more means wrong units
 MIN_BIN_EXTENT_M = 0.05
 MIN_FACE_AREA_M2 = 1e-10
-
-
-@dataclass
-class BinMesh:
-    """A triangle mesh in the bin frame with per-face surface tags.
-
-    Attributes:
-        vertices: (V, 3) m.
-        faces: (F, 3) vertex indices.
-        normals: (F, 3) unit outward normals.
-        centroids: (F, 3) m.
-        areas: (F,) m².
-        internal: (F,) True for faces of the internal surface (inside the container).
-        sha256: hash of the mesh file (or of the arrays for generated meshes).
-        name: bin type or file name.
-        watertight: whether every edge is shared by exactly two faces.
-    """
-
-    vertices: NDArray[np.float64]
-    faces: NDArray[np.int64]
-    normals: NDArray[np.float64]
-    centroids: NDArray[np.float64]
-    areas: NDArray[np.float64]
-    internal: NDArray[np.bool_]
-    sha256: str
-    name: str
-    watertight: bool
-
-    def surface_mask(self, surface: str) -> NDArray[np.bool_]:
-        """Faces of ``surface`` ("external" or "internal")."""
-        if surface == "internal":
-            return self.internal.copy()
-        if surface == "external":
-            return ~self.internal
-        raise PlanningError(f"surface {surface!r} is unknown; expected 'external' or 'internal'")
-
-    def trimesh(self):  # noqa: ANN201 - trimesh.Trimesh, imported lazily
-        import trimesh
-
-        return trimesh.Trimesh(self.vertices, self.faces, process=False)
 
 
 def mesh_from_arrays(
@@ -120,22 +86,18 @@ def mesh_from_arrays(
     if require_watertight and not watertight:
         raise PlanningError(f"mesh {name!r} is not watertight: {len(tm.faces)} faces with open edges")
     if sha256 is None:
-        sha256 = hashlib.sha256(
-            np.ascontiguousarray(tm.vertices).tobytes() + np.ascontiguousarray(tm.faces).tobytes()
-        ).hexdigest()
+        sha256 = bytes_sha256(np.ascontiguousarray(tm.vertices).tobytes() + np.ascontiguousarray(tm.faces).tobytes())
     mesh = BinMesh(
         vertices=np.asarray(tm.vertices, dtype=np.float64),
         faces=np.asarray(tm.faces, dtype=np.int64),
-        normals=np.asarray(tm.face_normals, dtype=np.float64),
-        centroids=np.asarray(tm.triangles_center, dtype=np.float64),
-        areas=np.asarray(tm.area_faces, dtype=np.float64),
-        internal=np.zeros(len(tm.faces), dtype=bool),
-        sha256=sha256,
+        surface=np.full(len(tm.faces), EXTERNAL, dtype=np.uint8),
         name=name,
+        sha256=sha256,
         watertight=watertight,
     )
-    mesh.internal = internal if internal is not None else infer_surface_tags(mesh)
-    return mesh
+    if internal is None:
+        internal = infer_surface_tags(mesh)
+    return dataclasses.replace(mesh, surface=np.where(internal, INTERNAL, EXTERNAL).astype(np.uint8))
 
 
 def load_bin_mesh(path: str | Path, *, name: str | None = None, internal: NDArray[np.bool_] | None = None) -> BinMesh:
@@ -150,7 +112,6 @@ def load_bin_mesh(path: str | Path, *, name: str | None = None, internal: NDArra
     p = Path(path)
     if not p.is_file():
         raise PlanningError(f"mesh file {str(p)!r} does not exist")
-    data = p.read_bytes()
     try:
         loaded = trimesh.load(p, force="mesh", process=False)
     except Exception as err:  # trimesh raises many types for bad files
@@ -162,7 +123,7 @@ def load_bin_mesh(path: str | Path, *, name: str | None = None, internal: NDArra
         loaded.faces,
         name=name or p.stem,
         internal=internal,
-        sha256=hashlib.sha256(data).hexdigest(),
+        sha256=file_sha256(p),
     )
 
 
@@ -198,7 +159,7 @@ def load_catalog_mesh(catalog_path: str | Path, bin_type: str) -> BinMesh:
         PlanningError: unknown bin type, missing/altered mesh file, or a bad mesh.
     """
     from cellctl.errors import ConfigError
-    from cellctl.geometry.catalog import INTERNAL, file_sha256, load_catalog
+    from cellctl.geometry.catalog import load_catalog
 
     try:
         cat = load_catalog(catalog_path, verify_meshes=False)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from cellctl.planning.collision import CollisionWorld
+from cellctl.planning.collision import PlanningWorld
 
 __all__ = ["EdgeCache", "JointPlanner", "PathCosts", "path_cost_matrix"]
 
@@ -24,7 +24,7 @@ UNREACHABLE_COST = 1.0e3  # rad; a pair no planner connected is avoided by the t
 
 
 class JointPlanner:
-    """OMPL 2.x (nanobind) joint-space planner on a :class:`CollisionWorld`.
+    """OMPL 2.x (nanobind) joint-space planner on a :class:`PlanningWorld`.
 
     Motion validity uses the world's batched straight-line check (a custom
     ``MotionValidator``), so one OMPL edge costs one vectorised call, not dozens.
@@ -34,7 +34,7 @@ class JointPlanner:
         max_step: joint-space interpolation step for edge checks, rad.
     """
 
-    def __init__(self, world: CollisionWorld, max_step: float = 0.02) -> None:
+    def __init__(self, world: PlanningWorld, max_step: float = 0.02) -> None:
         from ompl import base as ob
         from ompl import util as ou
 
@@ -155,7 +155,7 @@ LAZY_FACTOR = 1.5  # estimated detour of a colliding pair relative to the straig
 
 def path_cost_matrix(
     Q: NDArray[np.float64],
-    world: CollisionWorld,
+    world: PlanningWorld,
     mode: str = "fast",
     *,
     budget_s: float = 1.0,
@@ -236,7 +236,7 @@ class EdgeCache:
         self,
         Q: NDArray[np.float64],
         q_start: NDArray[np.float64],
-        world: CollisionWorld,
+        world: PlanningWorld,
         budget_s: float,
         simplify_s: float,
         max_step: float = 0.02,

@@ -1,10 +1,17 @@
 """Plan files and the plan cache in ``models/plans/`` (ARCHITECTURE §6).
 
 A plan file is JSON: ``{"format": "cellctl-plan/1", "sha256": <hex of the canonical body>,
-"plan": {...}}``. Writes go to a temporary file in the same folder, are fsynced and renamed
-over the target, so a reader (or a crash) never sees half a plan. A file whose hash does not
-match, that is not JSON, or has the wrong format is *damaged*: lookups skip it (cache miss
-with the reason), they never crash. Light module: json/hashlib only, the supervisor may import it.
+"plan": {...}}``, the body being :meth:`cellctl.planning.plan.Plan.to_json`. Writes go to a
+temporary file in the same folder, are fsynced and renamed over the target, so a reader (or
+a crash) never sees half a plan. A file whose hash does not match, that is not JSON, or has
+the wrong format is *damaged*; one that is intact but whose body is not a plan
+(:meth:`~cellctl.planning.plan.Plan.from_json` refuses it) or is a plan of another bin type
+or surface is *foreign*. Lookups skip both (cache miss with the reason), they never crash.
+
+Two levels: :func:`write_document`/:func:`read_document` handle the hashed envelope around
+any JSON object (the planner worker's job records use them too); :func:`write_plan`/
+:func:`read_plan` put a typed :class:`~cellctl.planning.plan.Plan` in it. Light module:
+json/hashlib/numpy only, the supervisor may import it.
 
 Layout: ``<plans_dir>/<bin_type>/<surface>/<plan_id>.json``; the newest plan whose base pose
 is closest to the measured one wins.
@@ -15,7 +22,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import math
 import os
 import stat
 import tempfile
@@ -23,8 +29,19 @@ from pathlib import Path
 from typing import Any
 
 from cellctl.errors import PlanCacheError
+from cellctl.planning.plan import Plan
 
-__all__ = ["FORMAT", "MAX_PLAN_BYTES", "check_plan", "list_plans", "plan_path", "read_plan", "write_plan"]
+__all__ = [
+    "FORMAT",
+    "MAX_PLAN_BYTES",
+    "check_plan",
+    "list_plans",
+    "plan_path",
+    "read_document",
+    "read_plan",
+    "write_document",
+    "write_plan",
+]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -35,13 +52,13 @@ MAX_PLAN_BYTES = 32 * 1024 * 1024
 """Largest plan file read (a fast-mode plan is ~100 kB); anything bigger is not one of ours."""
 
 
-def _canonical(plan: dict[str, Any]) -> bytes:
-    return json.dumps(plan, sort_keys=True, separators=(",", ":")).encode()
+def _canonical(body: dict[str, Any]) -> bytes:
+    return json.dumps(body, sort_keys=True, separators=(",", ":")).encode()
 
 
-def plan_path(plans_dir: Path | str, plan: dict[str, Any]) -> Path:
+def plan_path(plans_dir: Path | str, plan: Plan) -> Path:
     """Where ``plan`` lives in the cache."""
-    return Path(plans_dir) / _safe(plan["bin_type"]) / _safe(plan["surface"]) / f"{_safe(plan['plan_id'])}.json"
+    return Path(plans_dir) / _safe(plan.bin_type) / _safe(plan.surface) / f"{_safe(plan.plan_id)}.json"
 
 
 def _safe(name: str) -> str:
@@ -51,15 +68,23 @@ def _safe(name: str) -> str:
     return s
 
 
-def write_plan(plan: dict[str, Any], path: Path | str) -> Path:
+def write_plan(plan: Plan, path: Path | str) -> Path:
     """Atomically write ``plan`` to ``path`` (temp file + fsync + rename).
 
     Raises:
         PlanCacheError: the folder cannot be created or the file written.
     """
+    return write_document(plan.to_json(), path)
+
+
+def write_document(body: dict[str, Any], path: Path | str) -> Path:
+    """Atomically write any JSON object in the hashed ``cellctl-plan/1`` envelope.
+
+    Raises:
+        PlanCacheError: the folder cannot be created or the file written.
+    """
     p = Path(path)
-    body = _canonical(plan)
-    doc = {"format": FORMAT, "sha256": hashlib.sha256(body).hexdigest(), "plan": plan}
+    doc = {"format": FORMAT, "sha256": hashlib.sha256(_canonical(body)).hexdigest(), "plan": body}
     try:
         p.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
@@ -78,8 +103,23 @@ def write_plan(plan: dict[str, Any], path: Path | str) -> Path:
     return p
 
 
-def read_plan(path: Path | str) -> dict[str, Any]:
-    """Read and verify a plan file.
+def read_plan(path: Path | str) -> Plan:
+    """Read, verify and type a plan file.
+
+    Raises:
+        PlanCacheError: missing, unreadable, not JSON, wrong format, the hash does not
+            match (damaged), or the body is not a plan (foreign) — the message says which
+            and names the file.
+    """
+    body = read_document(path)
+    try:
+        return Plan.from_json(body)
+    except PlanCacheError as err:
+        raise PlanCacheError(f"plan file {str(path)!r}: {err}") from None
+
+
+def read_document(path: Path | str) -> dict[str, Any]:
+    """Read and verify the hashed envelope of a plan file (or a job record); its body, untyped.
 
     Raises:
         PlanCacheError: missing, unreadable, not JSON, wrong format, or the hash does not
@@ -108,75 +148,31 @@ def read_plan(path: Path | str) -> dict[str, Any]:
     return doc["plan"]
 
 
-def _number(x: Any) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+def check_plan(plan: Plan, bin_type: str, surface: str) -> None:
+    """Check that a (well-formed) plan is one of this bin type and surface.
 
-
-def _vector(v: Any, n: int) -> bool:
-    return isinstance(v, list) and len(v) == n and all(_number(x) for x in v)
-
-
-def _matrix4(v: Any) -> bool:
-    return isinstance(v, list) and len(v) == 4 and all(_vector(row, 4) for row in v)
-
-
-def _viewpoints(vps: Any, what: str) -> str | None:
-    if not isinstance(vps, list):
-        return f"{what} is {type(vps).__name__}, expected a list"
-    for k, vp in enumerate(vps):
-        if not isinstance(vp, dict):
-            return f"{what}[{k}] is {type(vp).__name__}, expected an object"
-        if not _matrix4(vp.get("T_bin_cam")):
-            return f"{what}[{k}].T_bin_cam is not a 4x4 matrix of finite numbers"
-        if not _vector(vp.get("q"), 6):
-            return f"{what}[{k}].q is not 6 finite joint angles"
-        faces = vp.get("faces")
-        if not isinstance(faces, list) or not all(isinstance(f, int) and not isinstance(f, bool) for f in faces):
-            return f"{what}[{k}].faces is not a list of face ids"
-    return None
-
-
-def check_plan(plan: dict[str, Any], bin_type: str, surface: str) -> None:
-    """Check that an intact plan file holds a plan of this bin type and surface in the shape lookups use.
-
-    The hash only proves the file is as written; a file written by another tool or version, or
-    copied into the wrong folder, can be intact and still foreign.
+    The hash only proves the file is as written and :meth:`Plan.from_json` that it is a plan;
+    a file copied into the wrong folder can be both and still foreign.
 
     Raises:
-        PlanCacheError: the first problem found.
+        PlanCacheError: it is a plan for another bin type or surface.
     """
-    problem = None
-    for key in ("plan_id", "mesh_sha256", "robot_model_id"):
-        if not isinstance(plan.get(key), str) or not plan[key]:
-            problem = f"{key} is {plan.get(key)!r:.60}, expected a non-empty string"
-            break
-    if problem is None and (plan.get("bin_type"), plan.get("surface")) != (bin_type, surface):
-        problem = (
-            f"it is a plan for bin type {plan.get('bin_type')!r:.60}, surface {plan.get('surface')!r:.20}; "
-            f"expected {bin_type!r}, {surface!r}"
+    if (plan.bin_type, plan.surface) != (bin_type, surface):
+        raise PlanCacheError(
+            f"plan {plan.plan_id!r:.40} is foreign: it is a plan for bin type {plan.bin_type!r:.60}, "
+            f"surface {plan.surface!r:.20}; expected {bin_type!r}, {surface!r}"
         )
-    if problem is None and not _matrix4(plan.get("T_base_bin")):
-        problem = "T_base_bin is not a 4x4 matrix of finite numbers"
-    if problem is None and not isinstance(plan.get("params", {}), dict):
-        problem = "params is not an object"
-    if problem is None and "q_start" in plan and not _vector(plan["q_start"], 6):
-        problem = "q_start is not 6 finite joint angles"
-    if problem is None and not _number(plan.get("coverage", 0.0)):
-        problem = f"coverage is {plan.get('coverage')!r:.30}, expected a number"
-    problem = problem or _viewpoints(plan.get("viewpoints", []), "viewpoints")
-    problem = problem or _viewpoints(plan.get("reachable", []), "reachable")
-    if problem is not None:
-        raise PlanCacheError(f"plan {plan.get('plan_id')!r:.40} is foreign: {problem}")
 
 
-def list_plans(plans_dir: Path | str, bin_type: str, surface: str) -> tuple[list[dict[str, Any]], list[str]]:
+def list_plans(plans_dir: Path | str, bin_type: str, surface: str) -> tuple[list[Plan], list[str]]:
     """All intact plans of a bin type and surface, newest first, and why others were skipped.
 
     A damaged or foreign file is skipped (logged as a warning, its path and problem in the list),
     never raised: a bad cache file costs a replan, not the cycle.
     """
     folder = Path(plans_dir) / _safe(bin_type) / _safe(surface)
-    plans, skipped = [], []
+    plans: list[Plan] = []
+    skipped: list[str] = []
     if not folder.is_dir():
         return plans, skipped
     for f in sorted(folder.glob("*.json")):
@@ -190,5 +186,5 @@ def list_plans(plans_dir: Path | str, bin_type: str, surface: str) -> tuple[list
         except PlanCacheError as err:
             log.warning("plan cache: skipping %s", err)
             skipped.append(str(err))
-    plans.sort(key=lambda pl: str(pl.get("created", "")), reverse=True)
+    plans.sort(key=lambda pl: pl.created, reverse=True)
     return plans, skipped

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from cellctl.planning.collision import CollisionWorld
+from cellctl.planning.collision import PlanningWorld
 from cellctl.planning.robot import RobotModel
 from cellctl.planning.viewpoints import Viewpoints
 
@@ -121,7 +121,7 @@ def branch_signature(Q: NDArray[np.float64], robot: RobotModel) -> NDArray[np.in
 def reachability(
     vp: Viewpoints,
     robot: RobotModel,
-    world: CollisionWorld,
+    world: PlanningWorld,
     T_base_bin: NDArray[np.float64],
     q_ref: NDArray[np.float64],
     n_roll: int = 12,

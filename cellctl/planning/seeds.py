@@ -6,7 +6,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.errors import PlanningError
-from cellctl.planning.mesh import BinMesh
+from cellctl.geometry.catalog import BinMesh
 
 __all__ = ["sample_seeds"]
 

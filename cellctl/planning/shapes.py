@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellctl.planning.mesh import BinMesh, mesh_from_arrays
+from cellctl.geometry.catalog import BinMesh
+from cellctl.planning.mesh import mesh_from_arrays
 
 __all__ = ["open_box_bin"]
 

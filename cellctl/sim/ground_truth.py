@@ -71,8 +71,8 @@ class PowderField:
         """Seeded clumps for ``amount`` in [0, 1] (0 = none)."""
         rng = np.random.default_rng([seed, 4242])
         n = 0 if amount <= 0 else int(round(4 + 60 * float(amount)))
-        normals = mesh.face_normals()
-        w = mesh.face_areas() * np.where((mesh.surface == INTERNAL) & (normals[:, 2] > 0.3), 3.0, 1.0)
+        normals = mesh.normals
+        w = mesh.areas * np.where((mesh.surface == INTERNAL) & (normals[:, 2] > 0.3), 3.0, 1.0)
         faces = rng.choice(mesh.n_faces, size=n, p=w / w.sum()) if n else np.zeros(0, dtype=np.int64)
         tri = mesh.vertices[mesh.faces[faces]]
         u, v = rng.uniform(size=(2, n))
@@ -135,7 +135,7 @@ class PowderField:
         tri = mesh.vertices[mesh.faces]
         pts = np.concatenate([tri.mean(axis=1), tri[:, 0], tri[:, 1], tri[:, 2]])
         tags = np.tile(mesh.surface, 4)
-        nrm = np.tile(mesh.face_normals(), (4, 1))
+        nrm = np.tile(mesh.normals, (4, 1))
         a = self.alpha(pts, tags, nrm).reshape(4, -1)
         return (a > threshold).any(axis=0)
 

@@ -20,7 +20,15 @@ import pytest
 
 from cellctl.errors import ClassifierError
 from cellctl.messages import PlanLookupRequest, PoseMsg
-from cellctl.planning.planfile import MAX_PLAN_BYTES, list_plans, plan_path, read_plan, write_plan
+from cellctl.planning.planfile import (
+    MAX_PLAN_BYTES,
+    list_plans,
+    plan_path,
+    read_document,
+    read_plan,
+    write_document,
+    write_plan,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 MODELS = ROOT / "models" / "classifier"
@@ -44,13 +52,13 @@ def good_plan_file(tmp_path_factory) -> Path:  # noqa: ANN001
     plan = make_plan(
         mesh, base_pose_from_xyz_yaw(0, -1.13, -0.33, 90), params, default_robot_model(), bin_type="case_study"
     )
-    assert plan["viewpoints"], plan.get("reason")
+    assert plan.viewpoints, plan.reason
     GOOD_PLAN = write_plan(plan, tmp_path_factory.mktemp("good-plan") / "good.json")
     return GOOD_PLAN
 
 
 def _good_plan() -> dict:
-    return read_plan(GOOD_PLAN)
+    return read_document(GOOD_PLAN)
 
 
 def _variant(**changes) -> dict:  # noqa: ANN003
@@ -120,14 +128,14 @@ def _bad_plan_files(folder: Path, rng: random.Random) -> dict[str, Path]:
         "coverage_string": _variant(coverage="most"),
     }
     for kind, plan in foreign.items():
-        out[kind] = write_plan(plan, folder / f"bad-{kind}.json")
+        out[kind] = write_document(plan, folder / f"bad-{kind}.json")
     out.update(_not_plain_files(folder, "bad-", ".json", MAX_PLAN_BYTES + 1))
     return out
 
 
 def test_every_bad_plan_file_is_skipped_with_its_path_and_the_good_plan_still_found(tmp_path: Path) -> None:
     good = _good_plan()
-    folder = plan_path(tmp_path, good).parent
+    folder = plan_path(tmp_path, read_plan(GOOD_PLAN)).parent
     folder.mkdir(parents=True)
     bad = _bad_plan_files(folder, random.Random(SEED))
     plans, skipped = list_plans(tmp_path, "case_study", "external")
@@ -140,7 +148,7 @@ def test_every_bad_plan_file_is_skipped_with_its_path_and_the_good_plan_still_fo
     assert len(skipped) >= len(bad) - 13  # the loop's second link and flips that changed nothing
     shutil.copy(GOOD_PLAN, folder / GOOD_PLAN.name)
     plans, skipped_again = list_plans(tmp_path, "case_study", "external")
-    assert [p["plan_id"] for p in plans] == [good["plan_id"]] or all(p == good for p in plans)
+    assert [p.plan_id for p in plans] == [good["plan_id"]] or all(p.to_json() == good for p in plans)
     assert len(skipped_again) == len(skipped)
 
 
@@ -159,7 +167,7 @@ def planner(tmp_path_factory):  # noqa: ANN001, ANN201
 def test_the_planner_lookup_is_a_clean_miss_naming_the_bad_file(planner) -> None:  # noqa: ANN001
     service, plans = planner
     good = _good_plan()
-    folder = plan_path(plans, good).parent
+    folder = plan_path(plans, read_plan(GOOD_PLAN)).parent
     folder.mkdir(parents=True, exist_ok=True)
     bad = _bad_plan_files(folder, random.Random(SEED + 1))
     req = PlanLookupRequest(bin_type="case_study", bin_pose=PoseMsg.from_matrix(np.asarray(good["T_base_bin"])))
@@ -175,7 +183,7 @@ def test_the_planner_lookup_is_a_clean_miss_naming_the_bad_file(planner) -> None
         if p.is_file() or p.is_symlink():
             p.unlink()
     vps = [{**v, "T_bin_cam": [[0.0] * 4] * 4} for v in good["viewpoints"]]
-    write_plan({**json.loads(json.dumps(good)), "viewpoints": vps}, folder / "degenerate.json")
+    write_document({**json.loads(json.dumps(good)), "viewpoints": vps}, folder / "degenerate.json")
     reply = service.on_lookup(req, None)
     assert not reply.hit and reply.reason
     assert len(bad) > 40

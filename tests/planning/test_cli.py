@@ -11,7 +11,7 @@ from cellctl.planning.shapes import open_box_bin
 def test_plan_any_mesh_file_prints_the_issue_json(tmp_path, capsys):
     box = open_box_bin((0.8, 0.6, 0.8), max_edge=0.1)
     mesh_file = tmp_path / "box.stl"
-    box.trimesh().export(mesh_file)
+    box.to_trimesh().export(mesh_file)
     out = tmp_path / "p.json"
     png = tmp_path / "p.png"
     rc = main(
@@ -50,7 +50,7 @@ def test_plan_any_mesh_file_prints_the_issue_json(tmp_path, capsys):
 def test_bad_base_and_mm_mesh_are_clear_errors(tmp_path, capsys):
     box = open_box_bin((0.8, 0.6, 0.8), max_edge=0.2)
     mesh_file = tmp_path / "box_mm.stl"
-    box.trimesh().apply_scale(1000.0).export(mesh_file)
+    box.to_trimesh().apply_scale(1000.0).export(mesh_file)
     assert main(["plan", "--mesh", str(mesh_file), "--base", "0 -0.95 -0.1 90"]) == 2
     assert "millimetres" in capsys.readouterr().err
     assert main(["plan", "--mesh", str(mesh_file), "--base", "0 -0.95 90"]) == 2

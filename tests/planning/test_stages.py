@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cellctl.errors import PlanningError
-from cellctl.planning.collision import CollisionWorld
+from cellctl.planning.collision import PlanningWorld
 from cellctl.planning.filters import camera_collision_filter, distance_filter, height_filter, occlusion_filter
 from cellctl.planning.mesh import infer_surface_tags, load_bin_mesh, mesh_from_arrays
 from cellctl.planning.raycast import RayCaster
@@ -83,7 +83,7 @@ def test_filters_height_distance_occlusion_camera(box, robot, T_bin_base):
     assert distance_filter(vp, T_bin_base[:3, 3], 1.3).tolist() == [True, False, True, True]
     occ = occlusion_filter(vp, box, RayCaster(box.vertices, box.faces))
     assert occ[0] and not occ[2]
-    cam = camera_collision_filter(vp, CollisionWorld(box, robot, T_bin_base))
+    cam = camera_collision_filter(vp, PlanningWorld(box, robot, T_bin_base))
     assert cam[0] and not cam[3]
 
 

@@ -16,8 +16,9 @@ from cellctl.bus.rpc import request
 from cellctl.bus.session import open_session
 from cellctl.config import load_config
 from cellctl.errors import WorkerFailed
-from cellctl.geometry.catalog import file_sha256, write_ply
+from cellctl.geometry.catalog import write_ply
 from cellctl.geometry.transforms import invert
+from cellctl.hashing import file_sha256
 from cellctl.messages import (
     PlanJobProgress,
     PlanJobQuery,
@@ -151,11 +152,11 @@ def test_job_of_a_dead_worker_reads_as_failed(tmp_path, box_catalog):
         rec = svc._record_path("t1-dead")
         text = rec.read_text()
         # rewrite the record as if another process (now gone) owned the job
-        from cellctl.planning.planfile import read_plan, write_plan
+        from cellctl.planning.planfile import read_document, write_document
 
-        data = read_plan(rec)
+        data = read_document(rec)
         data["pid"] = 2**22 + 12345  # beyond pid_max on this machine: no such process
-        write_plan(data, rec)
+        write_document(data, rec)
         assert text != rec.read_text()
         st = svc.job_state("t1-dead")
         assert st.state == "failed" and "died" in st.reason

@@ -90,20 +90,20 @@ class PlannerService:
         return self.jobs_dir / f"{job_id}.json"
 
     def _write_record(self, job_id: str, **fields: Any) -> None:
-        from cellctl.planning.planfile import write_plan  # atomic JSON write
+        from cellctl.planning.planfile import write_document  # atomic, hashed JSON write
 
         rec = {"job_id": job_id, "instance": self.instance, "pid": os.getpid(), "host": socket.gethostname(), **fields}
         try:
-            write_plan(rec, self._record_path(job_id))
+            write_document(rec, self._record_path(job_id))
         except CellError as err:  # a record is a convenience; the job goes on
             log.warning("cannot write job record %s: %s", job_id, err)
 
     def job_state(self, job_id: str) -> PlanJobReply:
         """State of a job from its record; running jobs of a dead worker on this host are failed."""
-        from cellctl.planning.planfile import read_plan
+        from cellctl.planning.planfile import read_document
 
         try:
-            rec = read_plan(self._record_path(job_id))
+            rec = read_document(self._record_path(job_id))
         except CellError as err:
             return PlanJobReply(job_id=job_id, state="failed", reason=f"unknown job {job_id!r}: {err}")
         state = rec.get("state", "failed")
@@ -173,10 +173,10 @@ class PlannerService:
             plan_id=res.plan_id,
             viewpoints=[
                 PlannedViewpoint(
-                    index=v["index"],
-                    camera_pose=PoseMsg.from_matrix(v["T_base_cam"]),
-                    joints=[float(x) for x in v["q"]],
-                    faces=[int(f) for f in v["faces"]],
+                    index=v.index,
+                    camera_pose=PoseMsg.from_matrix(v.T_base_cam),
+                    joints=[float(x) for x in v.q],
+                    faces=list(v.faces),
                 )
                 for v in res.viewpoints
             ],
@@ -214,8 +214,11 @@ class PlannerService:
 
     def run_job(self, job_id: str, req: PlanJobRequest) -> None:
         """Plan one job (blocking), write the plan into the cache and the job record."""
+        import dataclasses
+
         from cellctl.geometry.transforms import invert
-        from cellctl.planning.pipeline import PlanParams, make_plan
+        from cellctl.planning.pipeline import make_plan
+        from cellctl.planning.plan import PlanParams
         from cellctl.planning.planfile import plan_path, write_plan
 
         self._write_record(job_id, state="running", request=req.model_dump(mode="json"))
@@ -238,7 +241,7 @@ class PlannerService:
             mesh = self._mesh(req.bin_type)
             T_bin_base = invert(req.bin_pose.matrix())
             plan = make_plan(mesh, T_bin_base, params, self.robot, bin_type=req.bin_type, progress=progress)
-            plan["job_id"] = job_id
+            plan = dataclasses.replace(plan, job_id=job_id)
             write_plan(plan, plan_path(self.plans_dir, plan))
         except Exception as err:  # noqa: BLE001 - a failed job must not kill the worker
             reason = f"{type(err).__name__}: {err}"
@@ -246,10 +249,9 @@ class PlannerService:
             self._write_record(job_id, state="failed", reason=reason)
             self._progress(job_id, "failed", 1.0, "failed", reason)
             return
-        reason = plan.get("reason")
-        self._write_record(job_id, state="done", plan_id=plan["plan_id"], reason=reason)
-        self._progress(job_id, "done", 1.0, "done", reason, plan_id=plan["plan_id"])
-        log.info("job %s done: plan %s, %d viewpoints", job_id, plan["plan_id"], len(plan["viewpoints"]))
+        self._write_record(job_id, state="done", plan_id=plan.plan_id, reason=plan.reason)
+        self._progress(job_id, "done", 1.0, "done", plan.reason, plan_id=plan.plan_id)
+        log.info("job %s done: plan %s, %d viewpoints", job_id, plan.plan_id, len(plan.viewpoints))
 
     def close(self) -> None:
         self._queue.put(None)
