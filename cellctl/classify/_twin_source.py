@@ -48,12 +48,7 @@ def _planned_views(cfg: Any, names: list[str], surface: str) -> dict[str, list[n
     out: dict[str, list[np.ndarray]] = {}
     for name in names:
         plans, _ = list_plans(cfg.path(cfg.planner.plans_dir), name, surface)
-        views = [
-            np.asarray(vp["T_bin_cam"], dtype=np.float64)
-            for pl in plans
-            for vp in (pl.get("reachable") or pl.get("viewpoints") or [])
-            if "T_bin_cam" in vp
-        ]
+        views = [np.array(vp.T_bin_cam) for pl in plans for vp in (pl.reachable or pl.viewpoints)]
         if views:
             out[name] = views
     return out
@@ -79,7 +74,7 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
         mesh = catalog.load_mesh(name)
         faces = np.flatnonzero(mesh.surface == tag)
         if len(faces):
-            areas = mesh.face_areas()[faces]
+            areas = mesh.areas[faces]
             meshes[name] = (mesh, faces, areas / areas.sum())
     if not meshes:
         raise ClassifierError(f"no bin type in the catalog has {surface} faces")
@@ -137,7 +132,7 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
             mesh, faces, w = meshes[name]
             pseed = int(rng.integers(2**31))
             amount = float(rng.uniform(0.2, 1.0)) if dirty else 0.0
-            normals = mesh.face_normals()
+            normals = mesh.normals
             if dirty:
                 field = renderer.powder(name, True, amount, pseed)
                 mine = np.flatnonzero(field.surface == tag)

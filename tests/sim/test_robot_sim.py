@@ -35,7 +35,7 @@ def _random_views(robot, rng: np.random.Generator, n: int) -> list[np.ndarray]:
     looking at them, kept when an IK solution is collision-free (= reachable)."""
     mesh = robot.catalog.load_mesh("case_study")
     T_base_bin = invert(robot.scenario.base()) @ robot.scenario.T_world_bin(robot.catalog.get("case_study"))
-    normals, cents = mesh.face_normals(), mesh.face_centroids()
+    normals, cents = mesh.normals, mesh.centroids
     out = []
     while len(out) < n:
         f = rng.integers(mesh.n_faces)
