@@ -14,7 +14,7 @@ from urllib.parse import urlparse
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, field_validator
 
 from cellctl.bus.keys import check_cell_id
-from cellctl.config import explain_validation, safe_yaml_load
+from cellctl.config import apply_overrides, explain_validation, safe_yaml_load
 from cellctl.errors import ConfigError
 
 __all__ = ["DEFAULT_ENDPOINT", "OpcuaConfig", "SecurityMode", "load_gateway_config"]
@@ -106,11 +106,7 @@ def load_gateway_config(path: Path | str | None = None, overrides: list[str] | N
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{p}: top level must be a mapping of gateway keys, got {type(loaded).__name__}")
         data = dict(loaded or {})
-    for ov in overrides or []:
-        key, sep, raw = ov.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError(f"--gw-set {ov!r}: expected KEY=VALUE")
-        data[key.strip()] = safe_yaml_load(raw, f"--gw-set {key.strip()}")
+    apply_overrides(data, overrides, "--gw-set")
     try:
         return OpcuaConfig.model_validate(data)
     except ValidationError as err:

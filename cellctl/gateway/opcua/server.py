@@ -41,6 +41,7 @@ from cellctl.gateway.opcua.link import CellLink
 from cellctl.gateway.opcua.space import CELLCTL_NS, METHODS, PACKML_NS, VARIABLES, CellSpace, build_cell_space
 from cellctl.messages import Command, CycleResult, Event, PackMLCommand, Status, UnitMode
 from cellctl.supervisor.definition import PackMLState
+from cellctl.surface import SURFACES
 
 __all__ = ["APPLICATION_URI", "OpcuaGateway", "read_users"]
 
@@ -61,7 +62,7 @@ the permission check and the call in the same task, so the check leaves the user
 
 _PARAM_VALUES = {
     "Command/Parameter/Mode": ("", "evaluate", "collect"),
-    "Command/Parameter/Surface": ("", "external", "internal"),
+    "Command/Parameter/Surface": ("", *SURFACES),
     "Command/Parameter/Label": ("", "clean", "dirty"),
 }
 _SPEC = {v.path: v for v in VARIABLES}
