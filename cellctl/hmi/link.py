@@ -87,6 +87,7 @@ class CellLink:
         self.last_result: CycleResult | None = None
         self.version = 0
         """Bumped on every change the pages show (server-sent events poll it)."""
+        self._extra: list[tuple[str, Any]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._keep_open, name="hmi-link", daemon=True)
         self._thread.start()
@@ -117,11 +118,20 @@ class CellLink:
             s.declare_subscriber(keys.status(c), self._on_status),
             s.declare_subscriber(keys.events(c), self._on_event),
             s.declare_subscriber(keys.result(c), self._on_result),
+            *(s.declare_subscriber(key, cb) for key, cb in list(self._extra)),
         ]
         with self._lock:
             self._session, self._subs, self._open_error = s, subs, None
             self.version += 1
         self._probe()
+
+    def add_subscriber(self, key: str, callback: Any) -> None:
+        """Also subscribe ``callback`` to ``key`` (now, and on every reconnect); it must not block."""
+        with self._lock:
+            self._extra.append((key, callback))
+            s = self._session
+            if s is not None:
+                self._subs.append(s.declare_subscriber(key, callback))
 
     def _probe(self) -> None:
         """Ask for the Status; after a long silence with no answer, start over with a new session."""

@@ -228,3 +228,44 @@ def test_pages_load_only_local_assets(hmi, client: Client, path: str) -> None:
     r = client.get(path)
     assert r.status == 200 and "default-src 'self'" in r.headers["content-security-policy"]
     assert b"http://" not in r.body and b"https://" not in r.body
+
+
+def test_live_foxglove_view_advertises_the_log_channels_and_the_scene(cfg, cell, clock) -> None:  # noqa: ANN001
+    import json as _json
+
+    import websocket
+
+    from cellctl.hmi.config import FoxgloveConfig
+    from cellctl.hmi.server import Hmi, HmiServer
+    from tests.conftest import free_port
+    from tests.hmi.conftest import hmi_config
+
+    h = Hmi(cfg, hmi_config(foxglove=FoxgloveConfig(enabled=True, port=free_port())), clock)
+    server = HmiServer(h).start()
+    try:
+        c = Client(h.hcfg.host, h.hcfg.port)
+        wait_reachable(c)
+        c.login("alice")
+        with FakeCell(cfg):
+            c.cmd("reset")
+            c.wait_state("Idle")
+            c.cmd("start")
+            c.wait_state("Complete")
+        time.sleep(0.6)  # the live watcher's next poll forwards the last messages
+        ws = websocket.create_connection(
+            f"ws://127.0.0.1:{h.foxglove.port}", subprotocols=["foxglove.sdk.v1"], timeout=5
+        )
+        topics: set[str] = set()
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and not {"/camera/image", "/hmi/scene"} <= topics:
+            msg = ws.recv()
+            if isinstance(msg, str):
+                m = _json.loads(msg)
+                if m.get("op") == "advertise":
+                    topics |= {ch["topic"] for ch in m["channels"]}
+        ws.close()
+        assert {"/camera/image", "/camera/pose", "/hmi/scene", f"cell/{cfg.cell_id}/status"} <= topics, topics
+        assert f"cell/{cfg.cell_id}/robot/move/request" in topics  # what only the log holds, not the bus
+    finally:
+        server.stop()
+        h.close()
