@@ -36,6 +36,7 @@ BENCHES: dict[str, tuple[str, str]] = {
         "cellctl.reliability.soak:bench_soak",
         "sim cycles back to back (--n cycles): cycles/hour, RSS, open files",
     ),
+    "hmi": ("cellctl.hmi.bench:bench_hmi", "GET /api/status p50/p99 of a separate HMI process while sim cycles run"),
 }
 
 
