@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, 
 
 from cellctl.bus.keys import ROLES, check_cell_id
 from cellctl.errors import ConfigError
+from cellctl.surface import Surface
 
 __all__ = [
     "BusConfig",
@@ -170,7 +171,7 @@ class PoseTolerance(_Model):
 class PlannerConfig(_Model):
     plans_dir: Path = Path("models/plans")
     tolerance: PoseTolerance = Field(default_factory=PoseTolerance)
-    surface: Literal["external", "internal"] = "external"
+    surface: Surface = "external"
     seed_pct: float = Field(default=10.0, gt=0, le=100)
     mode: Literal["fast", "paper"] = "fast"
     seed: int = 0

@@ -19,6 +19,8 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator, model_validator
 
+from cellctl.surface import SURFACES, Surface
+
 __all__ = [
     "MESSAGE_TYPES",
     "Ack",
@@ -257,7 +259,7 @@ class StartParams(WireMessage):
     v: Literal[1] = 1
     mode: Literal["evaluate", "collect"] = "evaluate"
     label: Literal["clean", "dirty"] | None = Field(default=None, description="collect mode: the class of this bin")
-    surface: Literal["external", "internal"] | None = Field(
+    surface: Surface | None = Field(
         default=None, description="surface to inspect; default planner.surface of the config"
     )
     perturb_m: float = Field(default=0.0, ge=0.0, le=0.1, description="collect mode: random camera offset (m)")
@@ -283,8 +285,9 @@ class StartParams(WireMessage):
         label = params.get("label")
         if mode == "collect" and label not in ("clean", "dirty"):
             raise ProtocolError(f"start param label={label!r}; collect mode needs label 'clean' or 'dirty'")
-        if "surface" in params and params["surface"] not in ("external", "internal"):
-            raise ProtocolError(f"start param surface={params['surface']!r}; expected 'external' or 'internal'")
+        if "surface" in params and params["surface"] not in SURFACES:
+            expected = " or ".join(repr(s) for s in SURFACES)
+            raise ProtocolError(f"start param surface={params['surface']!r}; expected {expected}")
         perturb = params.get("perturb_m", 0.0)
         if isinstance(perturb, bool) or not isinstance(perturb, int | float) or not 0 <= perturb <= 0.1:
             raise ProtocolError(f"start param perturb_m={perturb!r:.80}; expected a number in [0, 0.1] m")
@@ -618,7 +621,7 @@ class ClassifyRequest(WireMessage):
 
     type: Literal["cellctl/ClassifyRequest"] = "cellctl/ClassifyRequest"
     v: Literal[1] = 1
-    surface: Literal["external", "internal"]
+    surface: Surface
     format: Literal["png", "jpeg"] = "png"
 
 
@@ -641,7 +644,7 @@ class PlanJobRequest(WireMessage):
     v: Literal[1] = 1
     bin_type: str
     bin_pose: PoseMsg = Field(description="bin pose in the robot base frame")
-    surface: Literal["external", "internal"] = "external"
+    surface: Surface = "external"
     seed_pct: float = Field(default=10.0, gt=0.0, le=100.0)
     mode: Literal["fast", "paper"] = "fast"
     seed: int = 0
@@ -696,7 +699,7 @@ class PlanLookupRequest(WireMessage):
     v: Literal[1] = 1
     bin_type: str
     bin_pose: PoseMsg = Field(description="measured bin pose in the robot base frame")
-    surface: Literal["external", "internal"] = "external"
+    surface: Surface = "external"
     all_reachable: bool = Field(
         default=False, description="data collection: every reachable viewpoint (paper §IV-B2), not only the tour"
     )

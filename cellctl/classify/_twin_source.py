@@ -57,9 +57,11 @@ def _planned_views(cfg: Any, names: list[str], surface: str) -> dict[str, list[n
 def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: Any) -> Callable:
     """A ``draw(rng, dirty) -> Sample`` function rendering with :class:`cellctl.sim.render.SimRenderer`."""
     from cellctl.config import load_config
-    from cellctl.geometry.catalog import EXTERNAL, INTERNAL, load_catalog
-    from cellctl.geometry.transforms import rotation_about, transform_from
-    from cellctl.sim.render import D435_COLOR, RenderParams, SimRenderer, look_at, scaled_intrinsics
+    from cellctl.geometry.camera import D435_COLOR
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.geometry.transforms import look_at, rotation_about, transform_from
+    from cellctl.sim.render import RenderParams, SimRenderer
+    from cellctl.surface import FACE_TAG, check_surface
 
     cfg = config if config is not None else load_config()
     catalog = load_catalog(cfg.path(cfg.catalog), cfg.root)
@@ -67,8 +69,8 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
     if not names:
         raise ClassifierError(f"bin catalog {cfg.catalog} lists no bin types")
     renderer = SimRenderer(catalog)
-    intr = scaled_intrinsics(D435_COLOR, size / D435_COLOR.width)
-    tag = EXTERNAL if surface == "external" else INTERNAL
+    intr = D435_COLOR.scaled(size / D435_COLOR.width)
+    tag = FACE_TAG[check_surface(surface, ClassifierError)]
     meshes = {}
     for name in names:
         mesh = catalog.load_mesh(name)

@@ -16,6 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from cellctl.errors import ClassifierError
+from cellctl.images import IMAGE_MAGIC, decode_image, encode_image
+from cellctl.surface import SURFACES, Surface
+from cellctl.surface import check_surface as _check_surface
 
 __all__ = [
     "DATASET_NAME",
@@ -28,8 +31,7 @@ __all__ = [
     "store_image",
 ]
 
-SURFACES = ("external", "internal")
-"""Bin surfaces, one network each (external matt/brushed, internal glossy/polished)."""
+# SURFACES (re-exported from cellctl.surface): one network each (external matt/brushed, internal glossy/polished)
 LABELS = ("clean", "dirty")
 """Class names in index order: 0 = clean, 1 = dirty."""
 
@@ -37,15 +39,11 @@ DATASET_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 """A dataset the PLC may name (Start param ``dataset``): a plain folder name under
 ``classifier.dataset_dir``, never a path — the PLC must not choose where the daemon writes."""
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
-_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-_JPEG_MAGIC = b"\xff\xd8\xff"
 
 
-def check_surface(surface: str) -> str:
+def check_surface(surface: str) -> Surface:
     """Return ``surface`` if known, else raise ClassifierError listing the allowed ones."""
-    if surface not in SURFACES:
-        raise ClassifierError(f"surface {surface!r} is unknown; expected one of {list(SURFACES)}")
-    return surface
+    return _check_surface(surface, ClassifierError)
 
 
 def check_label(label: str) -> str:
@@ -89,19 +87,11 @@ def store_capture(dataset: Path | str, surface: str, label: str, cycle_id: str, 
     path = capture_path(dataset, surface, label, cycle_id, k)
     if not image:
         raise ClassifierError(f"image for {path.name} is empty (0 bytes); expected PNG or JPEG bytes")
-    if image.startswith(_PNG_MAGIC):
+    if image.startswith(IMAGE_MAGIC["png"]):
         data = bytes(image)
-    elif image.startswith(_JPEG_MAGIC):
-        import cv2
-        import numpy as np
-
-        arr = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_COLOR)
-        if arr is None:
-            raise ClassifierError(f"image for {path.name} is a corrupt JPEG ({len(image)} bytes)")
-        ok, enc = cv2.imencode(".png", arr)
-        if not ok:
-            raise ClassifierError(f"image for {path.name} cannot be re-encoded as PNG")
-        data = enc.tobytes()
+    elif image.startswith(IMAGE_MAGIC["jpeg"]):
+        rgb = decode_image(image, f"for {path.name} (JPEG)", error=ClassifierError)
+        data = encode_image(rgb, "png", ClassifierError)
     else:
         raise ClassifierError(f"image for {path.name} starts {bytes(image[:8])!r}; expected PNG or JPEG bytes")
     path.parent.mkdir(parents=True, exist_ok=True)

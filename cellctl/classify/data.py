@@ -25,14 +25,13 @@ from numpy.typing import NDArray
 
 from cellctl.classify.collect import LABELS, SURFACES, check_surface
 from cellctl.errors import ClassifierError
+from cellctl.images import decode_image
 
 __all__ = [
     "IMAGE_EXTS",
-    "MAX_IMAGE_SIDE",
     "Split",
     "augment",
     "channel_stats",
-    "decode_image",
     "list_dataset",
     "load_image",
     "prepare",
@@ -40,50 +39,6 @@ __all__ = [
 ]
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg")
-MAX_IMAGE_SIDE = 8192
-"""Largest accepted image side in pixels (a bigger one is refused, not resized)."""
-MIN_IMAGE_SIDE = 16
-"""Smallest accepted image side in pixels: below this there is nothing to classify."""
-
-
-def _check_array(img: NDArray[np.uint8], source: str) -> NDArray[np.uint8]:
-    if img.ndim == 2:
-        img = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
-    if img.ndim != 3 or img.shape[2] not in (3, 4):
-        raise ClassifierError(f"image {source} has shape {img.shape}; expected H×W×3 RGB (or grey/RGBA)")
-    if img.shape[2] == 4:
-        img = np.ascontiguousarray(img[:, :, :3])
-    h, w = img.shape[:2]
-    if min(h, w) < MIN_IMAGE_SIDE or max(h, w) > MAX_IMAGE_SIDE:
-        raise ClassifierError(
-            f"image {source} is {w}×{h} px; expected sides between {MIN_IMAGE_SIDE} and {MAX_IMAGE_SIDE} px"
-        )
-    if img.dtype != np.uint8:
-        raise ClassifierError(f"image {source} has dtype {img.dtype}; expected 8-bit")
-    return img
-
-
-def decode_image(data: bytes, source: str = "<bytes>") -> NDArray[np.uint8]:
-    """Decode PNG/JPEG bytes to an RGB uint8 array ``(H, W, 3)``.
-
-    Raises:
-        ClassifierError: empty or undecodable bytes, or an image of the wrong size/channels.
-    """
-    if not data:
-        raise ClassifierError(f"image {source} is empty (0 bytes); expected PNG or JPEG bytes")
-    buf = np.frombuffer(data, dtype=np.uint8)
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise ClassifierError(
-            f"image {source} ({len(data)} bytes, starts {bytes(data[:8])!r}) cannot be decoded; expected PNG or JPEG"
-        )
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    if img.ndim == 3 and img.shape[2] == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-    elif img.ndim == 3 and img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
-    return _check_array(img, source)
 
 
 def load_image(path: Path | str) -> NDArray[np.uint8]:
@@ -97,7 +52,7 @@ def load_image(path: Path | str) -> NDArray[np.uint8]:
         data = p.read_bytes()
     except OSError as err:
         raise ClassifierError(f"image file {str(p)!r} cannot be read: {err}") from err
-    return decode_image(data, repr(str(p)))
+    return decode_image(data, repr(str(p)), error=ClassifierError)
 
 
 def prepare(img: NDArray[np.uint8], size: int) -> NDArray[np.float32]:

@@ -11,7 +11,6 @@ Variants:
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import stat
@@ -30,6 +29,7 @@ from cellctl.classify.data import prepare
 from cellctl.classify.decision import is_uncertain
 from cellctl.classify.nets import ARCHS, build_model
 from cellctl.errors import ClassifierError
+from cellctl.hashing import bytes_sha256
 
 __all__ = ["VARIANTS", "Prediction", "SurfaceModel", "load_surface_models"]
 
@@ -180,7 +180,7 @@ class SurfaceModel:
             raise ClassifierError(f"{str(p)!r} weights do not fit {arch}: {str(err)[:400]}") from err
         net.eval()
         size = int(blob["input_size"])
-        sha = hashlib.sha256(raw).hexdigest()
+        sha = bytes_sha256(raw)  # the bytes torch.load read: the digest is of what was loaded
         card = None
         card_path = p.with_suffix(".json")
         if card_path.is_file():

@@ -17,15 +17,14 @@ import sys
 from pathlib import Path
 
 from cellctl.cli import add_config_arguments, config_from_args
-
-SURFACE_CHOICES = ("external", "internal")
+from cellctl.surface import SURFACES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("dataset", help="make classifier datasets")
     dsub = p.add_subparsers(dest="dataset_verb", metavar="ACTION", required=True)
     s = dsub.add_parser("synth", help="render a labelled synthetic clean/dirty set")
-    s.add_argument("--surface", required=True, choices=SURFACE_CHOICES)
+    s.add_argument("--surface", required=True, choices=SURFACES)
     s.add_argument("--n", type=int, required=True, help="number of images (half clean, half dirty)")
     s.add_argument("--out", required=True, help="dataset root; images go to OUT/<surface>/<clean|dirty>/")
     s.add_argument("--shifted", action="store_true", help="other lighting / powder colour / camera noise")
@@ -46,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=run_synth)
 
     t = sub.add_parser("train", help="train a surface's clean/dirty classifier")
-    t.add_argument("--surface", required=True, choices=SURFACE_CHOICES)
+    t.add_argument("--surface", required=True, choices=SURFACES)
     t.add_argument("--data", required=True, help="dataset root (DATA/<surface>/<clean|dirty>/*.png)")
     t.add_argument("--out", required=True, help="weights file, e.g. models/classifier/external.pt")
     t.add_argument("--preset", choices=("default", "paper"), default="default")
@@ -61,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.set_defaults(func=run_train)
 
     e = sub.add_parser("eval", help="evaluate a surface model on a dataset")
-    e.add_argument("--surface", required=True, choices=SURFACE_CHOICES)
+    e.add_argument("--surface", required=True, choices=SURFACES)
     e.add_argument("--data", required=True)
     e.add_argument("--model", default=None, help="weights (default: <classifier.models_dir>/<surface>.pt)")
     e.add_argument(
@@ -86,7 +85,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     c = sub.add_parser("classify", help="classify image files")
     c.add_argument("images", nargs="+")
-    c.add_argument("--surface", required=True, choices=SURFACE_CHOICES)
+    c.add_argument("--surface", required=True, choices=SURFACES)
     c.add_argument("--model", default=None)
     c.add_argument("--variant", choices=("fp32", "fused"), default="fp32")
     c.add_argument("--json", action="store_true", help="one JSON object per line")

@@ -43,17 +43,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def render(args: argparse.Namespace) -> int:
+    import dataclasses
+
     import cv2
     import numpy as np
 
     from cellctl.errors import ConfigError
     from cellctl.geometry import robot_model as rm
+    from cellctl.geometry.camera import D435_COLOR
     from cellctl.geometry.catalog import load_catalog
-    from cellctl.geometry.transforms import invert
-    from cellctl.messages import Intrinsics
+    from cellctl.geometry.transforms import invert, look_at
     from cellctl.sim import scene
     from cellctl.sim.collision import CollisionWorld
-    from cellctl.sim.render import RenderParams, SimRenderer, look_at
+    from cellctl.sim.render import RenderParams, SimRenderer
 
     cfg = config_from_args(args)
     cat = load_catalog(cfg.path(cfg.catalog))
@@ -73,10 +75,9 @@ def render(args: argparse.Namespace) -> int:
     T_cam = invert(scene.nominal_T_bin_base(bt, mesh)) @ scene.observation_T_bin_cam(bt, 0)
     sols = [q for q in rm.ik_camera(T_cam, scene.HOME_JOINTS) if not world.in_collision(q)]
     q = sols[0] if sols else scene.HOME_JOINTS
-    f = 920.0 * args.width / 1280.0
+    K = D435_COLOR.at_resolution(args.width, args.height)
     if args.view == "overview":
-        f *= 0.75  # a wider lens for the overview
-    K = Intrinsics(width=args.width, height=args.height, fx=f, fy=f, cx=args.width / 2, cy=args.height / 2)
+        K = dataclasses.replace(K, fx=0.75 * K.fx, fy=0.75 * K.fy)  # a wider lens for the overview
     if args.view == "overview":
         T_world_bin = sc.T_world_bin(bt)
         target = T_world_bin[:3, 3] + np.array([0.0, 0.0, -0.45 * bt.height_m])

@@ -32,10 +32,10 @@ from cellctl.geometry.catalog import (
     INTERNAL,
     BoardSpec,
     T_tag_board,
-    file_sha256,
     write_ply,
 )
 from cellctl.geometry.transforms import invert, transform_from
+from cellctl.hashing import file_sha256
 
 __all__ = ["BinDesign", "DESIGNS", "build_mesh", "generate_catalog", "paper_tag_T_bin"]
 

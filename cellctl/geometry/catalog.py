@@ -38,7 +38,6 @@ array, one tag per face) or, without one, every face is external.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,27 +49,24 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from cellctl.errors import CellError, ConfigError
 from cellctl.geometry.transforms import check_transform, invert, transform_from
+from cellctl.hashing import file_sha256
+from cellctl.surface import EXTERNAL, FACE_TAG, INTERNAL, SURFACES
 
 __all__ = [
     "EXTERNAL",
     "INTERNAL",
-    "SURFACES",
     "BinMesh",
     "BinType",
     "BoardSpec",
     "Catalog",
     "T_tag_board",
-    "file_sha256",
     "load_catalog",
     "read_bin_mesh",
     "read_ply",
     "write_ply",
 ]
 
-EXTERNAL = 0
-INTERNAL = 1
-SURFACES = {"external": EXTERNAL, "internal": INTERNAL}
-"""Surface tag values stored per face."""
+# EXTERNAL, INTERNAL: the per-face surface tags, defined in cellctl.surface and re-exported here
 
 FRAME_TOL_M = 0.02
 """How far above z = 0 a vertex may lie (rims, handles) and still follow the frame convention."""
@@ -234,20 +230,12 @@ class BinMesh:
         """
         if surface not in SURFACES:
             raise ConfigError(f"surface {surface!r} is unknown; expected one of {sorted(SURFACES)}")
-        return np.asarray(self.surface == SURFACES[surface])
+        return np.asarray(self.surface == FACE_TAG[surface])
 
     def to_trimesh(self):  # noqa: ANN201 - trimesh.Trimesh, imported lazily
         import trimesh
 
         return trimesh.Trimesh(self.vertices, self.faces, process=False)
-
-
-def file_sha256(path: Path | str) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 # --- PLY ------------------------------------------------------------------------------------
@@ -364,9 +352,9 @@ def read_bin_mesh(path: Path | str) -> BinMesh:
 def _check_surface(S: NDArray[np.uint8], n_faces: int, p: Path) -> None:
     if S.shape != (n_faces,):
         raise ConfigError(f"mesh {str(p)!r}: {S.shape[0]} surface tags for {n_faces} faces")
-    bad = set(np.unique(S).tolist()) - set(SURFACES.values())
+    bad = set(np.unique(S).tolist()) - set(FACE_TAG.values())
     if bad:
-        raise ConfigError(f"mesh {str(p)!r}: surface tags {sorted(bad)} unknown; expected {SURFACES}")
+        raise ConfigError(f"mesh {str(p)!r}: surface tags {sorted(bad)} unknown; expected {FACE_TAG}")
 
 
 def check_frame_convention(mesh: BinMesh, name: str, height_m: float | None = None) -> None:

@@ -18,6 +18,7 @@ __all__ = [
     "Pose",
     "check_transform",
     "invert",
+    "look_at",
     "matrix_from_quaternion",
     "pose_error",
     "quaternion_from_matrix",
@@ -136,3 +137,55 @@ def pose_error(T_a: ArrayLike, T_b: ArrayLike) -> tuple[float, float]:
     R = A[:3, :3].T @ B[:3, :3]
     c = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
     return dt, float(np.arccos(c))
+
+
+_LOOK_AT_PARALLEL = 1e-6
+"""|sin| of the eye→target/up angle below which ``up`` gives no image x axis."""
+
+
+def look_at(
+    eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0), *, roll_rad: float = 0.0
+) -> NDArray[np.float64]:
+    """Camera optical frame (+Z toward ``target``, +X right, +Y down in the image) at ``eye``.
+
+    The image's "up" (−Y) leans toward ``up``: ``x = z × up``, ``y = z × x``. The result is
+    then rolled by ``roll_rad`` about the optical axis (positive turns the image x axis toward
+    its y axis).
+
+    Degenerate case: when eye→target is parallel (or anti-parallel) to ``up`` (|sin| of the
+    angle below 1e-6), ``up`` says nothing about the image's orientation, and world +Y takes
+    its place (world +X if the view also runs along Y). Looking straight down with the default
+    ``up`` therefore gives image x = world +X, image y = world −Y: a map seen from above.
+
+    Args:
+        eye: (3,) camera position.
+        target: (3,) the point the optical axis passes through.
+        up: (3,) world direction the image's top should lean toward (need not be unit).
+        roll_rad: rotation about the optical axis, applied last.
+
+    Returns:
+        (4, 4) ``T_world_cam``.
+
+    Raises:
+        CellError: ``eye`` equals ``target``, ``up`` is zero, or a value is not finite.
+    """
+    e, t, u = (np.asarray(v, dtype=np.float64).reshape(3) for v in (eye, target, up))
+    if not (np.isfinite(e).all() and np.isfinite(t).all() and np.isfinite(u).all()):
+        raise CellError(f"look_at needs finite points, got eye={e.tolist()} target={t.tolist()} up={u.tolist()}")
+    z = t - e
+    dz, du = float(np.linalg.norm(z)), float(np.linalg.norm(u))
+    if dz < 1e-12:
+        raise CellError(f"look_at: eye {e.tolist()} and target {t.tolist()} coincide; no view direction")
+    if du < 1e-12:
+        raise CellError(f"look_at: up {u.tolist()} is the zero vector")
+    z /= dz
+    x = np.cross(z, u / du)
+    if np.linalg.norm(x) < _LOOK_AT_PARALLEL:
+        helper = (0.0, 1.0, 0.0) if abs(z[1]) < 0.9 else (1.0, 0.0, 0.0)
+        x = np.cross(z, helper)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.column_stack([x, y, z])
+    if roll_rad:
+        R = R @ rotation_about((0.0, 0.0, 1.0), roll_rad)
+    return transform_from(R, e)

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.bus import keys
+from cellctl.bus import keys, topics
 from cellctl.config import CellConfig
 from cellctl.hmi.config import FoxgloveConfig
 from cellctl.hmi.link import CellLink
@@ -120,18 +120,18 @@ class FoxgloveLive:
     def _fold(self, m: RecordedMessage) -> bool:
         c = self.cfg.cell_id
         try:
-            if m.topic == "/bin/identification":
+            if m.topic == topics.BIN_IDENTIFICATION:
                 self._bin_type = m.json().get("bin_type")
-            elif m.topic == "/bin/pose" and self._bin_type:
+            elif m.topic == topics.BIN_POSE and self._bin_type:
                 pose = m.json()["pose"]
                 T = _matrix(pose)
                 mesh = self._mesh(self._bin_type)
                 self._bin = (T, mesh.vertices, mesh.faces) if mesh is not None else None
                 return True
-            elif m.topic == "/camera/pose":
+            elif m.topic == topics.CAMERA_POSE:
                 self._camera = _matrix(m.json()["pose"])
                 return True
-            elif m.topic == f"{keys.worker_op(c, 'planner', 'lookup')}/reply":
+            elif m.topic == topics.reply(keys.worker_op(c, "planner", "lookup")):
                 from cellctl.messages import PoseMsg
 
                 vps = m.json().get("viewpoints") or []

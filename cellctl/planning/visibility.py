@@ -1,7 +1,8 @@
 """Visible faces per viewpoint → measurability matrix (paper §IV-A1c, §IV-A2).
 
 A face is properly visible from a viewpoint when its centroid projects inside the image
-(pinhole intrinsics), its distance lies in the depth-of-view range, the view ray meets the
+(pinhole intrinsics of :class:`cellctl.geometry.camera.CameraModel`), its distance lies in
+the depth-of-view range, the view ray meets the
 face at no more than the maximum glance angle from its normal, and the ray from the camera
 to the centroid hits that face first (occlusion, one embree query for all pairs).
 """
@@ -9,37 +10,15 @@ to the centroid hits that face first (occlusion, one embree query for all pairs)
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from cellctl.geometry.camera import CameraModel
 from cellctl.planning.mesh import BinMesh
 from cellctl.planning.raycast import RayCaster
 
-__all__ = ["CameraModel", "measurability"]
-
-
-@dataclass(frozen=True)
-class CameraModel:
-    """Pinhole intrinsics (pixels) and the sensor's usable ranges.
-
-    Attributes:
-        width, height: image size, px.
-        fx, fy, cx, cy: pinhole parameters, px.
-        dov: (near, far) depth-of-view range, m (paper Table 1: 0.175–0.6).
-        max_glance_deg: maximum angle between view ray and face normal, deg (paper: 60).
-    """
-
-    # defaults = the cell's camera as the twin renders it (cellctl.sim.render.D435_COLOR)
-    width: int = 1280
-    height: int = 720
-    fx: float = 920.0
-    fy: float = 920.0
-    cx: float = 640.0
-    cy: float = 360.0
-    dov: tuple[float, float] = (0.175, 0.6)
-    max_glance_deg: float = 60.0
+__all__ = ["measurability"]
 
 
 def measurability(

@@ -24,7 +24,8 @@ from enum import StrEnum
 from pathlib import Path
 
 from cellctl.errors import RecordingError
-from cellctl.recording.index import GENESIS, CycleRow, file_sha256, row_hash
+from cellctl.hashing import file_sha256_or_none
+from cellctl.recording.index import GENESIS, CycleRow, row_hash
 
 __all__ = [
     "AuditFinding",
@@ -317,7 +318,7 @@ def _check_hash(
     missing: FindingKind,
     mismatch: FindingKind,
 ) -> AuditFinding | None:
-    found = file_sha256(path)
+    found = file_sha256_or_none(path)
     if found is None:
         return AuditFinding(
             missing,

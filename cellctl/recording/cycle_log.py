@@ -18,13 +18,12 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 
 from cellctl import __version__
+from cellctl.bus import topics
 from cellctl.errors import RecordingError
 from cellctl.messages import MESSAGE_TYPES, WireMessage
 from cellctl.recording import foxglove
 
-__all__ = ["CycleLog", "EVENTS_TOPIC"]
-
-EVENTS_TOPIC = "/events"
+__all__ = ["CycleLog"]
 
 
 class CycleLog:
@@ -95,7 +94,7 @@ class CycleLog:
         self.write_json(topic, msg.type, msg.model_dump_json().encode(), t_ns)
 
     def event(self, level: int, text: str, t_ns: int | None = None) -> None:
-        self.write_json(EVENTS_TOPIC, "foxglove.Log", foxglove.log(level, text, "supervisor", t_ns), t_ns)
+        self.write_json(topics.EVENTS, "foxglove.Log", foxglove.log(level, text, "supervisor", t_ns), t_ns)
 
     def image(self, topic: str, data: bytes, fmt: str, frame_id: str = "camera", t_ns: int | None = None) -> None:
         """Append a foxglove.CompressedImage.

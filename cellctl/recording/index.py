@@ -14,7 +14,6 @@ Row formats (``row_format``; the chained hash covers exactly the fields of the r
 
 from __future__ import annotations
 
-import hashlib
 import json
 import sqlite3
 import threading
@@ -22,10 +21,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from cellctl.errors import RecordingError
+from cellctl.hashing import bytes_sha256, file_sha256_or_none
 from cellctl.messages import now_iso
 from cellctl.recording.recover import recover_mcap
 
-__all__ = ["ROW_FORMAT", "CycleIndex", "CycleRow", "Recovered", "file_sha256"]
+__all__ = ["ROW_FORMAT", "CycleIndex", "CycleRow", "Recovered"]
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS cycles (
@@ -64,17 +64,6 @@ _V2_COLUMNS = (
 )
 
 GENESIS = "0" * 64
-
-
-def file_sha256(path: Path) -> str | None:
-    try:
-        h = hashlib.sha256()
-        with open(path, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
-        return h.hexdigest()
-    except OSError:
-        return None
 
 
 @dataclass(frozen=True)
@@ -132,7 +121,7 @@ class Recovered:
 
 def row_hash(prev_hash: str, row: CycleRow) -> str:
     body = json.dumps(row.chained_fields(), sort_keys=True, separators=(",", ":"))
-    return hashlib.sha256((prev_hash + body).encode()).hexdigest()
+    return bytes_sha256((prev_hash + body).encode())
 
 
 class CycleIndex:
@@ -255,7 +244,7 @@ class CycleIndex:
         out = []
         for row in running:
             path = Path(row.log_path)
-            sha = file_sha256(path) if row.log_path else None
+            sha = file_sha256_or_none(path) if row.log_path else None
             reason = "supervisor stopped during the cycle"
             recovered = None
             if sha is not None:

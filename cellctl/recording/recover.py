@@ -16,7 +16,6 @@ the same source twice gives byte-identical files.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import os
 import struct
@@ -34,6 +33,7 @@ from mcap.writer import CompressionType, Writer
 
 from cellctl import __version__
 from cellctl.errors import RecordingError
+from cellctl.hashing import bytes_sha256
 
 __all__ = ["RECOVERED_SUFFIX", "Recovery", "recover_mcap", "recovered_path"]
 
@@ -275,10 +275,10 @@ def recover_mcap(source: Path | str, out: Path | str | None = None) -> Recovery:
     # Both hashes from the bytes in hand: the source as recovered, the output as written.
     result = Recovery(
         source=str(src),
-        source_sha256=hashlib.sha256(data).hexdigest(),
+        source_sha256=bytes_sha256(data),
         source_bytes=len(data),
         out=str(dst),
-        out_sha256=hashlib.sha256(out_bytes).hexdigest(),
+        out_sha256=bytes_sha256(out_bytes),
         **found,  # type: ignore[arg-type]
     )
     log.info(

@@ -23,6 +23,7 @@ from typing import Any
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 
+from cellctl.bus import topics
 from cellctl.errors import RecordingError
 
 __all__ = ["RecordedCycle", "RecordedMessage", "read_cycle", "republish", "verify"]
@@ -204,13 +205,16 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     cid = cfg.cell_id
     prefix = keys.prefix(cid) + "/"
     by_key: dict[str, deque[tuple[dict, RecordedMessage | None]]] = defaultdict(deque)
-    images = deque(m for m in rec.messages if m.schema == "foxglove.CompressedImage" and m.topic == "/camera/image")
+    images = deque(m for m in rec.messages if m.schema == "foxglove.CompressedImage" and m.topic == topics.CAMERA_IMAGE)
     pending: dict[str, dict] = {}
     for m in rec.messages:
-        if m.topic.endswith("/request"):
-            pending[m.topic[: -len("/request")]] = m.json()
-        elif m.topic.endswith("/reply"):
-            k = m.topic[: -len("/reply")]
+        ex = topics.exchange_of(m.topic)
+        if ex is None:
+            continue
+        k, side = ex
+        if side == "request":
+            pending[k] = m.json()
+        else:
             by_key[k].append((pending.pop(k, {}), m))
     results = [m.json() for m in rec.messages if m.schema == "cellctl/CycleResult"]
     interrupted = not results
@@ -340,7 +344,7 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
         differences,
         rec_cycle_states,
         rep_cycle_states,
-        sum(1 for m in rec.messages if m.topic.endswith("/request")),
+        sum(1 for m in rec.messages if m.topic.endswith(topics.REQUEST_SUFFIX)),
         rec.skipped,
         interrupted,
     )

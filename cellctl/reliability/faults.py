@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
 from cellctl.bench_options import BenchOptions
-from cellctl.bus import keys
+from cellctl.bus import keys, topics
 from cellctl.bus.codec import decode_as
 from cellctl.bus.plc_client import PlcClient
 from cellctl.bus.rpc import request
@@ -255,7 +255,7 @@ class FaultInjector:
             return q_safe
         if rep.detection_s is not None:
             rec = read_cycle(self.cfg.path(res.log))
-            motion_topics = {f"{keys.robot_op(self.cfg.cell_id, op)}/request" for op in MOTION_OPS}
+            motion_topics = {topics.request(keys.robot_op(self.cfg.cell_id, op)) for op in MOTION_OPS}
             t_det_ns = t_sig_ns + int(rep.detection_s * 1e9)
             motion = [m for m in rec.messages if m.log_time > t_det_ns and m.topic in motion_topics]
             rep.motion_requests_after_detection = len(motion)

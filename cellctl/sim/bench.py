@@ -32,12 +32,13 @@ def bench_sim(opts: BenchOptions) -> dict[str, Any]:
     from ur_analytic_ik import ur10e
 
     from cellctl.geometry import robot_model as rm
+    from cellctl.geometry.camera import D435_COLOR
     from cellctl.geometry.catalog import load_catalog
     from cellctl.geometry.transforms import invert
     from cellctl.sim import scene
     from cellctl.sim.collision import CollisionWorld
     from cellctl.sim.motion import plan_path
-    from cellctl.sim.render import D435_COLOR, SimRenderer, scaled_intrinsics
+    from cellctl.sim.render import SimRenderer
 
     n = opts.n or 2000
     rng = np.random.default_rng(opts.seed)
@@ -83,9 +84,9 @@ def bench_sim(opts: BenchOptions) -> dict[str, Any]:
     r = SimRenderer(cat)
     q = goal
     T_world_cam = sc.base() @ rm.camera_pose(q)
-    r.render(sc, T_world_cam, scaled_intrinsics(D435_COLOR, 0.25), joints=q)
+    r.render(sc, T_world_cam, D435_COLOR.scaled(0.25), joints=q)
     full = _median_time(lambda: r.render(sc, T_world_cam, D435_COLOR, joints=q), 3)
-    low = _median_time(lambda: r.render(sc, T_world_cam, scaled_intrinsics(D435_COLOR, 0.25), joints=q), 5)
+    low = _median_time(lambda: r.render(sc, T_world_cam, D435_COLOR.scaled(0.25), joints=q), 5)
     bar.update()
     bar.close()
     return {

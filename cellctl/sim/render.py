@@ -13,14 +13,16 @@ camera body); each hit is shaded by material:
 * **powder** (dirty scenarios): matte near-white, opacity from
   :class:`cellctl.sim.ground_truth.PowderField`; ``powder_mask`` marks pixels where it shows.
 
-No shadows or inter-reflections. Camera model: pinhole (``Intrinsics``, distortion ignored),
+No shadows or inter-reflections. Camera model: pinhole (:class:`cellctl.geometry.camera.CameraModel`
+or a capture's ``Intrinsics``; distortion ignored),
 exposure, gamma 2.2, Gaussian sensor noise (seeded).
 
 For the classifier's dataset synthesis (in-process)::
 
-    from cellctl.sim.render import SimRenderer, RenderParams, scaled_intrinsics
+    from cellctl.geometry.camera import D435_COLOR
+    from cellctl.sim.render import SimRenderer, RenderParams
     r = SimRenderer(catalog)                          # catalog = load_catalog("config/bins.yaml")
-    out = r.render_bin_view("case_study", T_bin_cam, scaled_intrinsics(D435_COLOR, 0.25),
+    out = r.render_bin_view("case_study", T_bin_cam, D435_COLOR.scaled(0.25),
                             dirty=True, powder_amount=0.6, seed=3,
                             params=RenderParams(exposure=1.1, light_scale=0.9, powder_rgb=(0.95, 0.94, 0.9)))
     out.rgb          # (H, W, 3) uint8
@@ -40,16 +42,18 @@ from numpy.typing import ArrayLike, NDArray
 
 from cellctl.errors import ConfigError
 from cellctl.geometry import robot_model as rm
-from cellctl.geometry.catalog import EXTERNAL, INTERNAL, Catalog
-from cellctl.geometry.transforms import invert, transform_from
+from cellctl.geometry.camera import CameraModel
+from cellctl.geometry.catalog import Catalog
+from cellctl.geometry.transforms import invert
 from cellctl.messages import Intrinsics
 from cellctl.sim.ground_truth import PowderField, value_noise3
 from cellctl.sim.scene import CABIN_HALF, CABIN_HEIGHT, Scenario
+from cellctl.surface import EXTERNAL, INTERNAL
 
-__all__ = ["D435_COLOR", "RenderParams", "RenderResult", "SimRenderer", "look_at", "scaled_intrinsics"]
+__all__ = ["CameraLike", "RenderParams", "RenderResult", "SimRenderer"]
 
-D435_COLOR = Intrinsics(width=1280, height=720, fx=920.0, fy=920.0, cx=640.0, cy=360.0)
-"""RealSense D435 colour stream defaults at 1280×720 (69° × 42° field of view)."""
+CameraLike = CameraModel | Intrinsics
+"""What the renderer projects with: the camera model, or the intrinsics a capture reports."""
 
 TILE_PIXELS = 1 << 15
 """Pixels cast and shaded at once. A whole frame at once held ~130 MB of temporaries at
@@ -89,32 +93,6 @@ class RenderResult:
     powder_mask: NDArray[np.bool_]
     surface: NDArray[np.int8]
     depth: NDArray[np.float32] = field(repr=False)
-
-
-def scaled_intrinsics(intr: Intrinsics, factor: float) -> Intrinsics:
-    """The same camera at ``factor`` × the resolution (low-res renders for speed)."""
-    return Intrinsics(
-        width=max(1, int(round(intr.width * factor))),
-        height=max(1, int(round(intr.height * factor))),
-        fx=intr.fx * factor,
-        fy=intr.fy * factor,
-        cx=intr.cx * factor,
-        cy=intr.cy * factor,
-        dist=list(intr.dist),
-    )
-
-
-def look_at(eye: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0)) -> NDArray[np.float64]:
-    """Camera optical frame (+Z toward ``target``, +Y down in the image) at ``eye``."""
-    e, t, u = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
-    z = t - e
-    z /= np.linalg.norm(z)
-    x = np.cross(z, u)
-    if np.linalg.norm(x) < 1e-9:
-        x = np.cross(z, [0.0, 1.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return transform_from(np.column_stack([x, y, z]), e)
 
 
 def _box(centre: NDArray[np.float64], size: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
@@ -171,7 +149,7 @@ class SimRenderer:
             self._boards[name] = board_image(self.catalog.get(name).board, 60).astype(np.float64) / 255.0
         return self._boards[name]
 
-    def _ray_dirs(self, K: Intrinsics) -> NDArray[np.float32]:
+    def _ray_dirs(self, K: CameraLike) -> NDArray[np.float32]:
         """Unit ray directions (H·W, 3) in the camera frame, cached per intrinsics."""
         key = (K.width, K.height, K.fx, K.fy, K.cx, K.cy)
         if key not in self._rays:
@@ -266,7 +244,7 @@ class SimRenderer:
         self,
         scenario: Scenario,
         T_world_cam: ArrayLike,
-        intrinsics: Intrinsics,
+        intrinsics: CameraLike,
         joints: ArrayLike | None = None,
         params: RenderParams | None = None,
         seed: int = 0,
@@ -308,7 +286,7 @@ class SimRenderer:
         self,
         bin_type: str,
         T_bin_cam: ArrayLike,
-        intrinsics: Intrinsics,
+        intrinsics: CameraLike,
         *,
         dirty: bool,
         powder_amount: float = 0.5,
@@ -340,7 +318,7 @@ class SimRenderer:
         T_world_base: NDArray | None,
         q: NDArray | None,
         T_world_cam: NDArray,
-        K: Intrinsics,
+        K: CameraLike,
         P: RenderParams,
         seed: int,
         powder: PowderField,

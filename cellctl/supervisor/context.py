@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, Literal, TypeVar
 import numpy as np
 import zenoh
 
-from cellctl.bus import keys
+from cellctl.bus import keys, topics
 from cellctl.bus.rpc import request
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, WorkerError, WorkerUnavailable
@@ -175,18 +175,18 @@ class StepRun:
         k = key or keys.worker_op(self.ctx.cfg.cell_id, role, op)
         t = timeout if timeout is not None else getattr(self.ctx.cfg.supervisor.timeouts, op, None)
         t = t if t is not None else self.ctx.cfg.supervisor.timeouts.default
-        self.ctx.log.write_message(f"{k}/request", msg)
+        self.ctx.log.write_message(topics.request(k), msg)
         t0 = time.perf_counter()
         try:
             reply, raw = request(self.ctx.session, k, msg, expect, timeout=t, payload=payload, role=role)
         except WorkerError as err:
             self._account(account, time.perf_counter() - t0)
-            self.ctx.log.write_message(f"{k}/reply", ErrorReply(kind=type(err).__name__, reason=str(err)))
+            self.ctx.log.write_message(topics.reply(k), ErrorReply(kind=type(err).__name__, reason=str(err)))
             self.ctx.log.event(int(EventLevel.error), f"{role}/{op}: {err}")
             raise
         dt = time.perf_counter() - t0
         log.debug("%s/%s in %.1f ms", role, op, dt * 1e3)
         self._account(account, dt)
-        self.ctx.log.write_message(f"{k}/reply", reply)
+        self.ctx.log.write_message(topics.reply(k), reply)
         self.checkpoint()
         return reply, raw

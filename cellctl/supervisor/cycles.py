@@ -8,7 +8,7 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from cellctl.bus import keys
+from cellctl.bus import keys, topics
 from cellctl.bus.rpc import request
 from cellctl.config import CellConfig
 from cellctl.errors import ProtocolError, WorkerError
@@ -138,12 +138,12 @@ class CycleKeeper:
         rec = self.record
         try:
             if rec is not None:
-                rec.write_message(f"{key}/request", msg)
+                rec.write_message(topics.request(key), msg)
             reply, _ = request(
                 self.session, key, msg, StopRequest, timeout=self.cfg.supervisor.timeouts.stop, role="robot"
             )
             if rec is not None:
-                rec.write_message(f"{key}/reply", reply)
+                rec.write_message(topics.reply(key), reply)
         except (WorkerError, ProtocolError) as err:
             # A robot that cannot confirm the stop is logged loudly; the state machine still
             # goes to the safe state and commands no further motion.

@@ -14,9 +14,10 @@ from typing import TYPE_CHECKING, Any
 
 from cellctl.bus import keys
 from cellctl.config import CellConfig
+from cellctl.hashing import file_sha256_or_none
 from cellctl.messages import BinInfo, CycleOutcome, CycleResult, PoseMsg, WireMessage
 from cellctl.recording.cycle_log import CycleLog
-from cellctl.recording.index import CycleIndex, file_sha256
+from cellctl.recording.index import CycleIndex
 
 if TYPE_CHECKING:
     from cellctl.supervisor.context import CycleContext
@@ -115,7 +116,7 @@ class CycleRecorder(Recorder):
             bin_type=result.bin.type,
             plan_id=result.plan_id,
             reason=result.reason,
-            log_sha256=file_sha256(self.path),
+            log_sha256=file_sha256_or_none(self.path),
             finished=result.finished,
         )
 

@@ -24,48 +24,22 @@ from numpy.typing import NDArray
 
 from cellctl.bench_options import BenchOptions
 from cellctl.errors import IdentificationError
+from cellctl.geometry.camera import CameraModel
 from cellctl.geometry.transforms import invert, pose_error
 from cellctl.messages import Intrinsics
-from cellctl.vision.board import BoardSpec, board_centre
+from cellctl.vision.board import board_centre
 from cellctl.vision.identify import Identification, identify
 from cellctl.vision.render import RenderSettings, random_view, render_boards
 
 __all__ = [
     "DISTANCES_M",
     "bench_pose",
-    "configured_intrinsics",
     "measure",
     "pinhole_renderer",
     "twin_renderer",
 ]
 
 DISTANCES_M = (0.5, 1.0, 1.5, 2.0)
-D435_FX_PER_WIDTH = 910.0 / 1280.0
-"""RealSense D435 colour stream: fx ≈ fy ≈ 910 px at 1280×720 (≈ 70° horizontal field)."""
-
-
-def configured_intrinsics(cfg: Any) -> Intrinsics:
-    """Camera intrinsics from the config's camera section.
-
-    Uses ``camera.fx/fy/cx/cy`` (or ``camera.intrinsics``) when the section has them,
-    otherwise a D435 colour model scaled to ``camera.width × camera.height``.
-    """
-    try:  # the camera worker's own rule, when the twin is installed: both sides agree
-        from cellctl.workers.camera._port import intrinsics_from_config
-
-        return intrinsics_from_config(cfg.camera)
-    except ImportError:
-        pass
-    cam = cfg.camera
-    intr = getattr(cam, "intrinsics", None)
-    if intr is not None:
-        return intr if isinstance(intr, Intrinsics) else Intrinsics.model_validate(intr)
-    w, h = int(cam.width), int(cam.height)
-    fx = float(getattr(cam, "fx", None) or D435_FX_PER_WIDTH * w)
-    fy = float(getattr(cam, "fy", None) or fx)
-    cx = float(getattr(cam, "cx", None) or w / 2.0)
-    cy = float(getattr(cam, "cy", None) or h / 2.0)
-    return Intrinsics(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy)
 
 
 RenderFn = Callable[[NDArray[np.float64], np.random.Generator], NDArray[np.uint8]]
@@ -227,7 +201,7 @@ def measure(
     """Render and identify ``n`` views per distance; percentiles of the errors.
 
     Args:
-        spec: the board spec (catalog ``BoardSpec`` or :class:`cellctl.vision.board.BoardSpec`).
+        spec: the board spec (:class:`cellctl.geometry.catalog.BoardSpec`).
         intr: the true camera intrinsics (used to render and to identify).
         n: views per distance.
         seed: RNG seed (views, lighting, noise).
@@ -451,7 +425,7 @@ def bench_pose(opts: BenchOptions) -> dict[str, Any]:
     cfg = opts.load_config()
     n = opts.n or 20
     seed = opts.seed
-    intr = configured_intrinsics(cfg)
+    intr = CameraModel.from_config(cfg.camera).intrinsics()  # what the camera worker reports
     catalog = load_catalog(cfg.path(cfg.catalog), root=cfg.root, verify_meshes=False)
     bin_type = cfg.sim.bin_type if cfg.sim.bin_type in catalog else catalog.names[0]
     spec = catalog.get(bin_type).board
@@ -493,18 +467,7 @@ def bench_pose(opts: BenchOptions) -> dict[str, Any]:
             out[name] = main[name]
     # The board size decides the 2 m result: also measure a 7×5 board with 60 mm squares.
     if abs(float(spec.square_m) - 0.06) > 1e-9:
-        if hasattr(spec, "model_copy"):
-            big = spec.model_copy(update={"square_m": 0.06, "marker_m": 0.045})
-        else:
-            big = BoardSpec(
-                squares_x=7,
-                squares_y=5,
-                square_m=0.06,
-                marker_m=0.045,
-                dictionary=str(spec.dictionary),
-                first_id=int(spec.first_id),
-                T_bin_board=np.asarray(spec.T_bin_board, dtype=np.float64),
-            )
+        big = spec.model_copy(update={"square_m": 0.06, "marker_m": 0.045})
         alt_render = twin_renderer(catalog, bin_type, intr, board=big) if twin else None
         alt = measure(big, intr, n, seed, render=alt_render)
         out["alternative_board"] = {

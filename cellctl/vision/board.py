@@ -8,16 +8,16 @@ Board frame (OpenCV's ``CharucoBoard`` object frame, the frame ``T_cam_board`` r
 origin at the top-left *outer* corner of the chessboard, +x along the rows (right), +y down
 the columns, +z into the board (away from a camera that reads it). Units are metres.
 
-This module is light (numpy + cv2) and duck-typed: a "spec" is anything with the
+The board spec is the catalog's :class:`cellctl.geometry.catalog.BoardSpec` (re-exported
+here for the vision API). The functions are duck-typed: a "spec" is anything with the
 attributes ``squares_x, squares_y, square_m, marker_m, dictionary, first_id`` and
-optionally ``T_bin_board`` (4×4, maps board points into the bin frame), such as the
-catalog's ``BoardSpec`` or :class:`BoardSpec` below.
+optionally ``T_bin_board`` (4×4, maps board points into the bin frame).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.errors import ConfigError
+from cellctl.geometry.catalog import BoardSpec
 
 __all__ = [
     "BoardSpec",
@@ -35,29 +36,6 @@ __all__ = [
     "make_board",
     "n_markers",
 ]
-
-
-@dataclass(frozen=True)
-class BoardSpec:
-    """A ChArUco board (same fields as the catalog's ``BoardSpec``).
-
-    Attributes:
-        squares_x: squares along x (columns).
-        squares_y: squares along y (rows); keep it odd (OpenCV's even-row layout changed in 4.6).
-        square_m: chessboard square side, metres.
-        marker_m: ArUco marker side, metres (< square_m).
-        dictionary: OpenCV predefined dictionary name, e.g. ``"DICT_5X5_1000"``.
-        first_id: id of the board's first marker; the board uses ``n_markers`` consecutive ids.
-        T_bin_board: 4×4 transform mapping board-frame points into the bin mesh frame.
-    """
-
-    squares_x: int = 7
-    squares_y: int = 5
-    square_m: float = 0.06
-    marker_m: float = 0.045
-    dictionary: str = "DICT_5X5_1000"
-    first_id: int = 0
-    T_bin_board: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
 
 
 @dataclass(frozen=True)

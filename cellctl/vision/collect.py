@@ -12,14 +12,14 @@ import logging
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.bus import keys
 from cellctl.bus.rpc import request
-from cellctl.errors import CellError, IdentificationError, WorkerFailed
-from cellctl.geometry.transforms import rotation_about, transform_from
+from cellctl.errors import CameraError, CellError, IdentificationError, WorkerFailed
+from cellctl.geometry.transforms import look_at
+from cellctl.images import decode_image
 from cellctl.messages import (
     CaptureReply,
     CaptureRequest,
@@ -33,7 +33,7 @@ from cellctl.messages import (
 from cellctl.vision.handeye import HandEyeResult, solve_hand_eye
 from cellctl.vision.identify import Identification, identify
 
-__all__ = ["HandEyeView", "collect_hand_eye", "look_at", "observation_poses"]
+__all__ = ["HandEyeView", "collect_hand_eye", "observation_poses"]
 
 log = logging.getLogger(__name__)
 
@@ -47,23 +47,6 @@ class HandEyeView:
     T_cam_board: NDArray[np.float64]
     reproj_rms_px: float
     n_corners: int
-
-
-def look_at(
-    eye: NDArray[np.float64],
-    target: NDArray[np.float64],
-    roll_rad: float = 0.0,
-    up: tuple[float, float, float] = (0.0, 0.0, 1.0),
-) -> NDArray[np.float64]:
-    """``T_base_cam`` of an optical frame (+z forward, +y down) at ``eye`` looking at ``target``."""
-    z = np.asarray(target, float) - np.asarray(eye, float)
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-6:  # looking straight up/down: any x perpendicular to z
-        x = np.cross(z, (1.0, 0.0, 0.0))
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return transform_from(np.column_stack([x, y, z]) @ rotation_about((0, 0, 1), roll_rad), eye)
 
 
 def observation_poses(
@@ -92,7 +75,7 @@ def observation_poses(
         tilt = np.radians(cone_deg) * np.sqrt((k + 0.5) / n)
         az = k * np.pi * (3.0 - np.sqrt(5.0))
         d = np.cos(tilt) * normal + np.sin(tilt) * (np.cos(az) * a + np.sin(az) * b)
-        out.append(look_at(c + distance_m * d, c, float(np.radians(rng.uniform(-roll_deg, roll_deg)))))
+        out.append(look_at(c + distance_m * d, c, roll_rad=float(np.radians(rng.uniform(-roll_deg, roll_deg)))))
     return out
 
 
@@ -107,10 +90,7 @@ def _capture(session: Any, cfg: Any) -> tuple[NDArray[np.uint8], Intrinsics]:
     )
     if raw is None:
         raise CellError("camera capture reply carried no image payload")
-    img = cv2.imdecode(np.frombuffer(raw, np.uint8), cv2.IMREAD_COLOR)
-    if img is None:
-        raise CellError(f"camera sent {len(raw)} bytes that do not decode as {meta.format}")
-    return img, meta.intrinsics
+    return decode_image(raw, f"from the camera ({meta.format})", order="bgr", error=CameraError), meta.intrinsics
 
 
 def _state(session: Any, cfg: Any) -> RobotState:

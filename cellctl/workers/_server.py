@@ -19,6 +19,7 @@ import zenoh
 from cellctl.bus import keys
 from cellctl.bus.codec import MAX_PAYLOAD_BYTES, decode, decode_as, encode
 from cellctl.errors import CellError, ProtocolError
+from cellctl.images import MAX_IMAGE_BYTES
 from cellctl.messages import ErrorReply, WireMessage
 
 __all__ = ["Handler", "WorkerServer"]
@@ -28,8 +29,6 @@ log.addHandler(logging.NullHandler())
 
 Handler = Callable[[Any, bytes | None], "WireMessage | tuple[WireMessage, bytes]"]
 """``handler(request, payload) -> reply`` or ``(reply, image_bytes)``; raise CellError to refuse."""
-
-MAX_IMAGE_BYTES = 32 * 1024 * 1024
 
 
 @dataclass

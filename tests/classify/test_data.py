@@ -8,8 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from cellctl.classify.data import augment, channel_stats, decode_image, list_dataset, prepare, split_dataset
+from cellctl.classify.data import augment, channel_stats, list_dataset, load_image, prepare, split_dataset
 from cellctl.errors import ClassifierError
+from cellctl.images import decode_image
 
 
 def _png(img: np.ndarray) -> bytes:
@@ -36,14 +37,25 @@ def test_decode_png_is_rgb() -> None:
 )
 def test_bad_bytes_are_refused(data: bytes, match: str) -> None:
     with pytest.raises(ClassifierError, match=match):
-        decode_image(data)
+        decode_image(data, error=ClassifierError)
 
 
 def test_wrong_sizes_are_refused_and_grey_is_accepted() -> None:
     with pytest.raises(ClassifierError, match=r"is 8×8 px; expected sides between 16"):
-        decode_image(_png(np.zeros((8, 8, 3), np.uint8)))
+        decode_image(_png(np.zeros((8, 8, 3), np.uint8)), error=ClassifierError)
     grey = decode_image(_png(np.full((32, 32), 90, np.uint8)))
     assert grey.shape == (32, 32, 3)
+
+
+def test_load_image_reports_classifier_errors(tmp_path: Path) -> None:
+    """The dataset reader decodes with the shared decoder and keeps the classifier's error family."""
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(b"\x89PNG\r\n\x1a\nbroken")
+    with pytest.raises(ClassifierError, match="bad.png.*cannot be decoded"):
+        load_image(bad)
+    good = tmp_path / "good.png"
+    good.write_bytes(_png(np.full((20, 24, 3), (10, 20, 30), np.uint8)))
+    assert load_image(good)[0, 0].tolist() == [30, 20, 10]
 
 
 def test_prepare_and_augment_shapes() -> None:

@@ -17,12 +17,12 @@ from cellctl.geometry.catalog import (
     EXTERNAL,
     INTERNAL,
     T_tag_board,
-    file_sha256,
     load_catalog,
     read_ply,
     write_ply,
 )
 from cellctl.geometry.transforms import invert
+from cellctl.hashing import file_sha256
 
 ROOT = project_root()
 CATALOG = ROOT / "config" / "bins.yaml"

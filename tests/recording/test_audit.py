@@ -11,9 +11,10 @@ import pytest
 
 from cellctl.cli import main
 from cellctl.errors import RecordingError
+from cellctl.hashing import file_sha256
 from cellctl.recording.audit import FindingKind, Severity, read_head, verify_audit
 from cellctl.recording.cycle_log import CycleLog
-from cellctl.recording.index import GENESIS, CycleIndex, file_sha256, row_hash
+from cellctl.recording.index import GENESIS, CycleIndex, row_hash
 
 N = 5
 

@@ -18,10 +18,11 @@ from mcap.writer import CompressionType, Writer
 
 from cellctl.cli import main
 from cellctl.errors import RecordingError
+from cellctl.hashing import file_sha256
 from cellctl.messages import Status
 from cellctl.recording.audit import FindingKind, checked_log, find_cycle, verify_audit
 from cellctl.recording.cycle_log import CycleLog
-from cellctl.recording.index import GENESIS, CycleIndex, CycleRow, file_sha256, row_hash
+from cellctl.recording.index import GENESIS, CycleIndex, CycleRow, row_hash
 from cellctl.recording.recover import recover_mcap, recovered_path
 from cellctl.recording.replay import read_cycle
 

@@ -6,10 +6,13 @@ import numpy as np
 import pytest
 
 from cellctl.config import project_root
-from cellctl.geometry.catalog import EXTERNAL, INTERNAL, load_catalog
+from cellctl.geometry.camera import D435_COLOR
+from cellctl.geometry.catalog import load_catalog
+from cellctl.geometry.transforms import look_at
 from cellctl.sim import scene
 from cellctl.sim.ground_truth import PowderField
-from cellctl.sim.render import D435_COLOR, RenderParams, SimRenderer, look_at, scaled_intrinsics
+from cellctl.sim.render import RenderParams, SimRenderer
+from cellctl.surface import EXTERNAL, INTERNAL
 
 
 @pytest.fixture(scope="module")
@@ -25,9 +28,7 @@ def test_each_bin_renders_with_its_board(renderer: SimRenderer, name: str) -> No
     from cellctl.geometry.boards import make_charuco_board
 
     bt = renderer.catalog.get(name)
-    out = renderer.render_bin_view(
-        name, scene.observation_T_bin_cam(bt, 0), scaled_intrinsics(D435_COLOR, 0.5), dirty=False
-    )
+    out = renderer.render_bin_view(name, scene.observation_T_bin_cam(bt, 0), D435_COLOR.scaled(0.5), dirty=False)
     assert out.rgb.shape == (360, 640, 3) and out.rgb.dtype == np.uint8
     gray = cv2.cvtColor(out.rgb, cv2.COLOR_RGB2GRAY)
     det = cv2.aruco.ArucoDetector(make_charuco_board(bt.board).getDictionary(), cv2.aruco.DetectorParameters())
@@ -39,7 +40,7 @@ def test_each_bin_renders_with_its_board(renderer: SimRenderer, name: str) -> No
 
 def test_powder_shows_only_when_dirty_and_the_mask_marks_it(renderer: SimRenderer) -> None:
     T = look_at([0.0, -0.75, -0.15], [0.0, -0.37, -0.3])  # close to the board-side wall
-    K = scaled_intrinsics(D435_COLOR, 0.25)
+    K = D435_COLOR.scaled(0.25)
     quiet = RenderParams(noise_sigma=0.0)
     clean = renderer.render_bin_view("case_study", T, K, dirty=False, params=quiet)
     assert not clean.powder_mask.any()
@@ -59,7 +60,7 @@ def test_powder_shows_only_when_dirty_and_the_mask_marks_it(renderer: SimRendere
 def test_render_is_deterministic_and_parameters_matter(renderer: SimRenderer) -> None:
     bt = renderer.catalog.get("drum")
     T = scene.observation_T_bin_cam(bt, 1)
-    K = scaled_intrinsics(D435_COLOR, 0.2)
+    K = D435_COLOR.scaled(0.2)
     a = renderer.render_bin_view("drum", T, K, dirty=True, seed=3)
     b = renderer.render_bin_view("drum", T, K, dirty=True, seed=3)
     assert np.array_equal(a.rgb, b.rgb) and np.array_equal(a.powder_mask, b.powder_mask)
@@ -69,7 +70,7 @@ def test_render_is_deterministic_and_parameters_matter(renderer: SimRenderer) ->
 
 def test_looking_into_the_hole_sees_the_polished_inside(renderer: SimRenderer) -> None:
     T = look_at([0.0, -0.3, 0.45], [0.0, 0.1, -0.6])
-    out = renderer.render_bin_view("case_study", T, scaled_intrinsics(D435_COLOR, 0.25), dirty=False)
+    out = renderer.render_bin_view("case_study", T, D435_COLOR.scaled(0.25), dirty=False)
     assert (out.surface == INTERNAL).sum() > 1000 and (out.surface == EXTERNAL).sum() > 100
 
 

@@ -12,10 +12,9 @@ import pytest
 from cellctl.config import CellConfig, load_config
 from cellctl.errors import RobotError
 from cellctl.geometry import robot_model as rm
-from cellctl.geometry.transforms import invert, pose_error
+from cellctl.geometry.transforms import invert, look_at, pose_error
 from cellctl.messages import ApproachRequest, MoveRequest, PoseMsg, SimScenarioRequest
 from cellctl.sim import scene
-from cellctl.sim.render import look_at
 from cellctl.workers.robot import make_robot
 
 

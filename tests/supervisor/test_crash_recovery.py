@@ -21,8 +21,8 @@ from cellctl.bus import keys
 from cellctl.cli import main
 from cellctl.config import load_config
 from cellctl.errors import ConfigError
+from cellctl.hashing import file_sha256
 from cellctl.recording.audit import find_cycle, verify_audit
-from cellctl.recording.index import file_sha256
 from cellctl.recording.recover import recovered_path
 from cellctl.recording.replay import read_cycle, verify
 from tests.conftest import cfg_overrides, free_port

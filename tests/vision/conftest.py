@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from cellctl.geometry.catalog import BoardSpec
 from cellctl.messages import Intrinsics
-from cellctl.vision.board import BoardSpec
 
 from .scenes import INTR, SPEC_A, SPEC_B
 

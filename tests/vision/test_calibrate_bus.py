@@ -12,7 +12,7 @@ import yaml
 
 from cellctl.bus.session import open_session
 from cellctl.errors import RobotError
-from cellctl.geometry.transforms import invert, pose_error, transform_from_xyz_rpy
+from cellctl.geometry.transforms import invert, look_at, pose_error, transform_from_xyz_rpy
 from cellctl.messages import (
     CaptureReply,
     CaptureRequest,
@@ -22,7 +22,7 @@ from cellctl.messages import (
     RobotState,
     RobotStateRequest,
 )
-from cellctl.vision.collect import collect_hand_eye, look_at
+from cellctl.vision.collect import collect_hand_eye
 from cellctl.vision.render import render_boards
 from cellctl.workers._server import WorkerServer
 

@@ -8,6 +8,7 @@ import pytest
 from cellctl.errors import CellError
 from cellctl.geometry.transforms import (
     invert,
+    look_at,
     pose_error,
     rotation_about,
     transform_from,
@@ -24,17 +25,6 @@ X_TRUE = transform_from_xyz_rpy((0.06, -0.015, 0.09), (0.02, -0.03, np.pi / 2))
 T_BASE_BOARD = transform_from_xyz_rpy((1.1, 0.2, 0.5), (-np.pi / 2, 0.0, np.pi / 2))
 
 
-def _look_at(eye: np.ndarray, target: np.ndarray, roll: float) -> np.ndarray:
-    """Camera pose (optical frame, +z forward, +y down) at ``eye`` looking at ``target``."""
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    R = np.column_stack([x, y, z]) @ rotation_about((0, 0, 1), roll)
-    return transform_from(R, eye)
-
-
 def _arm_poses(n: int, rng: np.random.Generator, distance: float = 0.7) -> list[np.ndarray]:
     """Flange poses whose camera looks at the board centre from a spherical cap."""
     c = T_BASE_BOARD[:3, :3] @ np.array([0.21, 0.15, 0.0]) + T_BASE_BOARD[:3, 3]
@@ -43,7 +33,7 @@ def _arm_poses(n: int, rng: np.random.Generator, distance: float = 0.7) -> list[
     for _ in range(n):
         d = normal + rng.normal(0, 0.35, 3)
         d /= np.linalg.norm(d)
-        T_base_cam = _look_at(c + distance * d, c, rng.uniform(-0.5, 0.5))
+        T_base_cam = look_at(c + distance * d, c, roll_rad=rng.uniform(-0.5, 0.5))
         out.append(T_base_cam @ invert(X_TRUE))
     return out
 

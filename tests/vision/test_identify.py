@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from cellctl.errors import IdentificationError
+from cellctl.geometry.catalog import BoardSpec
 from cellctl.geometry.transforms import invert, pose_error, transform_from_xyz_rpy
 from cellctl.messages import Intrinsics
 from cellctl.vision import IdentifySettings, identify
-from cellctl.vision.board import BoardSpec, board_centre
+from cellctl.vision.board import board_centre
 from cellctl.vision.render import RenderSettings, board_outline, project, render_boards, view_of_board
 
 from .scenes import INTR, SPEC_A, SPEC_B, SPEC_FOREIGN
@@ -162,7 +163,7 @@ def test_collinear_corners(catalog) -> None:
 
 def test_ambiguous_small_far_board() -> None:
     """A 28 cm board seen almost head-on from 2.2 m: IPPE's two solutions fit equally well."""
-    small = BoardSpec(squares_x=7, squares_y=5, square_m=0.04, marker_m=0.03, first_id=0)
+    small = BoardSpec(squares_x=7, squares_y=5, square_m=0.04, marker_m=0.03, first_id=0, T_bin_board=np.eye(4))
     rng = np.random.default_rng(12)
     T = view_of_board(small, INTR, 2.2, float(rng.uniform(0, 10)), float(rng.uniform(0, 360)))
     err = _reason(render_boards([(small, T)], INTR, rng=rng), {"small": small})

@@ -15,15 +15,15 @@ scene_mod = pytest.importorskip("cellctl.sim.scene")
 
 @pytest.fixture(scope="module")
 def twin():
+    from cellctl.geometry.camera import CameraModel
     from cellctl.geometry.catalog import load_catalog
-    from cellctl.vision.bench import configured_intrinsics
 
     cfg = load_config()
     try:
         cat = load_catalog(cfg.path(cfg.catalog))
     except Exception as err:  # the twin's meshes are generated assets
         pytest.skip(f"bin catalog not usable: {err}")
-    return cat, render_mod.SimRenderer(cat), configured_intrinsics(cfg)
+    return cat, render_mod.SimRenderer(cat), CameraModel.from_config(cfg.camera).intrinsics()
 
 
 @pytest.mark.parametrize("index", [0])

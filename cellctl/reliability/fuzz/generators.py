@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from cellctl.messages import MESSAGE_TYPES, PackMLCommand
+from cellctl.surface import SURFACES
 
 __all__ = ["CATEGORIES", "CATEGORIES_HOSTILE", "REJECT", "CommandFuzzer", "FuzzCase"]
 
@@ -116,7 +117,7 @@ class CommandFuzzer:
             obj["params"] = r.choice(
                 [
                     {"mode": "evaluate"},
-                    {"surface": r.choice(["external", "internal"])},
+                    {"surface": r.choice(list(SURFACES))},
                     {"mode": "collect", "label": r.choice(["clean", "dirty"]), "perturb_m": 0.01, "seed": 7},
                 ]
             )

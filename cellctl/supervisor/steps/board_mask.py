@@ -13,7 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from cellctl.errors import CellError
 from cellctl.geometry.transforms import invert
+from cellctl.images import decode_image
 from cellctl.messages import Intrinsics
 
 __all__ = ["mask_board"]
@@ -45,9 +47,10 @@ def mask_board(png: bytes, bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np
     W, H = intr.width, intr.height
     if poly[:, 0].max() < 0 or poly[:, 0].min() > W or poly[:, 1].max() < 0 or poly[:, 1].min() > H:
         return png
-    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
-    if img is None:
-        return png
+    try:
+        img = decode_image(png, "to mask", order="bgr")
+    except CellError:
+        return png  # not ours to judge: the classifier refuses what it cannot decode
     sx, sy = img.shape[1] / W, img.shape[0] / H
     pts = np.round(poly * [sx, sy]).astype(np.int32)
     mask = np.zeros(img.shape[:2], np.uint8)

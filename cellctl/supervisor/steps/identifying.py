@@ -6,15 +6,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cellctl.bus import topics
 from cellctl.errors import CameraError, IdentificationError, WorkerFailed
+from cellctl.images import IMAGE_MAGIC, decode_image
 from cellctl.messages import ApproachReply, ApproachRequest, CaptureReply, CaptureRequest, EventLevel
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 
 if TYPE_CHECKING:
     from cellctl.vision.identify import Identification
-
-_MAGIC = {"png": b"\x89PNG\r\n\x1a\n", "jpeg": b"\xff\xd8\xff"}
 
 
 def captured_image(reply: CaptureReply, image: bytes | None) -> bytes:
@@ -23,21 +23,11 @@ def captured_image(reply: CaptureReply, image: bytes | None) -> bytes:
     A signature check, not a decode: scanning hands the bytes on to the classifier without decoding.
     """
     data = image or b""
-    if not data.startswith(_MAGIC[reply.format]):
+    if not data.startswith(IMAGE_MAGIC[reply.format]):
         raise CameraError(
             f"camera answered capture with {len(data)} bytes that are not a {reply.format} image (starts {data[:8]!r})"
         )
     return data
-
-
-def decode_image(data: bytes) -> np.ndarray:
-    """Decode PNG/JPEG bytes to a BGR image, or raise CameraError."""
-    import cv2
-
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR) if data else None
-    if img is None:
-        raise CameraError(f"camera returned {len(data)} bytes that are not a decodable image")
-    return img
 
 
 class Identifying(Step):
@@ -51,12 +41,13 @@ class Identifying(Step):
         ctx = run.ctx
         reply, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
         data = captured_image(reply, image)
-        ctx.log.image("/camera/image", data, reply.format, "camera")
+        ctx.log.image(topics.CAMERA_IMAGE, data, reply.format, "camera")
         if ctx.identify is None:
             raise IdentificationError("no identifier is configured in this supervisor")
-        ident = ctx.identify(decode_image(data), reply.intrinsics, T_base_cam, ctx.catalog)
+        bgr = decode_image(data, f"from the camera ({reply.format})", order="bgr", error=CameraError)
+        ident = ctx.identify(bgr, reply.intrinsics, T_base_cam, ctx.catalog)
         record = ident.to_dict() if hasattr(ident, "to_dict") else {"bin_type": ident.bin_type}
-        ctx.log.write_json("/bin/identification", "cellctl.Identification", record)
+        ctx.log.write_json(topics.BIN_IDENTIFICATION, "cellctl.Identification", record)
         return ident
 
     def execute(self, run: StepRun) -> str:
@@ -89,7 +80,7 @@ class Identifying(Step):
             from cellctl.vision import fuse
 
             fused = fuse(views)
-            ctx.log.write_json("/bin/identification_fused", "cellctl.FusedIdentification", fused.to_dict())
+            ctx.log.write_json(topics.BIN_IDENTIFICATION_FUSED, "cellctl.FusedIdentification", fused.to_dict())
             bin_type, T_base_bin = fused.bin_type, np.asarray(fused.T_base_bin)
             note = f" from {len(fused.used)} fused views (±{fused.sigma_bin_origin_mm:.1f} mm)"
             ctx.identification = fused
@@ -103,7 +94,7 @@ class Identifying(Step):
         ctx.T_base_bin = T_base_bin
         from cellctl.recording import foxglove
 
-        ctx.log.write_json("/bin/pose", "foxglove.PoseInFrame", foxglove.pose_in_frame("base", T_base_bin))
-        ctx.log.write_json("/tf", "foxglove.FrameTransform", foxglove.frame_transform("base", "bin", T_base_bin))
+        ctx.log.write_json(topics.BIN_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", T_base_bin))
+        ctx.log.write_json(topics.TF, "foxglove.FrameTransform", foxglove.frame_transform("base", "bin", T_base_bin))
         run.event("info", f"identified bin {bin_type!r}{note}")
         return "succeeded"

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from cellctl.bus import topics
 from cellctl.messages import CycleOutcome
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
+from cellctl.surface import FACE_TAG, Surface
 
 
-def dirt_map(plan, viewpoints, mesh=None, surface: str = "external") -> tuple[dict, float | None]:  # noqa: ANN001
+def dirt_map(plan, viewpoints, mesh=None, surface: Surface = "external") -> tuple[dict, float | None]:  # noqa: ANN001
     """Project each viewpoint's label onto the faces visible from it.
 
     A face seen dirty from any viewpoint is dirty; a face seen only clean is clean; a face no
@@ -30,7 +32,7 @@ def dirt_map(plan, viewpoints, mesh=None, surface: str = "external") -> tuple[di
     coverage = len(seen) / total if total else None
     if mesh is not None:
         total = mesh.n_faces
-        on_surface = mesh.surface == (0 if surface == "external" else 1)
+        on_surface = mesh.surface == FACE_TAG[surface]
         areas = mesh.areas
         idx = np.fromiter(seen, dtype=np.int64, count=len(seen))
         idx = idx[(idx >= 0) & (idx < total)]
@@ -76,7 +78,7 @@ class Reporting(Step):
             )
             cams.append((v.camera_pose.matrix(), colour, f"{v.index}"))
         ctx.log.write_json(
-            "/scene",
+            topics.SCENE,
             "foxglove.SceneUpdate",
             foxglove.scene_update("base", ctx.T_base_bin, mesh.vertices, mesh.faces, rgba, cams),
         )

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cellctl.bus import topics
 from cellctl.errors import WorkerFailed
 from cellctl.messages import (
     CaptureReply,
@@ -72,9 +73,9 @@ class Scanning(Step):
                 continue
             cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
             data = captured_image(cap, image)
-            ctx.log.image("/camera/image", data, cap.format, "camera")
+            ctx.log.image(topics.CAMERA_IMAGE, data, cap.format, "camera")
             ctx.log.write_json(
-                "/camera/pose", "foxglove.PoseInFrame", foxglove.pose_in_frame("base", moved.camera_pose.matrix())
+                topics.CAMERA_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", moved.camera_pose.matrix())
             )
             result = ViewpointResult(index=vp.index, camera_pose=moved.camera_pose)
             if collect:

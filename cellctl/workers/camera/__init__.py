@@ -18,13 +18,11 @@ import threading
 from cellctl.config import CellConfig
 from cellctl.errors import CameraError, ConfigError
 from cellctl.messages import CaptureReply, CaptureRequest
-from cellctl.workers.camera._port import Camera, encode_image, intrinsics_from_config
+from cellctl.workers.camera._port import Camera
 
 __all__ = [
     "BACKENDS",
     "Camera",
-    "encode_image",
-    "intrinsics_from_config",
     "make_camera",
     "run_worker",
     "serve_camera",

@@ -7,8 +7,10 @@ from pathlib import Path
 
 from cellctl.config import CellConfig
 from cellctl.errors import CameraError
+from cellctl.geometry.camera import CameraModel
+from cellctl.images import decode_image, encode_image
 from cellctl.messages import CaptureReply
-from cellctl.workers.camera._port import Camera, encode_image, intrinsics_from_config
+from cellctl.workers.camera._port import Camera
 
 __all__ = ["FolderCamera"]
 
@@ -22,7 +24,7 @@ class FolderCamera(Camera):
 
     def __init__(self, cfg: CellConfig) -> None:
         self.folder = cfg.path(cfg.camera.folder) if cfg.camera.folder is not None else None
-        self.intrinsics = intrinsics_from_config(cfg.camera)
+        self.intrinsics = CameraModel.from_config(cfg.camera).intrinsics()
         self._files: list[Path] = []
         self._next = itertools.count()
 
@@ -41,15 +43,10 @@ class FolderCamera(Camera):
         return bool(self._files)
 
     def capture(self, fmt: str) -> tuple[CaptureReply, bytes]:
-        import cv2
-        import numpy as np
-
         self._require_connected()
         path = self._files[next(self._next) % len(self._files)]
         data = path.read_bytes()
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-        if img is None:
-            raise CameraError(f"image {str(path)!r} cannot be decoded")
+        rgb = decode_image(data, repr(str(path)), error=CameraError)  # refuse a broken file even when passed on as is
         if EXTENSIONS[path.suffix.lower()] != fmt:
-            data = encode_image(img[..., ::-1], fmt)
+            data = encode_image(rgb, fmt, CameraError)
         return CaptureReply(format=fmt, intrinsics=self.intrinsics), data

@@ -6,8 +6,10 @@ from typing import Any
 
 from cellctl.config import CellConfig
 from cellctl.errors import CameraError
+from cellctl.geometry.camera import CameraModel
+from cellctl.images import encode_image
 from cellctl.messages import CaptureReply
-from cellctl.workers.camera._port import Camera, encode_image, intrinsics_from_config
+from cellctl.workers.camera._port import Camera
 
 __all__ = ["OpenCVCamera"]
 
@@ -20,7 +22,7 @@ class OpenCVCamera(Camera):
     def __init__(self, cfg: CellConfig) -> None:
         self.device = cfg.camera.device
         self.cam_cfg = cfg.camera
-        self.intrinsics = intrinsics_from_config(cfg.camera)
+        self.intrinsics = CameraModel.from_config(cfg.camera).intrinsics()
         self._cap: Any = None
 
     def connect(self) -> None:
@@ -50,7 +52,7 @@ class OpenCVCamera(Camera):
                 f"camera device {self.device!r} delivers {w}x{h}, but the intrinsics are for "
                 f"{self.intrinsics.width}x{self.intrinsics.height}; set camera.width/height"
             )
-        return CaptureReply(format=fmt, intrinsics=self.intrinsics), encode_image(frame[..., ::-1], fmt)
+        return CaptureReply(format=fmt, intrinsics=self.intrinsics), encode_image(frame[..., ::-1], fmt, CameraError)
 
     def close(self) -> None:
         if self._cap is not None:

@@ -15,8 +15,10 @@ import numpy as np
 from cellctl.config import CellConfig
 from cellctl.errors import CameraError, CellError
 from cellctl.geometry import robot_model as rm
+from cellctl.geometry.camera import CameraModel
+from cellctl.images import encode_image
 from cellctl.messages import CaptureReply, PoseMsg, SimState
-from cellctl.workers.camera._port import Camera, encode_image, intrinsics_from_config
+from cellctl.workers.camera._port import Camera
 
 __all__ = ["SimCamera"]
 
@@ -34,7 +36,7 @@ class SimCamera(Camera):
     def __init__(self, cfg: CellConfig, state_fn: Callable[[], SimState]) -> None:
         self.cfg = cfg
         self.state_fn = state_fn
-        self.intrinsics = intrinsics_from_config(cfg.camera)
+        self.intrinsics = CameraModel.from_config(cfg.camera).intrinsics()
         self._renderer = None
         self._frames = itertools.count()
 
@@ -75,6 +77,6 @@ class SimCamera(Camera):
             params=RenderParams(noise_sigma=self.cfg.camera.noise_sigma),
             seed=next(self._frames),
         )
-        data = encode_image(out.rgb, fmt)
+        data = encode_image(out.rgb, fmt, CameraError)
         # the camera pose is reported in the robot base frame, as the robot knows it (FK)
         return CaptureReply(format=fmt, intrinsics=self.intrinsics, camera_pose=PoseMsg.from_matrix(T_base_cam)), data

@@ -25,7 +25,9 @@ from cellctl.bus import keys
 from cellctl.bus.codec import MAX_PAYLOAD_BYTES, decode_as, encode
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, ClassifierError, ConfigError, ProtocolError
+from cellctl.images import MAX_IMAGE_BYTES, decode_image
 from cellctl.messages import ClassifyReply, ClassifyRequest, ErrorReply
+from cellctl.surface import check_surface
 
 __all__ = ["BACKENDS", "BatchingClassifyServer", "ClassifierService", "run_worker"]
 
@@ -33,7 +35,6 @@ log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
 
 BACKENDS = ("torch",)
-MAX_IMAGE_BYTES = 32 * 1024 * 1024
 
 
 class ClassifierService:
@@ -60,20 +61,16 @@ class ClassifierService:
 
     def classify(self, items: list[tuple[ClassifyRequest, bytes]]) -> list[ClassifyReply | CellError]:
         """Classify a batch; each item gets a reply or the error that refuses it."""
-        from cellctl.classify.collect import SURFACES
-        from cellctl.classify.data import decode_image
-
         out: list[ClassifyReply | CellError | None] = [None] * len(items)
         groups: dict[str, list[tuple[int, Any]]] = {}
         for i, (req, data) in enumerate(items):
             try:
-                if req.surface not in SURFACES:
-                    raise ClassifierError(f"surface {req.surface!r} is unknown; expected one of {list(SURFACES)}")
+                check_surface(req.surface, ClassifierError)
                 if req.surface not in self.models:
                     raise ClassifierError(f"no model for surface {req.surface!r}: {self.problems.get(req.surface)}")
                 if len(data) > MAX_IMAGE_BYTES:
                     raise ClassifierError(f"image of {len(data)} bytes exceeds the limit of {MAX_IMAGE_BYTES} bytes")
-                img = decode_image(data, f"({req.format}, {len(data)} bytes)")
+                img = decode_image(data, f"({req.format}, {len(data)} bytes)", error=ClassifierError)
                 groups.setdefault(req.surface, []).append((i, img))
             except CellError as err:
                 out[i] = err

@@ -1,0 +1,118 @@
+"""Encoded images on the bus and on disk: limits, signatures, the one encoder and decoder.
+
+Camera captures travel as PNG or JPEG bytes (a query payload), are recorded as such in
+MCAP logs, stored as PNG in datasets and decoded by the identifier (BGR, OpenCV's order)
+and the classifier (RGB). Every one of those paths uses the functions here, so a grey,
+16-bit or RGBA file, an empty payload or a 20 000-px image is treated the same everywhere.
+
+Light module: numpy at import, OpenCV only inside :func:`encode_image`/:func:`decode_image`
+(the daemon decodes images for identification, but importing this module stays cheap).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.errors import CellError
+
+__all__ = [
+    "IMAGE_MAGIC",
+    "MAX_IMAGE_BYTES",
+    "MAX_IMAGE_SIDE",
+    "MIN_IMAGE_SIDE",
+    "ImageFormat",
+    "decode_image",
+    "encode_image",
+    "image_format",
+]
+
+ImageFormat = Literal["png", "jpeg"]
+"""An encoded image's format, as wire messages name it."""
+
+MAX_IMAGE_BYTES = 32 * 1024 * 1024
+"""Largest encoded image a worker accepts as a query payload (a 1280×720 PNG is ~1–2 MB)."""
+MAX_IMAGE_SIDE = 8192
+"""Largest accepted image side in pixels (a bigger one is refused, not resized)."""
+MIN_IMAGE_SIDE = 16
+"""Smallest accepted image side in pixels: below this there is nothing to identify or classify."""
+
+IMAGE_MAGIC: dict[ImageFormat, bytes] = {"png": b"\x89PNG\r\n\x1a\n", "jpeg": b"\xff\xd8\xff"}
+"""The leading bytes of each format (a signature check, not a decode)."""
+
+
+def image_format(data: bytes) -> ImageFormat | None:
+    """The format whose signature ``data`` starts with, or None."""
+    for fmt, magic in IMAGE_MAGIC.items():
+        if data.startswith(magic):
+            return fmt
+    return None
+
+
+def encode_image(rgb: NDArray[np.uint8], fmt: str, error: type[CellError] = CellError) -> bytes:
+    """Encode an RGB ``(H, W, 3)`` uint8 image as PNG or JPEG bytes.
+
+    Raises:
+        error: unknown format or the encoder failed.
+    """
+    import cv2
+
+    ext = {"png": ".png", "jpeg": ".jpg"}.get(fmt)
+    if ext is None:
+        raise error(f"image format {fmt!r} is unknown; expected 'png' or 'jpeg'")
+    ok, buf = cv2.imencode(ext, np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise error(f"cannot encode a {rgb.shape} image as {fmt}")
+    return buf.tobytes()
+
+
+def decode_image(
+    data: bytes,
+    source: str = "<bytes>",
+    *,
+    order: Literal["rgb", "bgr"] = "rgb",
+    error: type[CellError] = CellError,
+) -> NDArray[np.uint8]:
+    """Decode PNG/JPEG bytes to a uint8 ``(H, W, 3)`` array.
+
+    Grey images are expanded to three channels, an alpha channel is dropped and 16-bit
+    images keep their high byte, so every caller gets the same 8-bit colour array.
+
+    Args:
+        data: the encoded bytes.
+        source: how messages name the image (a file path, "(png, 1234 bytes)").
+        order: channel order of the result: ``rgb`` (classifier, datasets) or ``bgr``
+            (OpenCV's, the identifier's).
+        error: the exception class to raise (the caller's family: CameraError, ClassifierError).
+
+    Raises:
+        error: empty or undecodable bytes, or sides outside
+            [:data:`MIN_IMAGE_SIDE`, :data:`MAX_IMAGE_SIDE`].
+    """
+    import cv2
+
+    if not data:
+        raise error(f"image {source} is empty (0 bytes); expected PNG or JPEG bytes")
+    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise error(
+            f"image {source} ({len(data)} bytes, starts {bytes(data[:8])!r}) cannot be decoded; expected PNG or JPEG"
+        )
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)
+    if img.dtype != np.uint8:
+        raise error(f"image {source} has dtype {img.dtype}; expected 8-bit")
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    elif img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise error(f"image {source} has shape {img.shape}; expected H×W×3 colour (or grey/RGBA)")
+    h, w = img.shape[:2]
+    if min(h, w) < MIN_IMAGE_SIDE or max(h, w) > MAX_IMAGE_SIDE:
+        raise error(f"image {source} is {w}×{h} px; expected sides between {MIN_IMAGE_SIDE} and {MAX_IMAGE_SIDE} px")
+    if order == "rgb":
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return np.ascontiguousarray(img)
