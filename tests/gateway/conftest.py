@@ -15,10 +15,13 @@ from asyncua import Client, ua
 
 from cellctl.app import build_cell
 from cellctl.bus import keys
+from cellctl.bus.codec import encode
+from cellctl.bus.plc_client import PlcClient
 from cellctl.bus.session import open_session
-from cellctl.config import CellConfig
+from cellctl.config import CellConfig, load_config
 from cellctl.gateway.opcua import CELLCTL_NS, OpcuaConfig, OpcuaGateway, load_gateway_config
-from tests.conftest import free_port
+from cellctl.messages import Command
+from tests.conftest import cfg_overrides, free_port
 from tests.fakes.workers import fake_identify
 
 USER, PASSWORD = "line-plc", "line-plc-password-1"
@@ -67,28 +70,70 @@ def make_daemon(cfg: CellConfig) -> Any:
     return build_cell(cfg, identification=(fake_identify, load_catalog(cfg.path(cfg.catalog))))
 
 
-@pytest.fixture
-def daemon(cfg: CellConfig) -> Iterator[Any]:
-    c = make_daemon(cfg)
-    yield c
-    c.close()
+@pytest.fixture(scope="module")
+def shared_cfg(tmp_path_factory: pytest.TempPathFactory) -> CellConfig:
+    """One daemon and gateway per test module: asyncua's server takes seconds to build its standard address space."""
+    tmp = tmp_path_factory.mktemp("gw")
+    return load_config(None, cfg_overrides(tmp, free_port()))
+
+
+@pytest.fixture(scope="module")
+def shared_gw_cfg(tmp_path_factory: pytest.TempPathFactory) -> OpcuaConfig:
+    return make_gw_cfg(tmp_path_factory.mktemp("gw-users"))
+
+
+@pytest.fixture(scope="module")
+def shared_cell(shared_cfg: CellConfig, shared_gw_cfg: OpcuaConfig) -> Iterator[tuple[Any, OpcuaGateway]]:
+    c = make_daemon(shared_cfg)
+    gw = OpcuaGateway(shared_cfg, shared_gw_cfg).start_thread()
+    try:
+        wait_until(lambda: gw._down.get(shared_cfg.cell_id) is None, 20, "the gateway's first Status")
+        yield c, gw
+    finally:
+        gw.close()
+        c.close()
 
 
 @pytest.fixture
-def gw_cfg(tmp_path: Path) -> OpcuaConfig:
-    users = tmp_path / "opcua-users"
+def cfg(shared_cfg: CellConfig) -> CellConfig:  # the module's cell, for FakeCell and the spy
+    return shared_cfg
+
+
+@pytest.fixture
+def daemon(shared_cell: tuple[Any, OpcuaGateway]) -> Any:
+    return shared_cell[0]
+
+
+@pytest.fixture
+def gw_cfg(shared_gw_cfg: OpcuaConfig) -> OpcuaConfig:
+    return shared_gw_cfg
+
+
+@pytest.fixture
+def gateway(shared_cfg: CellConfig, shared_cell: tuple[Any, OpcuaGateway]) -> OpcuaGateway:
+    """The module's gateway, with the cell brought back to Stopped in Production and the tags cleared."""
+    cell, gw = shared_cell
+    with PlcClient(shared_cfg, "gw-test-setup") as plc:
+        st = plc.status()
+        if st.state not in ("Stopped", "Aborted"):
+            plc.command("abort")
+            wait_until(lambda: plc.status().state == "Aborted", 10, "Aborted")
+        if plc.status().state == "Aborted":
+            plc.command("clear")
+            wait_until(lambda: plc.status().state == "Stopped", 10, "Stopped")
+        if plc.status().unit_mode != "production":
+            plc.session.get(keys.cmd(shared_cfg.cell_id), payload=encode(Command(unit_mode="production")), timeout=5)
+    wait_until(lambda: gw._values.get(gw._spaces["cell1"].nodeid("Status/StateName")) == "Stopped", 10)
+    gw.commands_sent = 0
+    return gw
+
+
+def make_gw_cfg(folder: Path, *extra: str) -> OpcuaConfig:
+    users = folder / "opcua-users"
     users.write_text(f"# who may command\n{USER}:{PASSWORD}\n")
     return load_gateway_config(
-        None, [f"endpoint=opc.tcp://127.0.0.1:{free_port()}", f"users_file={users}", "stale_after_s=1.5"]
+        None, [f"endpoint=opc.tcp://127.0.0.1:{free_port()}", f"users_file={users}", "stale_after_s=1.5", *extra]
     )
-
-
-@pytest.fixture
-def gateway(cfg: CellConfig, daemon: Any, gw_cfg: OpcuaConfig) -> Iterator[OpcuaGateway]:
-    gw = OpcuaGateway(cfg, gw_cfg).start_thread()
-    wait_until(lambda: gw._down.get(cfg.cell_id) is None, 10, "the gateway's first Status")
-    yield gw
-    gw.close()
 
 
 @pytest.fixture
@@ -164,3 +209,9 @@ class Ua:
 @pytest.fixture
 def url(gw_cfg: OpcuaConfig) -> str:
     return gw_cfg.endpoint
+
+
+@pytest.fixture
+def own_cfgs(tmp_path: Path) -> tuple[CellConfig, OpcuaConfig]:
+    """A private bus port and gateway endpoint, for tests that start and stop their own daemon."""
+    return load_config(None, cfg_overrides(tmp_path, free_port())), make_gw_cfg(tmp_path)

@@ -135,6 +135,7 @@ def test_start_params_travel_with_start(gateway: OpcuaGateway, spy, url: str) ->
             st, reason = await c.call("Start")  # collect mode without a label: the daemon refuses
             assert st.value == S.BadInvalidArgument and "label" in reason
             assert await c.read("Status/StateCurrent") == PackMLState.Idle
+            assert (await c.write("Command/Parameter/Mode", "", ua.VariantType.String)).is_good()
 
     run(body())
     assert json.loads(spy.payloads[-1])["params"] == {"mode": "collect"}
@@ -211,7 +212,9 @@ def test_sim_cycle_counts_in_admin(cfg, gateway: OpcuaGateway, url: str, how: st
         run(body())
 
 
-def test_daemon_down_then_back(cfg, gw_cfg, url: str) -> None:  # noqa: ANN001
+def test_daemon_down_then_back(own_cfgs) -> None:  # noqa: ANN001
+    cfg, gw_cfg = own_cfgs
+    url = gw_cfg.endpoint
     cell = make_daemon(cfg)
     gw = OpcuaGateway(cfg, gw_cfg).start_thread()
     try:
@@ -242,7 +245,9 @@ def test_daemon_down_then_back(cfg, gw_cfg, url: str) -> None:  # noqa: ANN001
         cell.close()
 
 
-def test_gateway_waits_for_a_daemon_that_is_not_there_yet(cfg, gw_cfg, url: str) -> None:  # noqa: ANN001
+def test_gateway_waits_for_a_daemon_that_is_not_there_yet(own_cfgs) -> None:  # noqa: ANN001
+    cfg, gw_cfg = own_cfgs
+    url = gw_cfg.endpoint
     gw = OpcuaGateway(cfg, gw_cfg).start_thread()
     cell = None
     try:
