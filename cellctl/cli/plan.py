@@ -87,6 +87,7 @@ def plan_summary(plan: Plan) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from cellctl.geometry.camera import CameraModel
     from cellctl.planning.mesh import load_bin_mesh, load_catalog_mesh
     from cellctl.planning.pipeline import PlanParams, base_pose_from_xyz_yaw, make_plan
     from cellctl.planning.planfile import plan_path, write_plan
@@ -106,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed if args.seed is not None else pc.seed,
         paper_budget_s=float(args.paper_budget) if args.paper_budget is not None else PlanParams.paper_budget_s,
         paper_fallback=not args.paper_strict,
+        camera=CameraModel.from_config(cfg.camera),
     )
     plan = make_plan(
         mesh,

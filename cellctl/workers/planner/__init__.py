@@ -216,6 +216,7 @@ class PlannerService:
         """Plan one job (blocking), write the plan into the cache and the job record."""
         import dataclasses
 
+        from cellctl.geometry.camera import CameraModel
         from cellctl.geometry.transforms import invert
         from cellctl.planning.pipeline import make_plan
         from cellctl.planning.plan import PlanParams
@@ -237,6 +238,7 @@ class PlannerService:
                 mode=req.mode,
                 seed=req.seed,
                 q_start=tuple(req.q_start) if req.q_start is not None else None,
+                camera=CameraModel.from_config(self.cfg.camera),  # the camera the cycle will capture with
             )
             mesh = self._mesh(req.bin_type)
             T_bin_base = invert(req.bin_pose.matrix())
