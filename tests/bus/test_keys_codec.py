@@ -98,3 +98,41 @@ def test_schemas_cover_every_message() -> None:
     assert set(schemas) == set(MESSAGE_TYPES)
     assert schemas["cellctl/Command"]["properties"]["type"]["const"] == "cellctl/Command"
     json.dumps(schemas)
+
+
+def test_schemas_show_the_start_params_and_the_new_status_fields() -> None:
+    schemas = json_schemas()
+    start = schemas["cellctl/StartParams"]["properties"]
+    assert {"mode", "label", "surface", "perturb_m", "seed", "dataset"} <= set(start)
+    assert start["mode"]["enum"] == ["evaluate", "collect"]
+    assert {"unit_mode", "unit_mode_code", "admin"} <= set(schemas["cellctl/Status"]["properties"])
+    assert {"unit_mode", "unit_mode_code", "user"} <= set(schemas["cellctl/Command"]["properties"])
+    assert {"user", "unit_mode"} <= set(schemas["cellctl/Ack"]["properties"])
+
+
+def test_old_payloads_still_decode_with_the_additive_fields_defaulted() -> None:
+    st = decode_as(
+        Status, b'{"type":"cellctl/Status","v":1,"cell":"c","state":"Idle","state_code":4,"available_commands":[]}'
+    )
+    assert (st.unit_mode, st.unit_mode_code, st.admin.prod_processed_count) == ("production", 1, 0)
+    ack = decode_as(Ack, b'{"type":"cellctl/Ack","v":1,"request_id":null,"accepted":false,"state":"Idle"}')
+    assert ack.user is None and ack.unit_mode is None
+
+
+@pytest.mark.parametrize(
+    "data, rid",
+    [
+        (b'{"type": "cellctl/Nope", "request_id": "a"}', "a"),
+        (b'{"v": 9, "request_id": "b"}', "b"),
+        (b'{"request_id": 3}', None),
+        (b'{"request_id": "\\ud83d"}', None),  # a lone surrogate: no Ack could carry it
+        (b'[{"request_id": "c"}]', None),
+        (b'{"request_id": "d", "request_id": "e"}', None),  # repeated key: refused like any payload
+        (b"\xff", None),
+    ],
+)
+def test_peek_request_id_reads_it_when_it_can_be_read(data: bytes, rid: str | None) -> None:
+    from cellctl.bus.codec import peek_request_id
+
+    assert peek_request_id(data) == rid
+    assert peek_request_id(data, max_bytes=2) is None

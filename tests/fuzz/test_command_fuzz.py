@@ -128,3 +128,49 @@ def test_arbitrary_bytes_and_json_objects_keep_the_contract(cell) -> None:  # no
         target.finish()
     assert target.stats.n_violations == 0, target.stats.violations
     assert target.stats.acks == sum(target.stats.sent.values()) >= 400
+
+
+_mode_fields = {
+    **_field,
+    "unit_mode": st.sampled_from(["production", "maintenance", "manual", "auto"]) | _json,
+    "unit_mode_code": st.integers(-1, 5) | _json,
+    "user": st.text(max_size=70) | _json,
+}
+_mode_like = st.fixed_dictionaries({}, optional=_mode_fields)
+_STATES = ["Stopped", "Idle", "Aborted", "Execute", "Held", "Suspended", "Complete", "Clearing", "Resetting"]
+
+
+def test_unit_mode_fields_keep_the_rules(cfg) -> None:  # noqa: ANN001
+    """Any mix of command and mode fields: a mode changes only in Stopped/Idle/Aborted and never the state;
+    a rejected payload changes nothing; a readable request_id always comes back."""
+    from cellctl.messages import UnitMode
+    from cellctl.recording.index import CycleIndex
+    from cellctl.supervisor.supervisor import Supervisor
+
+    idx = CycleIndex(cfg.path(cfg.recording.index))
+    sup = Supervisor(cfg, None, idx)  # no bus: the rules alone, many cases fast
+
+    @_HYP
+    @given(obj=_mode_like, state=st.sampled_from(_STATES), mode=st.sampled_from(list(UnitMode)))
+    def one(obj: dict, state: str, mode: UnitMode) -> None:
+        target = f"Execute.{sup.cycle.initial}" if state == "Execute" else state
+        sup.machine.set_state(target)
+        sup.unit_mode = mode
+        ack = sup.apply_command(json.dumps(obj).encode())
+        rid = obj.get("request_id")
+        if isinstance(rid, str) and len(rid) <= 128:
+            assert ack.request_id == rid
+        if not ack.accepted:
+            assert sup.state == target and sup.unit_mode == mode and ack.state == state
+        elif ack.command is None:  # a mode change
+            assert state in ("Stopped", "Idle", "Aborted") and sup.state == target
+            assert ack.unit_mode == sup.unit_mode.name
+            assert ("unit_mode" in obj) != ("unit_mode_code" in obj) and "command" not in obj and "cntrl_cmd" not in obj
+        else:
+            assert sup.unit_mode == mode and ack.command in sup.packml.allowed_commands(state)
+            assert not (mode == UnitMode.manual and ack.command == "start")
+
+    try:
+        one()
+    finally:
+        idx.close()
