@@ -99,7 +99,8 @@ def render(args: argparse.Namespace) -> int:
 
 
 def bins_list(args: argparse.Namespace) -> int:
-    from cellctl.geometry.catalog import INTERNAL, load_catalog
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.surface import INTERNAL
 
     cfg = config_from_args(args)
     cat = load_catalog(cfg.path(cfg.catalog))

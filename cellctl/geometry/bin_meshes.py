@@ -27,15 +27,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.errors import ConfigError
-from cellctl.geometry.catalog import (
-    EXTERNAL,
-    INTERNAL,
-    BoardSpec,
-    T_tag_board,
-    write_ply,
-)
+from cellctl.geometry.catalog import BoardSpec, T_tag_board, write_ply
 from cellctl.geometry.transforms import invert, transform_from
 from cellctl.hashing import file_sha256
+from cellctl.surface import EXTERNAL, INTERNAL
 
 __all__ = ["BinDesign", "DESIGNS", "build_mesh", "generate_catalog", "paper_tag_T_bin"]
 

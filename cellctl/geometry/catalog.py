@@ -50,11 +50,9 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from cellctl.errors import CellError, ConfigError
 from cellctl.geometry.transforms import check_transform, invert, transform_from
 from cellctl.hashing import file_sha256
-from cellctl.surface import EXTERNAL, FACE_TAG, INTERNAL, SURFACES
+from cellctl.surface import FACE_TAG, INTERNAL, SURFACES
 
 __all__ = [
-    "EXTERNAL",
-    "INTERNAL",
     "BinMesh",
     "BinType",
     "BoardSpec",
@@ -65,8 +63,6 @@ __all__ = [
     "read_ply",
     "write_ply",
 ]
-
-# EXTERNAL, INTERNAL: the per-face surface tags, defined in cellctl.surface and re-exported here
 
 FRAME_TOL_M = 0.02
 """How far above z = 0 a vertex may lie (rims, handles) and still follow the frame convention."""

@@ -17,8 +17,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.errors import PlanningError
-from cellctl.geometry.catalog import EXTERNAL, INTERNAL, BinMesh
+from cellctl.geometry.catalog import BinMesh
 from cellctl.hashing import bytes_sha256, file_sha256
+from cellctl.surface import EXTERNAL, INTERNAL
 
 __all__ = ["infer_surface_tags", "load_bin_mesh", "load_catalog_mesh", "mesh_from_arrays"]
 

@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from cellctl.geometry.catalog import EXTERNAL, INTERNAL, BinMesh, BinType
+from cellctl.geometry.catalog import BinMesh, BinType
 from cellctl.geometry.transforms import invert
+from cellctl.surface import EXTERNAL, INTERNAL
 
 __all__ = ["PowderField", "true_T_base_bin", "value_noise3"]
 

@@ -13,16 +13,10 @@ from cellctl.config import project_root
 from cellctl.errors import ConfigError
 from cellctl.geometry.bin_meshes import DESIGNS, build_mesh, paper_tag_T_bin
 from cellctl.geometry.boards import board_image, make_charuco_board
-from cellctl.geometry.catalog import (
-    EXTERNAL,
-    INTERNAL,
-    T_tag_board,
-    load_catalog,
-    read_ply,
-    write_ply,
-)
+from cellctl.geometry.catalog import T_tag_board, load_catalog, read_ply, write_ply
 from cellctl.geometry.transforms import invert
 from cellctl.hashing import file_sha256
+from cellctl.surface import EXTERNAL, INTERNAL
 
 ROOT = project_root()
 CATALOG = ROOT / "config" / "bins.yaml"
