@@ -4,16 +4,20 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.bootstrap-$(shell cat pyproject.toml Makefile | sha256sum | cut -c1-12)
 PYTEST_ARGS ?=
+# node-opcua drives the OPC UA gateway in its tests (an independent stack); npm puts it in .node/.
+NODE_DIR := .node
+NODE_OPCUA := 2.186.4
+NODE_STAMP := $(NODE_DIR)/.installed-node-opcua-client-$(NODE_OPCUA)
 
-.PHONY: demo test test-all bootstrap system-deps lint clean
+.PHONY: demo test test-all bootstrap system-deps node-deps lint clean
 
 demo: $(STAMP)
 	$(VENV)/bin/cellctl demo
 
-test: $(STAMP)
+test: $(STAMP) node-deps
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
-test-all: $(STAMP)
+test-all: $(STAMP) node-deps
 	$(PY) -m pytest -q -m "" $(PYTEST_ARGS)
 
 lint: $(STAMP)
@@ -33,6 +37,15 @@ system-deps:
 	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver; \
 	fi
 
+# Quick when present; without npm the node-opcua tests skip (they say why).
+node-deps:
+	@if ! command -v npm >/dev/null; then \
+	  echo "npm not found: the node-opcua gateway tests will be skipped"; \
+	elif [ ! -f $(NODE_STAMP) ]; then \
+	  echo "installing node-opcua-client@$(NODE_OPCUA) into $(NODE_DIR)/ (gateway tests)"; \
+	  npm install --prefix $(NODE_DIR) --no-audit --no-fund --silent node-opcua-client@$(NODE_OPCUA) && touch $(NODE_STAMP); \
+	fi
+
 $(STAMP): pyproject.toml Makefile | system-deps
 	@test -x $(PY) || python3 -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
@@ -43,4 +56,4 @@ $(STAMP): pyproject.toml Makefile | system-deps
 	@touch $@
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) $(NODE_DIR) build *.egg-info

@@ -1,0 +1,88 @@
+"""The gateway driven by node-opcua, an OPC UA stack written independently of asyncua.
+
+The client scripts are in tests/gateway/node/; node-opcua-client is installed by `make test` into the
+git-ignored .node/ folder. Skipped only when `node` is not on PATH.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from cellctl.config import project_root
+from cellctl.gateway.opcua import OpcuaGateway
+from tests.fakes.workers import FakeCell
+from tests.gateway.conftest import PASSWORD, USER, wait_until
+
+NODE = shutil.which("node")
+SCRIPT = Path(__file__).parent / "node" / "plc.js"
+NODE_DIR = project_root() / ".node"
+
+pytestmark = pytest.mark.skipif(NODE is None, reason="node (Node.js) is not on PATH: the node-opcua tests need it")
+
+
+def node_plc(url: str, scenario: str, *login: str, timeout: float = 90) -> dict:
+    if not (NODE_DIR / "node_modules" / "node-opcua-client").is_dir():
+        pytest.fail("node-opcua-client is not installed in .node/: run `make node-deps` (make test does it)")
+    env = {
+        **os.environ,
+        "NODE_PATH": str(NODE_DIR / "node_modules"),
+        # node-opcua keeps its client certificate (made on first use) under the config home: keep it in .node/
+        "XDG_CONFIG_HOME": str(NODE_DIR / "config"),
+    }
+    proc = subprocess.run(
+        [NODE, str(SCRIPT), url, scenario, *login], capture_output=True, text=True, timeout=timeout, env=env
+    )
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    assert lines, f"node printed no result (rc {proc.returncode}): {proc.stdout[-2000:]} {proc.stderr[-2000:]}"
+    out = json.loads(lines[-1])
+    assert proc.returncode == 0 and "error" not in out, out.get("error") or proc.stderr[-2000:]
+    return out
+
+
+def test_node_browses_reads_and_is_refused_as_anonymous(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+    out = node_plc(url, "browse")
+    assert set(out["browse"].values()) == {"Good"}, out["browse"]
+    assert out["state"] == 2 and out["unit_mode"] == 1
+    assert "BadUserAccessDenied" in out["write_cntrl_cmd"]
+    assert "BadUserAccessDenied" in out["call_reset"]
+    assert out["state_after"] == 2
+    assert spy.count == 0
+
+
+def test_node_bad_input_changes_nothing(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+    out = node_plc(url, "bad-input", USER, PASSWORD)
+    assert out["cntrl_cmd"] == {k: "BadOutOfRange" for k in ("0", "11", "-1", "2147483647")}
+    assert out["cntrl_cmd_double"] == out["cntrl_cmd_string"] == "BadTypeMismatch"
+    assert out["change_request_without_command"] == "BadNothingToDo"
+    assert "without a command" in out["reject_reason"]
+    assert out["start_in_stopped"]["status"] == "BadInvalidState"
+    assert "'start' is not allowed in state 'Stopped'" in out["start_in_stopped"]["reason"]
+    assert out["state_after"] == 2
+    assert spy.count == 1  # only the Start call reached the daemon (and was refused there)
+
+
+@pytest.mark.parametrize("scenario", ["handshake", "methods"])
+def test_node_runs_a_cycle(cfg, gateway: OpcuaGateway, spy, url: str, scenario: str) -> None:  # noqa: ANN001
+    with FakeCell(cfg, dirty_viewpoints={0}):
+        wait_until(lambda: gateway._values.get(gateway._spaces["cell1"].nodeid("Admin/Workers/planner")), 10)
+        out = node_plc(url, scenario, USER, PASSWORD)
+    if scenario == "handshake":
+        assert [s["change_request"] for s in out["steps"]] == ["Good", "Good"]
+        assert [s["change_request_after"] for s in out["steps"]] == [False, False]
+    else:
+        assert [(s["status"], s["reason"]) for s in out["steps"]] == [("Good", ""), ("Good", "")]
+    seen = out["states_seen"]
+    assert seen[0] == 2 and seen[-1] == 17
+    for acting in (15, 3, 6, 16):  # Resetting, Starting, Execute, Completing
+        assert acting in seen, seen
+    assert out["source_timestamps"] is True
+    assert out["processed_after"] == out["processed_before"] + 1
+    assert out["defective_after"] == out["defective_before"] + 1
+    assert out["last_outcome"] == "completed"
+    assert spy.count == 2
