@@ -20,7 +20,7 @@ import logging
 import os
 import struct
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from io import BytesIO
 from pathlib import Path
 from typing import IO
@@ -73,7 +73,7 @@ class Recovery:
     """Messages kept from the complete part of a chunk the cut fell into (included in ``messages``)."""
 
     def as_dict(self) -> dict[str, object]:
-        return dict(self.__dict__)
+        return asdict(self)
 
 
 def recovered_path(log_path: Path | str) -> Path:
@@ -230,9 +230,9 @@ def _cut_chunk_messages(data: bytes, offset: int, copier: _Copier) -> str:
 def recover_mcap(source: Path | str, out: Path | str | None = None) -> Recovery:
     """Write every complete record of ``source`` into ``out``, a valid indexed MCAP.
 
-    Blocking; holds the source and the output in memory (a cycle log is tens of MB at most) and
-    never writes to the source. ``out`` is written to a temporary name and renamed into place, so a crash
-    during recovery leaves no half file under the final name.
+    Blocking; holds the source and the output in memory (a cycle log is tens of MB at most)
+    and never writes to the source. ``out`` is written to a temporary name and renamed into
+    place, so a crash during recovery leaves no half file under the final name.
 
     Args:
         source: an MCAP file, complete or cut short at any byte.
@@ -254,7 +254,8 @@ def recover_mcap(source: Path | str, out: Path | str | None = None) -> Recovery:
     if dst.resolve() == src.resolve():
         raise RecordingError(f"recovery output {str(dst)!r} is the source itself; expected another path")
     head = data[: len(MCAP_MAGIC)]
-    if not MCAP_MAGIC.startswith(head):  # a prefix of the magic: cut inside it, nothing to keep
+    # A file cut inside the magic is a prefix of it: recovered, with nothing to keep.
+    if not MCAP_MAGIC.startswith(head):
         raise RecordingError(
             f"{str(src)!r} is not an MCAP file (starts with {head!r}, expected {MCAP_MAGIC!r}); nothing to recover"
         )
