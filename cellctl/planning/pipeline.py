@@ -62,7 +62,6 @@ __all__ = [
     "ProgressFn",
     "base_pose_from_xyz_yaw",
     "make_plan",
-    "robust_acceptor",
 ]
 
 ProgressFn = Callable[[str, float, str], None]
@@ -220,53 +219,6 @@ class Cover:
 # --- stages ----------------------------------------------------------------------------------
 
 
-def robust_acceptor(
-    mesh: BinMesh, robot: RobotModel, T_bin_base: NDArray[np.float64], params: PlanParams
-) -> Callable[[int, NDArray[np.float64]], bool] | None:
-    """``accept(i, q)``: does configuration ``q`` survive the base parking ±robust_m / ±robust_deg off?
-
-    For each of six parking errors E (±x, ±y, ±yaw in the base frame) the camera must reach the
-    same bin-relative pose ``inv(E) · fk_cam(q)`` with an IK solution within 0.5 rad of ``q``
-    per joint (what the cache adjustment accepts) and that is collision-free with the bin at
-    its moved pose. Returns None when disabled.
-    """
-    if params.robust_m <= 0 and params.robust_deg <= 0:
-        return None
-    from cellctl.geometry.transforms import transform_from_xyz_rpy
-    from cellctl.planning.reach import wrap_towards
-
-    t, r = params.robust_m, np.radians(params.robust_deg)
-    errors = [
-        transform_from_xyz_rpy(x, (0.0, 0.0, a))
-        for x, a in (
-            ((t, 0, 0), 0.0),
-            ((-t, 0, 0), 0.0),
-            ((0, t, 0), 0.0),
-            ((0, -t, 0), 0.0),
-            ((0, 0, 0), r),
-            ((0, 0, 0), -r),
-        )
-    ]
-    worlds = [PlanningWorld(mesh, robot, T_bin_base @ E, margin=params.margin) for E in errors]
-    inv_errors = [invert(E) for E in errors]
-
-    def accept(_i: int, q: NDArray[np.float64]) -> bool:
-        T_base_cam = robot.fk_cam(q[None])[0]
-        Qs = []
-        for Ei in inv_errors:
-            S = robot.ik_cam(Ei @ T_base_cam)
-            if len(S) == 0:
-                return False
-            S = wrap_towards(S, q, robot)
-            best = S[np.argmin(np.abs(S - q).max(axis=1))]
-            if np.abs(best - q).max() > 0.5:
-                return False
-            Qs.append(best)
-        return all(bool(w.robot_free(qq)[0]) for w, qq in zip(worlds, Qs, strict=True))
-
-    return accept
-
-
 def generate_and_filter(s: Setup, st: _Stages) -> Filtered:
     """Seeds on the surface, viewpoints at each distance, then the four filters.
 
@@ -301,7 +253,7 @@ def reach(s: Setup, vp: Viewpoints, st: _Stages) -> Reachability:
     configuration) and ends it.
     """
     from cellctl.planning.pathcost import JointPlanner
-    from cellctl.planning.reach import reachability
+    from cellctl.planning.reach import reachability, robust_acceptor
 
     p = s.params
     verify = None
@@ -498,7 +450,7 @@ def assemble(
     head: _Header,
     st: _Stages,
     filt: Filtered,
-    reach_: Reachability | None = None,
+    found: Reachability | None = None,
     vis: Visibility | None = None,
     ordered: Ordered | None = None,
     cover: Cover | None = None,
@@ -509,7 +461,7 @@ def assemble(
     from cellctl.planning.tour import path_cost
 
     mesh, p, sf = s.mesh, s.params, s.surf_faces
-    reached = reach_.reached if reach_ is not None else None
+    reached = found.reached if found is not None else None
     stage = dict(
         seeds=filt.seeds,
         after_height=filt.after_height,
@@ -522,13 +474,13 @@ def assemble(
     reachable: tuple[ReachableViewpoint, ...] = ()
     viewpoints: tuple[PlannedViewpoint, ...] = ()
     tour_cost, coverage, sa, exact_s = 0.0, 0.0, None, None
-    if reach_ is not None and reached is not None:
+    if found is not None and reached is not None:
         counts["reachable"] = len(reached.index)
         stage.update(
             reach_tried=reached.tried,
             reach_checks=reached.checks,
-            reach_planner_queries=reach_.planner_queries,
-            reach_rrtconnect_fallbacks=reach_.rrtconnect_fallbacks,
+            reach_planner_queries=found.planner_queries,
+            reach_rrtconnect_fallbacks=found.rrtconnect_fallbacks,
         )
     if vis is not None and reached is not None:
         area["visible_all_m2"] = vis.visible_all_m2
@@ -562,7 +514,7 @@ def assemble(
         )
         tour_cost = path_cost(tour.D, tour.order)
         viewpoints = tuple(
-            _planned(s, filt, reached, vis, rank, int(sel.selected[node - 1]), tour, int(tour.order[rank]), int(node))
+            _planned(s, filt, reached, vis, tour, rank, int(sel.selected[node - 1]))
             for rank, node in enumerate(tour.order[1:])
         )
         coverage = seen_sel / area["mesh_m2"] if area["mesh_m2"] > 0 else 0.0
@@ -595,9 +547,11 @@ def assemble(
 
 
 def _planned(
-    s: Setup, filt: Filtered, reached: Reached, vis: Visibility, rank: int, k: int, tour: Tour, prev: int, node: int
+    s: Setup, filt: Filtered, reached: Reached, vis: Visibility, tour: Tour, rank: int, k: int
 ) -> PlannedViewpoint:
+    """The tour's ``rank``-th viewpoint, reachable candidate ``k``."""
     path = tour.approaches[rank]
+    prev, node = int(tour.order[rank]), int(tour.order[rank + 1])
     return PlannedViewpoint(
         index=rank,
         candidate=k,

@@ -15,11 +15,22 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from cellctl.geometry.catalog import BinMesh
+from cellctl.geometry.transforms import invert
 from cellctl.planning.collision import PlanningWorld
+from cellctl.planning.plan import PlanParams
 from cellctl.planning.robot import RobotModel
 from cellctl.planning.viewpoints import Viewpoints
 
-__all__ = ["Reached", "branch_signature", "candidates", "reachability", "roll_sequence", "wrap_towards"]
+__all__ = [
+    "Reached",
+    "branch_signature",
+    "candidates",
+    "reachability",
+    "robust_acceptor",
+    "roll_sequence",
+    "wrap_towards",
+]
 
 MAX_ACCEPT_TRIES = 8  # solutions per viewpoint offered to ``accept``
 _WRAPPABLE = (0, 3, 4, 5)  # joints with a ±2π range: q and q ± 2π are the same geometry
@@ -213,3 +224,49 @@ def reachability(
     roll = np.array([it[2] for it in items])
     T = np.array([vp.T[i] @ _rz(a) for i, a in zip(index, roll, strict=True)]).reshape(-1, 4, 4)
     return Reached(index=index, T=T, q=q, roll=roll, checks=world.checks - checks0, tried=tried)
+
+
+def robust_acceptor(
+    mesh: BinMesh, robot: RobotModel, T_bin_base: NDArray[np.float64], params: PlanParams
+) -> Callable[[int, NDArray[np.float64]], bool] | None:
+    """``accept(i, q)``: does configuration ``q`` survive the base parking ±robust_m / ±robust_deg off?
+
+    For each of six parking errors E (±x, ±y, ±yaw in the base frame) the camera must reach the
+    same bin-relative pose ``inv(E) · fk_cam(q)`` with an IK solution within 0.5 rad of ``q``
+    per joint (what the cache adjustment accepts) and that is collision-free with the bin at
+    its moved pose. Returns None when disabled.
+    """
+    if params.robust_m <= 0 and params.robust_deg <= 0:
+        return None
+    from cellctl.geometry.transforms import transform_from_xyz_rpy
+
+    t, r = params.robust_m, np.radians(params.robust_deg)
+    errors = [
+        transform_from_xyz_rpy(x, (0.0, 0.0, a))
+        for x, a in (
+            ((t, 0, 0), 0.0),
+            ((-t, 0, 0), 0.0),
+            ((0, t, 0), 0.0),
+            ((0, -t, 0), 0.0),
+            ((0, 0, 0), r),
+            ((0, 0, 0), -r),
+        )
+    ]
+    worlds = [PlanningWorld(mesh, robot, T_bin_base @ E, margin=params.margin) for E in errors]
+    inv_errors = [invert(E) for E in errors]
+
+    def accept(_i: int, q: NDArray[np.float64]) -> bool:
+        T_base_cam = robot.fk_cam(q[None])[0]
+        Qs = []
+        for Ei in inv_errors:
+            S = robot.ik_cam(Ei @ T_base_cam)
+            if len(S) == 0:
+                return False
+            S = wrap_towards(S, q, robot)
+            best = S[np.argmin(np.abs(S - q).max(axis=1))]
+            if np.abs(best - q).max() > 0.5:
+                return False
+            Qs.append(best)
+        return all(bool(w.robot_free(qq)[0]) for w, qq in zip(worlds, Qs, strict=True))
+
+    return accept

@@ -14,7 +14,10 @@ Why not pybullet queries: ``getClosestPoints`` costs ~360 µs per capsule (notes
 * self-collision: exact segment–segment distances of non-adjacent capsule pairs.
 
 Everything is expressed in the robot **base** frame; the bin pose ``T_base_bin`` comes from
-the scenario (sim) or from identification (planner). :class:`cellctl.sim.pybullet_world.PyBulletWorld`
+the scenario (sim) or from identification (planner). This is the cell's one collision world:
+the planner does not model collisions itself, it wraps this class
+(:class:`cellctl.planning.collision.PlanningWorld`: bin-frame set-up, camera-only and
+batched straight-motion checks for OMPL and the distance matrix). :class:`cellctl.sim.pybullet_world.PyBulletWorld`
 cross-checks this model with pybullet.
 """
 
