@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.geometry.camera import CameraModel
-from cellctl.planning.mesh import BinMesh
+from cellctl.geometry.catalog import BinMesh
 from cellctl.planning.raycast import RayCaster
 
 __all__ = ["measurability"]
