@@ -11,6 +11,7 @@ wire contract. ``cellctl secure init`` writes a deployment folder::
     DIR/clients/<principal>.json5   one per principal: user/password (+ TLS connect), 0600
     DIR/tls/                    CA, router and per-principal certificates (--tls)
     DIR/bus.yaml                the ``bus:`` section that points a cell config at DIR
+    DIR/opcua/server.pem|.key   the OPC UA gateway's application certificate (RSA, Basic256Sha256)
 
 Paths inside the json5 files are relative to DIR and resolved when a session opens, so the
 folder can be moved as a whole.
@@ -381,6 +382,10 @@ def init_deployment(
         )
     os.chmod(out / CLIENTS_DIR, 0o700)
     written.append(_write(out / BUS_YAML, bus_yaml(out, cell_id, endpoint, tls), 0o644))
+    # The OPC UA gateway's server certificate, for Basic256Sha256 Sign&Encrypt (docs/opcua.md).
+    from cellctl.gateway.opcua.certs import OPCUA_DIR, write_server_certificate
+
+    written += write_server_certificate(out / OPCUA_DIR, host, days)
     return written
 
 
