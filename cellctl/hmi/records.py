@@ -161,7 +161,7 @@ class CycleRecords:
                 row pointing elsewhere is treated as if it had no log: nothing outside is served).
         """
         row = self.row(cycle_id)
-        p = Path(row.log_path)
+        p = Path(row.readable_log)  # an interrupted cycle's recovered copy: indexed readers need its footer
         p = (p if p.is_absolute() else self.cfg.path(p)).resolve()
         if not p.is_relative_to(self.logs_root) or p.suffix != ".mcap":
             log.warning("cycle %s: log path %s is outside %s; not served", cycle_id, p, self.logs_root)
