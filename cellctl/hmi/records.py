@@ -141,7 +141,7 @@ class CycleRecords:
     @staticmethod
     def _row_dict(r: CycleRow) -> dict[str, Any]:
         d = asdict(r)
-        d["log_path"] = None  # where files lie on the host is not the client's business
+        d["log_path"] = d["recovered_path"] = None  # where files lie on the host is not the client's business
         d["duration_s"] = None
         if r.finished:
             try:
