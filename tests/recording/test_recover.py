@@ -490,3 +490,14 @@ def test_report_reads_the_recovered_log_of_an_interrupted_cycle(logs: Logs, caps
     shutil.copy(logs.root / "c0.mcap", recovered_path(logs.cut))  # replaced: refused
     assert main(["report", "c1", *sets]) == 2
     assert "refusing to read cycle c1" in capsys.readouterr().err
+
+
+def test_replay_refuses_an_interrupted_cycle_whose_recovered_log_changed(logs: Logs, capsys) -> None:  # noqa: ANN001
+    (row,) = logs.index.mark_interrupted()
+    rec = Path(row.recovered_path)
+    rec.write_bytes(rec.read_bytes() + b"x")
+    sets = ["--set", f"recording.index={logs.db}", "--set", f"recording.dir={logs.root}"]
+    for args in (["replay", str(logs.cut)], ["replay", str(rec)], ["replay", "--verify", str(logs.cut)]):
+        assert main([*args, *sets]) == 2, args  # refused before any bus is opened
+        err = capsys.readouterr().err
+        assert "refusing to read cycle c1" in err and row.recovered_sha256 in err
