@@ -15,9 +15,22 @@ from cellctl.planning.pipeline import PlanParams, make_plan
 from cellctl.planning.plan import Plan
 from cellctl.planning.planfile import list_plans, plan_path, read_document, read_plan, write_document, write_plan
 
-OLD_PLAN = Path(__file__).parent / "data" / "plan_v1_box_small.json"
-"""A ``cellctl-plan/1`` file written by the untyped pipeline (commit a96af3b): the conftest box,
-external surface, seed_pct 2, sa_iterations 300, base at BOX_BASE."""
+DATA = Path(__file__).parent / "data"
+OLD_PLAN = DATA / "plan_v1_box_small.json"
+"""``cellctl-plan/1`` files written by the untyped pipeline (commit a96af3b), all on the conftest box
+with the base at BOX_BASE: fast mode, external surface, seed_pct 2, sa_iterations 300 (this one);
+``plan_v1_box_paper.json`` the same in paper mode (paper_budget_s 0.05); and
+``plan_v1_box_far_empty.json`` an empty plan (base at (4, 0, -0.1), seed_pct 5)."""
+OLD_FILES = sorted(DATA.glob("plan_v1_*.json"))
+
+
+def _keys(x: object) -> object:
+    """The key structure of a JSON value (key order included), without the values."""
+    if isinstance(x, dict):
+        return [(k, _keys(v)) for k, v in x.items() if k != "camera"]
+    if isinstance(x, list):
+        return [_keys(x[0])] if x and isinstance(x[0], dict) else "list"
+    return type(x).__name__
 
 
 @pytest.fixture(scope="module")
@@ -47,6 +60,26 @@ def test_the_plan_file_keeps_its_layout_and_optional_keys(small_plan):
     assert "matrix_straight" in body["stage_counts"] and "matrix_rrtconnect_fallbacks" not in body["stage_counts"]
     assert list(body["times_s"])[-2:] == ["exact_cover_s", "total"]
     assert "job_id" not in body
+
+
+@pytest.mark.parametrize("path", OLD_FILES, ids=lambda p: p.stem)
+def test_every_old_plan_file_reads_and_writes_back_the_same_json(path):
+    old = json.loads(path.read_text())["plan"]
+    new = read_plan(path).to_json()
+    cam_old, cam_new = old["params"].pop("camera"), new["params"].pop("camera")
+    assert json.dumps(new) == json.dumps(old)  # same keys, same order, same values
+    assert cam_new == {**cam_new, **cam_old}  # camera fields added since take their defaults
+
+
+def test_new_plans_have_the_layout_of_old_ones(small_plan, box, robot):
+    from cellctl.planning.pipeline import base_pose_from_xyz_yaw
+
+    old = json.loads(OLD_PLAN.read_text())["plan"]
+    assert _keys(small_plan.to_json()) == _keys(old)
+    empty = make_plan(box, base_pose_from_xyz_yaw(4.0, 0.0, -0.1, 0.0), PlanParams(seed_pct=5), robot)
+    old_empty = json.loads((DATA / "plan_v1_box_far_empty.json").read_text())["plan"]
+    assert _keys(empty.to_json()) == _keys(old_empty)
+    assert empty.to_json()["stage_counts"] == old_empty["stage_counts"]
 
 
 def test_a_plan_file_written_before_the_typed_model_reads_and_still_hits(box, robot, tmp_path):
