@@ -76,7 +76,7 @@ class CycleContext:
     cfg: CellConfig
     session: zenoh.Session | None
     log: Recorder
-    mode: str = "evaluate"
+    mode: Literal["evaluate", "collect"] = "evaluate"
     params: StartParams = field(default_factory=StartParams)
     started: str = ""
     log_rel: str | None = None

@@ -6,7 +6,9 @@ import datetime as _dt
 import itertools
 import threading
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
+
+import zenoh
 
 from cellctl.bus import keys, topics
 from cellctl.bus.rpc import request
@@ -18,6 +20,9 @@ from cellctl.supervisor.admin import AdminBook
 from cellctl.supervisor.context import CycleContext, Identify
 from cellctl.supervisor.publisher import Outbox
 from cellctl.supervisor.recorder import CycleRecorder, NullRecorder, Recorder, assemble_result, new_cycle_id
+
+if TYPE_CHECKING:
+    from cellctl.geometry.catalog import Catalog
 
 __all__ = ["KEEP_RESULTS", "CycleKeeper"]
 
@@ -35,14 +40,14 @@ class CycleKeeper:
     def __init__(
         self,
         cfg: CellConfig,
-        session: Any,
+        session: zenoh.Session | None,
         index: CycleIndex,
         outbox: Outbox,
         admin: AdminBook,
         robot_alive: Callable[[], bool],
         *,
         identify: Identify | None = None,
-        catalog: Any = None,
+        catalog: Catalog | None = None,
     ) -> None:
         self.cfg = cfg
         self.session = session
@@ -72,6 +77,10 @@ class CycleKeeper:
     def event(self, level: str, text: str) -> None:
         ctx = self.ctx
         self.outbox.announce(level, text, ctx.cycle_id if ctx is not None else None, self.record)
+
+    def saved_step(self) -> str | None:
+        """The cycle state Unhold/Unsuspend resume (set when a lost worker holds the cycle)."""
+        return self.ctx.saved_step if self.ctx is not None else None
 
     def idle_context(self) -> CycleContext:
         """A blackboard for activations outside a cycle (Resetting, Clearing): records nothing."""

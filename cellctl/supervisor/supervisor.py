@@ -18,7 +18,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cellctl.bus import keys
 from cellctl.bus.codec import encode
@@ -40,6 +40,11 @@ from cellctl.supervisor.runner import Runner, run_step
 from cellctl.supervisor.steps import STEPS
 from cellctl.supervisor.unit_modes import commands_in_mode
 
+if TYPE_CHECKING:
+    import zenoh
+
+    from cellctl.geometry.catalog import Catalog
+
 __all__ = ["BEHAVIOURS", "Supervisor", "load_definitions"]
 
 log = logging.getLogger(__name__)
@@ -57,8 +62,9 @@ class Supervisor:
     """
 
     def __init__(
-        self, cfg: CellConfig, session: Any, index: CycleIndex, *, identify: Identify | None = None, catalog: Any = None
-    ) -> None:
+        self, cfg: CellConfig, session: zenoh.Session | None, index: CycleIndex, *,
+        identify: Identify | None = None, catalog: Catalog | None = None,
+    ) -> None:  # fmt: skip
         self.cfg, self.session, self.index, self.catalog = cfg, session, index, catalog
         self.cell_id = cfg.cell_id
         self.packml, self.cycle = load_definitions(cfg.root)
@@ -72,8 +78,7 @@ class Supervisor:
         )  # fmt: skip
         self.runner = Runner(self._events.put)
         self.model = CellModel()
-        saved = lambda: self.cycles.ctx.saved_step if self.cycles.ctx is not None else None  # noqa: E731
-        self.machine = build_machine(self.packml, self.cycle, self.model, saved, self._entered)
+        self.machine = build_machine(self.packml, self.cycle, self.model, self.cycles.saved_step, self._entered)
         self.unit_mode = UnitMode.production
         self.last_error: str | None = None
         self.on_state_change: Callable[[Status], None] | None = None
@@ -195,8 +200,7 @@ class Supervisor:
 
     def _on_command(self, payload: bytes, query: events.Query | None) -> None:
         ack = self.apply_command(payload)
-        rec = self.cycles.record
-        if rec is not None:
+        if (rec := self.cycles.record) is not None:
             rec.write_json(keys.cmd(self.cell_id), *recorded_command(payload))
             rec.write_message(keys.cmd_ack(self.cell_id), ack)
         self.outbox.ack(ack, query)
@@ -284,8 +288,7 @@ class Supervisor:
         st = self._make_status()
         self._status = st
         self.outbox.status(st)
-        rec = self.cycles.record
-        if record and rec is not None:
+        if record and (rec := self.cycles.record) is not None:
             rec.write_message(keys.status(self.cell_id), st)
         if self.on_state_change is not None and record:
             self.on_state_change(st)

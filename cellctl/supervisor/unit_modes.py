@@ -1,15 +1,15 @@
 """PackML unit modes (ISA-TR88.00.02): which commands each mode offers, and when the mode may change.
 
-| mode        | code | PackML commands offered                         | why                                   |
-|-------------|------|-------------------------------------------------|---------------------------------------|
-| production  | 1    | the whole table of ``states/packml.yaml``       | automatic inspection cycles           |
-| maintenance | 2    | the whole table                                 | test and data-collection cycles, by   |
-|             |      |                                                 | maintenance staff; counted like any   |
-| manual      | 3    | all but ``start`` (the cell never enters Execute | the arm is moved by hand / teach      |
-|             |      | in manual: no automatic motion)                 | pendant, the supervisor commands none |
+=============  ====  ===========================================  ==========================================
+mode           code  PackML commands offered                      use
+=============  ====  ===========================================  ==========================================
+production     1     the whole table of ``states/packml.yaml``    automatic inspection cycles
+maintenance    2     the whole table                              test and data-collection cycles by staff
+manual         3     the table less ``start``                     arm moved by hand; no automatic motion
+=============  ====  ===========================================  ==========================================
 
-A mode change is accepted only in Stopped, Idle or Aborted (TR88: the unit is at rest),
-is refused anywhere else, and changes no PackML state.
+A mode change is accepted only in Stopped, Idle or Aborted (TR88: the unit is at rest), is
+refused anywhere else, and never changes the PackML state.
 """
 
 from __future__ import annotations

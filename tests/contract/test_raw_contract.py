@@ -7,7 +7,7 @@ import json
 import signal
 import subprocess
 import sys
-import time
+import threading
 from pathlib import Path
 
 from tests.conftest import free_port
@@ -34,8 +34,18 @@ def test_raw_zenoh_client_drives_the_daemon(tmp_path: Path) -> None:
         stderr=subprocess.PIPE,
         text=True,
     )
+    lines: list[str] = []
+    listening = threading.Event()
+
+    def drain() -> None:  # also keeps the pipe from filling up
+        for line in daemon.stderr:
+            lines.append(line)
+            if "listening on" in line:
+                listening.set()
+
+    threading.Thread(target=drain, daemon=True).start()
     try:
-        time.sleep(1.5)
+        assert listening.wait(30), "daemon not listening within 30 s:\n" + "".join(lines)
         out = subprocess.run(
             [sys.executable, str(HERE / "raw_plc.py"), ep, "cell1"], capture_output=True, text=True, timeout=60
         )
