@@ -54,9 +54,10 @@ class Alarm:
     stamp: str
     acked_by: str | None = None
     acked_at: str | None = None
+    key: str = ""
 
     def as_dict(self) -> dict[str, Any]:
-        return dict(self.__dict__)
+        return {k: v for k, v in self.__dict__.items() if k != "key"}
 
 
 class CellLink:
@@ -182,7 +183,7 @@ class CellLink:
             if prev is None or prev.model_dump(exclude={"stamp"}) != st.model_dump(exclude={"stamp"}):
                 self.version += 1
                 if st.last_error and (prev is None or prev.last_error != st.last_error):
-                    self._alarm_locked("error", f"{st.state}: {st.last_error}", st.cycle_id, now_iso())
+                    self._alarm_locked("error", f"{st.state}: {st.last_error}", st.cycle_id, now_iso(), st.last_error)
 
     def _on_event(self, sample: Any) -> None:
         try:
@@ -206,8 +207,12 @@ class CellLink:
             self.last_result = res
             self.version += 1
 
-    def _alarm_locked(self, level: str, text: str, cycle_id: str | None, stamp: str) -> None:
-        a = Alarm(next(self._seq), level, text, cycle_id, stamp)
+    def _alarm_locked(self, level: str, text: str, cycle_id: str | None, stamp: str, key: str | None = None) -> None:
+        # One fault, one alarm: the error event and the Status's last_error usually say the same thing.
+        key = key or text
+        if any(a.key == key and a.cycle_id == cycle_id and a.acked_by is None for a in self._alarms.values()):
+            return
+        a = Alarm(next(self._seq), level, text, cycle_id, stamp, key=key)
         self._alarms[a.id] = a
         if len(self._alarms) > 200:  # keep the newest; acknowledged ones go first
             acked = [k for k, v in self._alarms.items() if v.acked_by]
@@ -252,7 +257,7 @@ class CellLink:
                         f"alarm {a.id} acknowledged: {a.text}",
                         a.cycle_id,
                         a.acked_at,
-                        source=user,
+                        source=f"hmi:{user}",
                     )  # fmt: skip
                 )
                 self.version += 1

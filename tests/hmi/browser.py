@@ -127,7 +127,8 @@ def run_cycle_in_browser(
     press(d, "start")
     d.get(f"{url}/live")
     if shots is not None:
-        wait_until(lambda: text(d, "lv-k") not in ("—", "0"), cycle_timeout, "the scan under way")
+        rows = "return document.querySelectorAll('#lv-views tr').length;"
+        wait_until(lambda: d.execute_script(rows) >= 4, cycle_timeout, "the scan under way (4 verdicts)")
         wait_until(lambda: natural_width(d, "lv-img") > 0, 30,
                    "a live image")  # fmt: skip
         shot("live_scanning")
@@ -135,6 +136,8 @@ def run_cycle_in_browser(
     cycle_id = text(d, "lv-cycle")
     shot("live_complete")
     d.get(f"{url}/history")
+    wait_until(lambda: d.find_elements(By.CSS_SELECTOR, f"#hist-rows tr[data-cycle='{cycle_id}']"), 15, "History")
+    shot("history_list")
     row = wait_until(lambda: d.find_element(By.CSS_SELECTOR, f"#hist-rows tr[data-cycle='{cycle_id}']"), 15,
                      f"cycle {cycle_id} in History")  # fmt: skip
     row.click()

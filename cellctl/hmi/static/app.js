@@ -256,7 +256,7 @@ async function loadHistory() {
   $("hist-rows").replaceChildren(...data.cycles.map((c) => {
     const tr = el("tr", { "data-cycle": c.cycle_id, onclick: () => openCycle(c.cycle_id) },
       el("td", { class: "mono" }, c.cycle_id), el("td", {}, time(c.started)),
-      el("td", {}, c.duration_s == null ? "—" : `${c.duration_s.toFixed(1)} s`),
+      el("td", { class: "nowrap" }, c.duration_s == null ? "—" : `${c.duration_s.toFixed(1)} s`),
       el("td", { class: c.outcome === "failed" || c.outcome === "aborted" || c.outcome === "interrupted" ? "level-error" : "" }, c.outcome || "running"),
       el("td", { class: c.verdict === "dirty" ? "verdict-dirty" : "" }, c.verdict || "—"),
       el("td", {}, c.bin_type || "—"), el("td", { class: "small" }, (c.reason || "").slice(0, 90)));
@@ -338,7 +338,7 @@ function initLogin() {
 // --- start -----------------------------------------------------------------------------------------
 
 loadSession().then(() => {
-  if (PAGE === "login") { initLogin(); return; }
+  if (PAGE === "login") initLogin();
   if (PAGE === "overview") drawPackml();
   if (PAGE === "history") {
     $("filters").addEventListener("submit", (ev) => { ev.preventDefault(); loadHistory(); });
