@@ -286,7 +286,10 @@ class CellLink:
         except Exception as err:  # a session closed under us
             raise WorkerUnavailable(f"cell unreachable: {err}") from err
         if not replies:
-            raise WorkerUnavailable(f"cell unreachable: no daemon serves {keys.cmd(self.cell)!r}")
+            from cellctl.bus.security import acl_hint
+
+            k = keys.cmd(self.cell)
+            raise WorkerUnavailable(f"cell unreachable: no daemon serves {k!r}" + acl_hint(self.cfg.bus, k))
         if replies[0].ok is None:
             raise WorkerTimeout(f"the daemon did not answer {cmd.request_id!r} within {timeout:g} s")
         return decode_as(Ack, replies[0].ok.payload.to_bytes())
