@@ -60,6 +60,15 @@ class Alarm:
         return {k: v for k, v in self.__dict__.items() if k != "key"}
 
 
+def _decode(model: type, sample: Any) -> Any:
+    """The sample as ``model``, or None (logged) if it does not decode: a bad message is dropped, never raised."""
+    try:
+        return decode_as(model, sample.payload.to_bytes())
+    except CellError as err:
+        log.warning("undecodable %s ignored: %s", model.__name__, err)
+        return None
+
+
 class CellLink:
     """Everything the HMI knows about the cell from the bus; thread-safe.
 
@@ -172,10 +181,8 @@ class CellLink:
     # --- callbacks (Zenoh threads: decode, store, return) ------------------------------------
 
     def _on_status(self, sample: Any) -> None:
-        try:
-            st = decode_as(Status, sample.payload.to_bytes())
-        except CellError as err:
-            log.warning("undecodable Status ignored: %s", err)
+        st = _decode(Status, sample)
+        if st is None:
             return
         with self._lock:
             prev = self._status
@@ -186,10 +193,8 @@ class CellLink:
                     self._alarm_locked("error", f"{st.state}: {st.last_error}", st.cycle_id, now_iso(), st.last_error)
 
     def _on_event(self, sample: Any) -> None:
-        try:
-            ev = decode_as(Event, sample.payload.to_bytes())
-        except CellError as err:
-            log.warning("undecodable Event ignored: %s", err)
+        ev = _decode(Event, sample)
+        if ev is None:
             return
         with self._lock:
             self._events.append(LoggedEvent(next(self._seq), ev.level, ev.text, ev.cycle_id, ev.stamp))
@@ -198,10 +203,8 @@ class CellLink:
             self.version += 1
 
     def _on_result(self, sample: Any) -> None:
-        try:
-            res = decode_as(CycleResult, sample.payload.to_bytes())
-        except CellError as err:
-            log.warning("undecodable CycleResult ignored: %s", err)
+        res = _decode(CycleResult, sample)
+        if res is None:
             return
         with self._lock:
             self.last_result = res

@@ -12,12 +12,11 @@ from typing import Any
 
 import pytest
 
-from cellctl.app import build_cell
 from cellctl.hmi.auth import hash_password
 from cellctl.hmi.config import HmiConfig, HmiUser
 from cellctl.hmi.server import Hmi, HmiServer
 from tests.conftest import free_port
-from tests.fakes.workers import fake_identify
+from tests.supervisor.test_cycle_over_zenoh import cell  # noqa: F401 - the daemon fixture, shared
 
 PASSWORDS = {"alice": "alice-password-1", "bob": "bob-password-22"}
 
@@ -108,16 +107,6 @@ def hmi_config(**kw: Any) -> HmiConfig:
         HmiUser(name="bob", role="maintenance", password_hash=hash_password(PASSWORDS["bob"])),
     ]
     return HmiConfig(port=free_port(), users=users, stale_s=1.0, **kw)
-
-
-@pytest.fixture
-def cell(cfg):  # noqa: ANN001, ANN201
-    """The daemon in this process (router on the test's port), identification double."""
-    from cellctl.geometry.catalog import load_catalog
-
-    c = build_cell(cfg, identification=(fake_identify, load_catalog(cfg.path(cfg.catalog))))
-    yield c
-    c.close()
 
 
 @pytest.fixture
