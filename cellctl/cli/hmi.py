@@ -22,6 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--host", default=None, help="bind address (default from the HMI config: 127.0.0.1)")
     p.add_argument("--port", type=int, default=None, help="HTTP port (default from the HMI config: 8080)")
     p.add_argument("--foxglove", action="store_true", help="also serve the live Foxglove view (ws 127.0.0.1:8765)")
+    p.add_argument("--principal", default="hmi", help="who the HMI is on a secured bus (default: hmi)")
     add_config_arguments(p)
     p.set_defaults(func=run_hmi)
     users = p.add_subparsers(dest="hmi_verb", metavar="user", required=False)
@@ -80,8 +81,9 @@ def run_hmi(args: argparse.Namespace) -> int:
     from cellctl.hmi.server import Hmi, HmiServer
 
     cfg = config_from_args(args)
-    if cfg.bus.security_dir is not None and cfg.bus.principal is None:
-        cfg.bus.principal = "hmi"  # the HMI's own principal on a secured bus (cellctl.bus.security)
+    if cfg.bus.security_dir is not None:
+        # its own principal (cellctl.bus.security), not the config's: bus.yaml names `operator`, which may not command
+        cfg.bus.principal = args.principal
     path = _hmi_path(args)
     hcfg = load_hmi_config(args.hmi_config, args.hmi_overrides)
     if args.host is not None:
