@@ -180,6 +180,11 @@ def _scalar(wv: ua.WriteValue, vtype: ua.VariantType) -> tuple[Any, ua.StatusCod
     return var.Value, None
 
 
+def _file_format(path: Path) -> str:
+    with open(path, "rb") as f:
+        return "pem" if f.read(11) == b"-----BEGIN " else "der"
+
+
 def _stamp(iso: str | None) -> _dt.datetime:
     if iso:
         try:
@@ -260,8 +265,9 @@ class OpcuaGateway:
         secured = [m for m in self.cfg.security if m != "none"]
         cert, key = self._cert_paths()
         if cert is not None and key is not None and cert.is_file() and key.is_file():
-            await server.load_certificate(str(cert))
-            await server.load_private_key(str(key))
+            # by content, not by name: a PEM key is often called .key
+            await server.load_certificate(str(cert), _file_format(cert))
+            await server.load_private_key(str(key), None, _file_format(key))
         elif secured:
             raise ConfigError(
                 f"security {secured} needs the server certificate and key; {str(cert)!r}/{str(key)!r} do not exist "
