@@ -183,6 +183,8 @@ class Hmi:
         self.journal_path = cfg.path(cfg.recording.dir) / "hmi-journal.jsonl"
         self._journal_lock = threading.Lock()
         self.packml = _packml_graph()
+        self.streams = 0
+        """Event streams open now (pages connected)."""
 
     def journal(self, **entry: Any) -> None:
         """Append one line to the HMI's own journal (who did what, when); never raises."""
@@ -439,6 +441,14 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         """Server-sent events: one ``update`` with status, live view, events and alarms per change."""
 
         async def gen():  # noqa: ANN202
+            hmi.streams += 1
+            try:
+                async for chunk in updates():
+                    yield chunk
+            finally:
+                hmi.streams -= 1
+
+        async def updates():  # noqa: ANN202
             last: tuple[int, int] | None = None
             quiet = 0.0
             while not await request.is_disconnected():

@@ -269,3 +269,25 @@ def test_live_foxglove_view_advertises_the_log_channels_and_the_scene(cfg, cell,
     finally:
         server.stop()
         h.close()
+
+
+def test_the_event_stream_sends_updates_and_ends_with_its_client(cell, hmi, client: Client) -> None:
+    import socket
+
+    wait_reachable(client)
+    socks = []
+    for _ in range(3):
+        s = socket.create_connection((client.host, client.port), timeout=5)
+        s.sendall(b"GET /api/stream HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+        data = b""
+        while b"event: update" not in data:
+            data += s.recv(65536)
+        assert b'"reachable":true' in data and b"text/event-stream" in data
+        socks.append(s)
+    assert hmi.streams == 3
+    for s in socks:
+        s.close()
+    deadline = time.monotonic() + 5
+    while hmi.streams:  # a page closed is a generator gone, not one left polling forever
+        assert time.monotonic() < deadline, f"{hmi.streams} streams still open"
+        time.sleep(0.1)
