@@ -165,6 +165,11 @@ class FoxgloveLive:
             self._publish_scene(None)
 
     def _publish_scene(self, t_ns: int | None) -> None:
+        msg = json.dumps(self.scene(t_ns), separators=(",", ":"))
+        self._channel(SCENE_TOPIC, "foxglove.SceneUpdate").log(msg, log_time=t_ns)
+
+    def scene(self, t_ns: int | None = None) -> dict[str, Any]:
+        """The ``/hmi/scene`` SceneUpdate from what has been seen so far (bin, viewpoints, arm, frustum)."""
         from cellctl.geometry.robot_model import link_frames
 
         entities = []
@@ -187,9 +192,7 @@ class FoxgloveLive:
         if self._camera is not None:
             extra["lines"].append(_lines(frustum_lines(self._camera), (0.1, 0.1, 0.1, 1.0), 0.005, 2))
         entities.append(extra)
-        self._channel(SCENE_TOPIC, "foxglove.SceneUpdate").log(
-            json.dumps({"deletions": [], "entities": entities}, separators=(",", ":")), log_time=t_ns
-        )
+        return {"deletions": [], "entities": entities}
 
     def close(self) -> None:
         try:

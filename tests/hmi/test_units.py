@@ -107,3 +107,47 @@ def test_the_tail_reads_a_log_as_it_grows_and_stops_at_a_partial_record(tmp_path
     not_mcap.write_bytes(b"garbage!" * 10)
     assert McapTail(not_mcap, seen.append).poll() == 0
     assert json.loads(seen[0].data)["state"] == "Execute"
+
+
+def test_the_live_scene_is_a_valid_foxglove_scene_update(cfg) -> None:  # noqa: ANN001
+    import jsonschema
+    import numpy as np
+
+    from cellctl.hmi.config import FoxgloveConfig
+    from cellctl.hmi.foxglove_live import FoxgloveLive
+    from cellctl.messages import PoseMsg
+    from cellctl.recording import foxglove as fx
+    from cellctl.recording.replay import RecordedMessage
+    from tests.conftest import free_port
+
+    class NoBus:  # the joints arrive below by hand; the view must not need a daemon to draw
+        def add_subscriber(self, key: str, cb: object) -> None:
+            assert key == f"cell/{cfg.cell_id}/robot/joints"
+
+    link = NoBus()
+    live = FoxgloveLive(cfg, FoxgloveConfig(enabled=True, port=free_port()), link)
+    try:
+        T = np.eye(4)
+        T[:3, 3] = (1.0, 0.0, 0.2)
+        cam = PoseMsg.from_matrix(T).model_dump(mode="json")
+        msgs = [
+            ("/bin/identification", {"bin_type": "case_study"}),
+            ("/bin/pose", fx.pose_in_frame("base", T)),
+            ("/camera/pose", fx.pose_in_frame("base", T)),
+            (f"cell/{cfg.cell_id}/planner/lookup/reply", {"hit": True, "viewpoints": [{"camera_pose": cam}] * 3}),
+        ]
+        for topic, obj in msgs:
+            live.forward(RecordedMessage(topic, "x", 1, json.dumps(obj).encode()))
+
+        class Sample:
+            payload = type("P", (), {"to_bytes": lambda self: json.dumps({"position": [0.1] * 6}).encode()})()
+
+        live._on_joints(Sample())
+        scene = live.scene()
+        jsonschema.validate(scene, fx.SCHEMAS["foxglove.SceneUpdate"])
+        bin_, arm = scene["entities"]
+        assert len(bin_["triangles"][0]["points"]) % 3 == 0 and len(bin_["arrows"]) == 3
+        assert len(arm["spheres"]) == 7 and len(arm["lines"]) == 2  # arm links + frustum
+        assert len(arm["lines"][1]["points"]) == 16
+    finally:
+        live.close()
