@@ -634,17 +634,17 @@ class OpcuaGateway:
                 self.cell_cfg.bus.connect,
             )
             self.ready.set()
+            inbox = self._inbox
             stopper = asyncio.create_task(stop.wait())
-            while not stop.is_set():
-                getter = asyncio.create_task(self._inbox.get())
-                done, _ = await asyncio.wait({getter, stopper}, return_when=asyncio.FIRST_COMPLETED)
-                if getter in done:
-                    try:
-                        await self._handle(*getter.result())
-                    except Exception:  # one bad sample must not stop the gateway
-                        log.exception("gateway failed on a bus sample")
-                else:
-                    getter.cancel()
+            stopper.add_done_callback(lambda _: inbox.put_nowait(("stop", "", None)))
+            while True:
+                item = await inbox.get()  # one await per sample: the StateCurrent latency is made here
+                if item[0] == "stop":
+                    break
+                try:
+                    await self._handle(*item)
+                except Exception:  # one bad sample must not stop the gateway
+                    log.exception("gateway failed on a bus sample")
             watchdog.cancel()
         finally:
             self._link.close()
