@@ -92,7 +92,7 @@ def test_a_cycle_from_the_hmi_lands_in_the_records(cfg, cell, hmi, client: Clien
     # the record page: per-view images with their scores, audit status
     rec = client.get(f"/api/cycles/{cid}/record").json()
     assert [i["label"] for i in rec["images"]] == ["clean", "dirty", "clean"]
-    assert rec["audit"]["status"] == "ok" and rec["audit"]["chain_ok"]
+    assert rec["audit"]["status"] == "ok" and rec["audit"]["head"]["seq"] == rows[0]["seq"]
     img = client.get(f"/api/cycles/{cid}/images/{rec['images'][1]['image']}")
     assert img.status == 200 and img.body[:4] == b"\x89PNG"
     png = client.get(f"/api/cycles/{cid}/dirt_map.png")
@@ -146,7 +146,9 @@ def test_bad_requests_get_clear_errors_and_nothing_outside_logs(cfg, cell, hmi, 
     db.close()
     r = client.get(f"/api/cycles/{cid}/log")
     assert r.status == 404 and b"root:" not in r.body
-    assert "tamper" == client.get(f"/api/cycles/{cid}/record").json()["audit"]["status"]
+    audit = client.get(f"/api/cycles/{cid}/record").json()["audit"]
+    assert audit["status"] == "tamper" and "outside the logs folder" in " ".join(audit["findings"])
+    assert "edited" in " ".join(audit["findings"])  # log_path is a chained field
 
 
 def test_login_rate_limit_and_session_expiry(cell, hmi, client: Client, clock) -> None:

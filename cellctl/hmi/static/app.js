@@ -282,8 +282,9 @@ async function openCycle(id) {
   setText("dt-bin", row.bin_type);
   setText("dt-plan", `${row.plan_id || "—"}${res.plan_adjusted ? " (adjusted to the measured pose)" : ""}`);
   const au = d.audit || {};
-  $("dt-audit").textContent = au.status === "ok" ? `ok — chain ${au.chain_ok ? "intact" : "BROKEN"}, head #${au.head ? au.head.seq : "?"}` : `${au.status}${au.findings && au.findings.length ? ": " + au.findings.map((f) => f.message).join("; ") : au.error ? ": " + au.error : ""}`;
-  $("dt-audit").className = au.status === "tamper" || au.chain_ok === false ? "abnormal" : "";
+  $("dt-audit").textContent = au.status === "ok" ? `ok — row hash, chain link and log sha256 check (head #${au.head ? au.head.seq : "?"})`
+    : `${au.status}${au.findings && au.findings.length ? ": " + au.findings.join("; ") : au.error ? ": " + au.error : ""}`;
+  $("dt-audit").className = au.status === "tamper" ? "abnormal" : "";
   const lg = $("dt-log");
   lg.href = `/api/cycles/${encodeURIComponent(id)}/log`; lg.classList.toggle("hidden", !d.log);
   const img = $("dt-dirt");
