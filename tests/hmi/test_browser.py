@@ -26,6 +26,10 @@ def test_login_command_and_forged_post_in_the_browser(cfg, cell, hmi, client, dr
                "Stopped highlighted")  # fmt: skip
     assert buttons(driver) == []
     assert "Log in" in driver.find_element(By.ID, "cmd-hint").text
+    allowed = driver.execute_script(
+        "return [...document.querySelectorAll('#packml path.edge.allowed')].map((p) => p.dataset.label);"
+    )
+    assert allowed == ["reset"]  # the way out of Stopped the cell accepts now (abort is not drawn)
     r = post_from_page(driver, "/api/cmd", {"command": "reset", "nonce": "a" * 20}, csrf=True)
     assert r["status"] == 401
 

@@ -129,7 +129,7 @@ async function drawPackml() {
     const [sx, sy] = clip(ax, ay, bx, by), [tx, ty] = clip(bx, by, ax, ay);
     const skip = Math.abs(ax - bx) > GX * 1.5 && Math.abs(ay - by) < 1; // same row, over a box: bend below
     const d = skip ? `M ${sx} ${ay + BH / 2} Q ${(ax + bx) / 2} ${ay + BH / 2 + 34} ${tx} ${by + BH / 2}` : `M ${sx} ${sy} L ${tx} ${ty}`;
-    root.append(svg("path", { d, class: "edge", "marker-end": "url(#arrow)" }));
+    root.append(svg("path", { d, class: "edge", "marker-end": "url(#arrow)", "data-from": e.from, "data-label": e.label }));
     if (e.label !== "SC") {
       const mx = skip ? (ax + bx) / 2 : (sx + tx) / 2, my = skip ? ay + BH / 2 + 22 : (sy + ty) / 2 - 3;
       root.append(svg("text", { x: mx + 3, y: my, class: "edge-label" }, e.label));
@@ -154,6 +154,10 @@ function renderOverview(d) {
     g.classList.toggle("current", cur);
     g.classList.toggle("abnormal", cur && ABNORMAL.has(st.state));
     g.classList.toggle("warn", cur && WARN.has(st.state));
+  }
+  for (const p of document.querySelectorAll("#packml path.edge")) {
+    // the ways out of the current state: the commands allowed now, or its State Complete
+    p.classList.toggle("allowed", p.dataset.from === st.state && (p.dataset.label === "SC" || st.available_commands.includes(p.dataset.label)));
   }
   setText("ov-state", `${st.state} (${st.state_code})`);
   $("ov-state").className = ABNORMAL.has(st.state) ? "abnormal" : WARN.has(st.state) ? "warn" : "";
@@ -246,13 +250,17 @@ function historyTick(d) {
   const lc = d.status && d.status.admin && d.status.admin.last_cycle ? d.status.admin.last_cycle.cycle_id : null;
   if (lc !== histLastCycle) { histLastCycle = lc; loadHistory(); }
 }
-async function loadHistory() {
+let histBefore = null;
+async function loadHistory(older = false) {
   const q = new URLSearchParams();
   for (const [k, v] of new FormData($("filters"))) if (v) q.set(k, v);
+  if (older && histBefore != null) q.set("before", histBefore);
   const r = await fetch(`/api/cycles?${q}`);
   const data = await r.json();
   $("hist-error").textContent = r.ok ? "" : data.error;
   if (!r.ok) return;
+  histBefore = data.cycles.length ? data.cycles[data.cycles.length - 1].seq : null;
+  $("hist-older").classList.toggle("hidden", data.cycles.length < 50);
   $("hist-rows").replaceChildren(...data.cycles.map((c) => {
     const tr = el("tr", { "data-cycle": c.cycle_id, onclick: () => openCycle(c.cycle_id) },
       el("td", { class: "mono" }, c.cycle_id), el("td", {}, time(c.started)),
@@ -343,6 +351,7 @@ loadSession().then(() => {
   if (PAGE === "overview") drawPackml();
   if (PAGE === "history") {
     $("filters").addEventListener("submit", (ev) => { ev.preventDefault(); loadHistory(); });
+    $("hist-older").addEventListener("click", () => loadHistory(true));
     const id = new URLSearchParams(location.search).get("cycle");
     loadHistory().then(() => { if (id) openCycle(id); });
     histLastCycle = null;
