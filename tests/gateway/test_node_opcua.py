@@ -27,6 +27,7 @@ pytestmark = pytest.mark.skipif(NODE is None, reason="node (Node.js) is not on P
 
 
 def node_plc(url: str, scenario: str, *login: str, timeout: float = 90) -> dict:
+    """Run plc.js; ``timeout`` (s) bounds the process and the wait for Complete."""
     if not (NODE_DIR / "node_modules" / "node-opcua-client").is_dir():
         pytest.fail("node-opcua-client is not installed in .node/: run `make node-deps` (make test does it)")
     env = {
@@ -34,6 +35,7 @@ def node_plc(url: str, scenario: str, *login: str, timeout: float = 90) -> dict:
         "NODE_PATH": str(NODE_DIR / "node_modules"),
         # node-opcua keeps its client certificate (made on first use) under the config home: keep it in .node/
         "XDG_CONFIG_HOME": str(NODE_DIR / "config"),
+        "PLC_CYCLE_TIMEOUT_MS": str(int(timeout * 1000 * 0.8)),
     }
     proc = subprocess.run(
         [NODE, str(SCRIPT), url, scenario, *login], capture_output=True, text=True, timeout=timeout, env=env

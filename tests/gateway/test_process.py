@@ -79,3 +79,16 @@ def test_daemon_does_not_import_asyncua_and_the_gateway_is_light() -> None:
     daemon_has_asyncua, heavy = out.stdout.splitlines()
     assert daemon_has_asyncua == "False"
     assert heavy == "", f"the gateway imported {heavy}"
+
+
+def test_the_engineers_guide_names_every_node_and_method() -> None:
+    import re
+
+    from cellctl.config import project_root
+    from cellctl.gateway.opcua import METHODS, VARIABLES
+
+    guide = (project_root() / "docs" / "opcua.md").read_text()
+    words = set(re.findall(r"[A-Za-z]+", guide))
+    missing = [v.path for v in VARIABLES if not set(v.path.split("/")) <= words]
+    missing += [m for m in [*METHODS, "SetUnitMode"] if m not in words]
+    assert not missing, f"docs/opcua.md does not name {missing}"

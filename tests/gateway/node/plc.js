@@ -132,7 +132,7 @@ async function main() {
       await command("Reset", 1);
       await waitFor("StateCurrent", IDLE, 10000);
       await command("Start", 2);
-      await waitFor("StateCurrent", COMPLETE, 30000);
+      await waitFor("StateCurrent", COMPLETE, Number(process.env.PLC_CYCLE_TIMEOUT_MS || 30000));
       const end = Date.now() + 10000;
       while ((await read("ProdProcessedCount")) === out.processed_before && Date.now() < end) await sleep(20);
       out.processed_after = await read("ProdProcessedCount");
