@@ -11,7 +11,10 @@ import logging
 import threading
 from collections.abc import Callable, Iterable
 
+import zenoh
+
 from cellctl.bus import keys
+from cellctl.errors import WorkerUnavailable
 from cellctl.supervisor.events import AliveSync
 
 __all__ = ["ACTIVE_STATES", "RECONCILE_S", "WorkerRoster", "liveliness_query"]
@@ -28,12 +31,17 @@ ACTIVE_STATES = ("Starting", "Execute", "Unholding", "Unsuspending", "Completing
 AliveQuery = Callable[[], dict[str, int]]
 
 
-def liveliness_query(session: object, cell_id: str) -> AliveQuery:
-    """Live tokens per role, asked from the router (blocks up to 1 s: never on the dispatcher)."""
+def liveliness_query(session: zenoh.Session | None, cell_id: str) -> AliveQuery:
+    """Live tokens per role, asked from the router (blocks up to 1 s: never on the dispatcher).
+
+    Without a session the query raises, and :meth:`WorkerRoster.missing` falls back to the event counts.
+    """
 
     def query() -> dict[str, int]:
+        if session is None:
+            raise WorkerUnavailable("no bus session to ask the router for worker liveliness")
         counts: dict[str, int] = {}
-        for r in session.liveliness().get(keys.alive_all(cell_id), timeout=1.0):  # type: ignore[attr-defined]
+        for r in session.liveliness().get(keys.alive_all(cell_id), timeout=1.0):
             if r.ok is not None:
                 role = keys.role_from_alive_key(cell_id, str(r.ok.key_expr))
                 if role is not None and role != "supervisor":
