@@ -295,14 +295,12 @@ class OpcuaGateway:
             self._locks[cell] = asyncio.Lock()
         hooks: dict[ua.NodeId, WriteHook] = {}
         for cell, space in self._spaces.items():
-            for path in ("Command/CntrlCmd", "Command/UnitMode"):
-                hooks[space.nodeid(path)] = self._code_hook(path)
+            for path in ("Command/CntrlCmd", "Command/UnitMode", *_PARAM_VALUES):
+                hooks[space.nodeid(path)] = self._value_hook(path)
             hooks[space.nodeid("Command/CmdChangeRequest")] = self._request_hook(cell, "Command/CmdChangeRequest")
             hooks[space.nodeid("Command/UnitModeChangeRequest")] = self._request_hook(
                 cell, "Command/UnitModeChangeRequest"
             )
-            for path in _PARAM_VALUES:
-                hooks[space.nodeid(path)] = self._param_hook(path)
         server.iserver.attribute_service = _GatewayAttributes(server.iserver.aspace, hooks)
         return server
 
@@ -532,33 +530,23 @@ class OpcuaGateway:
 
         return call
 
-    def _code_hook(self, path: str) -> WriteHook:
-        allowed, what = (
-            ({c.value for c in PackMLCommand}, _cmd_list())
-            if path == "Command/CntrlCmd"
-            else ({m.value for m in UnitMode}, _mode_list())
-        )
+    def _value_hook(self, path: str) -> WriteHook:
+        """CntrlCmd, UnitMode and the Start params: stored only when of their type and among their values."""
+        vtype: ua.VariantType
+        if path == "Command/CntrlCmd":
+            vtype, allowed, what = ua.VariantType.Int32, {c.value for c in PackMLCommand}, _cmd_list()
+        elif path == "Command/UnitMode":
+            vtype, allowed, what = ua.VariantType.Int32, {m.value for m in UnitMode}, _mode_list()
+        else:
+            vtype, allowed = ua.VariantType.String, set(_PARAM_VALUES[path])
+            what = ", ".join(repr(v) for v in _PARAM_VALUES[path])
 
         async def hook(wv: ua.WriteValue, user: User, store: Callable[[], Awaitable[ua.StatusCode]]) -> ua.StatusCode:
-            value, bad = _scalar(wv, ua.VariantType.Int32)
+            value, bad = _scalar(wv, vtype)
             if bad is not None:
                 return bad
             if value not in allowed:
-                log.info("refused %s = %r: expected one of %s", path, value, what)
-                return ua.StatusCode(S.BadOutOfRange)
-            status = await store()
-            if status.is_good():
-                self._values[wv.NodeId] = value
-            return status
-
-        return hook
-
-    def _param_hook(self, path: str) -> WriteHook:
-        async def hook(wv: ua.WriteValue, user: User, store: Callable[[], Awaitable[ua.StatusCode]]) -> ua.StatusCode:
-            value, bad = _scalar(wv, ua.VariantType.String)
-            if bad is not None:
-                return bad
-            if value not in _PARAM_VALUES[path]:
+                log.info("refused %s = %.80r: expected one of %s", path, value, what)
                 return ua.StatusCode(S.BadOutOfRange)
             status = await store()
             if status.is_good():
