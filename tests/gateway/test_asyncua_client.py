@@ -313,3 +313,27 @@ def test_client_that_disconnects_mid_call(gateway: OpcuaGateway, spy, url: str) 
             assert st.is_good()
 
     run(body())
+
+
+def test_one_object_per_cell(cfg, daemon, tmp_path) -> None:  # noqa: ANN001
+    from tests.gateway.conftest import make_gw_cfg
+
+    gw_cfg = make_gw_cfg(tmp_path, "cells=[cell1, cell2]")
+    with OpcuaGateway(cfg, gw_cfg).start_thread() as gw:
+        wait_until(lambda: gw._down.get("cell1") is None, 20, "cell1's first Status")
+
+        async def body() -> None:
+            async with Ua(gw_cfg.endpoint, USER, PASSWORD) as c1, Ua(gw_cfg.endpoint, USER, PASSWORD, "cell2") as c2:
+                assert await c1.read("Status/StateCurrent") == PackMLState.Stopped
+                assert await c2.read("Status/StateCurrent") == PackMLState.Undefined
+                assert await c2.read("Status/UnavailableReason") == "waiting for the daemon's first Status"
+                for _ in range(100):
+                    if "cell/cell2/status" in await c2.read("Status/UnavailableReason"):
+                        break
+                    await asyncio.sleep(0.05)
+                assert "no Status from the daemon on 'cell/cell2/status'" in await c2.read("Status/UnavailableReason")
+                st, reason = await c2.call("Reset")
+                assert st.value == S.BadCommunicationError and "cell/cell2/cmd" in reason
+                assert await c1.read("Status/StateCurrent") == PackMLState.Stopped
+
+        run(body())

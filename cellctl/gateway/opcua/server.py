@@ -433,18 +433,19 @@ class OpcuaGateway:
 
     async def _watchdog(self) -> None:
         loop = asyncio.get_running_loop()
+        started = loop.time()
         while True:
             await asyncio.sleep(min(0.5, self.cfg.stale_after_s / 2))
             for cell in self.cells:
                 if self._link_reason is not None:
                     await self._mark_down(cell, self._link_reason)
                     continue
-                seen = self._last_status.get(cell)
-                if seen is None or loop.time() - seen > self.cfg.stale_after_s:
+                seen = self._last_status.get(cell, started)
+                if loop.time() - seen > self.cfg.stale_after_s:
                     raw = await loop.run_in_executor(self._pool, self._link_query, cell)
                     if raw is not None:
                         await self._handle("status", cell, raw)
-                    elif seen is None or loop.time() - seen > self.cfg.stale_after_s:
+                    else:
                         await self._mark_down(
                             cell,
                             f"no Status from the daemon on {keys.status(cell)!r} for more than "
@@ -479,6 +480,9 @@ class OpcuaGateway:
             return await self._outcome(cell, None, S.BadTimeout, str(err))
         except CellError as err:
             return await self._outcome(cell, None, S.BadUnexpectedError, str(err))
+        except Exception as err:  # a session closing under the query: the request failed, the gateway serves on
+            log.exception("cell %s: command %s failed on the bus", cell, cmd.request_id)
+            return await self._outcome(cell, None, S.BadCommunicationError, f"the bus failed the command: {err}")
         if ack.accepted:
             return await self._outcome(cell, ack.state, S.Good, "")
         reason = ack.reason or "refused by the daemon"
