@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
-
 import pytest
 
+from cellctl.bench_options import BenchOptions
 from cellctl.bus.session import private_bus_overrides
 from cellctl.gateway.opcua import OpcuaGateway
 from tests.gateway.conftest import make_gw_cfg, wait_until
@@ -23,8 +22,8 @@ QUICK = ["planner.seed_pct=2"]
 def test_node_opcua_runs_a_sim_cycle(tmp_path) -> None:  # noqa: ANN001
     from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
 
-    args = argparse.Namespace(config=None, overrides=[*private_bus_overrides(), *QUICK])
-    with running_sim_cell(args, "opcua-sim", FAST_SIM) as run:
+    opts = BenchOptions(overrides=(*private_bus_overrides(), *QUICK))
+    with running_sim_cell(opts, "opcua-sim", FAST_SIM) as run:
         gw_cfg = make_gw_cfg(tmp_path)
         with OpcuaGateway(run.cfg, gw_cfg).start_thread() as gw:
             wait_until(lambda: gw._down.get(run.cfg.cell_id) is None, 20, "the gateway's first Status")

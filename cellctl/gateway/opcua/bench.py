@@ -10,7 +10,6 @@ Rounds interleave the paths, so load on the machine touches all of them alike.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import json
 import os
@@ -24,6 +23,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from cellctl.bench_options import BenchOptions
 from cellctl.errors import CellError
 
 __all__ = ["bench_opcua"]
@@ -231,9 +231,9 @@ async def _measure(url: str, user: str, password: str, zenoh_ep: str, n: int) ->
     return out
 
 
-def bench_opcua(args: argparse.Namespace) -> dict[str, Any]:
-    """Run the bench (``--n`` rounds, default 200; each round is one command per path)."""
-    n = args.n or 200
+def bench_opcua(opts: BenchOptions) -> dict[str, Any]:
+    """Run the bench (``opts.n`` rounds, default 200; each round is one command per path)."""
+    n = opts.n or 200
     out_dir = Path(tempfile.mkdtemp(prefix="cellctl-bench-opcua-"))
     bus_port, ua_port = _free_port(), _free_port()
     ep = f"tcp/127.0.0.1:{bus_port}"
@@ -244,11 +244,11 @@ def bench_opcua(args: argparse.Namespace) -> dict[str, Any]:
         f'bus.connect=["{ep}"]',
         f"recording.dir={out_dir / 'logs'}",
         f"recording.index={out_dir / 'cells.db'}",
-        *args.overrides,
+        *opts.overrides,
     ]
     set_args = [a for s in sets for a in ("--set", s)]
     py = [sys.executable, "-m", "cellctl"]
-    cfg_args = ["--config", args.config] if args.config else []
+    cfg_args = ["--config", opts.config] if opts.config else []
     url = f"opc.tcp://127.0.0.1:{ua_port}"
     daemon = _start([*py, "run", *cfg_args, *set_args], out_dir / "daemon.log")
     gateway = _start(
