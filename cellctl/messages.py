@@ -51,6 +51,11 @@ __all__ = [
     "PlannedViewpoint",
     "PlanJobReply",
     "PlanJobRequest",
+    "PoolAssignment",
+    "PoolClaim",
+    "PoolDone",
+    "PoolStats",
+    "PoolStatsRequest",
     "PoseMsg",
     "RobotState",
     "RobotStateRequest",
@@ -719,6 +724,62 @@ class PlanLookupReply(WireMessage):
     mesh_faces: int | None = Field(default=None, ge=0)
 
 
+# --- planner pool (compute host; docs/deploy/README.md) -----------------------------------
+
+
+class PoolClaim(WireMessage):
+    """A pool worker asks the job queue for its next job; it holds the job while its liveliness lives."""
+
+    type: Literal["cellctl/PoolClaim"] = "cellctl/PoolClaim"
+    v: Literal[1] = 1
+    instance: str = Field(pattern=r"^[a-z][a-z0-9_-]{0,63}$")
+
+
+class PoolAssignment(WireMessage):
+    """The queue's answer to a claim: one job for this worker alone, or none (``job_id`` None)."""
+
+    type: Literal["cellctl/PoolAssignment"] = "cellctl/PoolAssignment"
+    v: Literal[1] = 1
+    job_id: str | None = Field(default=None, max_length=128)
+    cell_id: str | None = Field(default=None, max_length=64)
+    attempt: int = Field(default=0, ge=0)
+    request: PlanJobRequest | None = None
+    reason: str | None = None
+
+
+class PoolDone(WireMessage):
+    """A pool worker reports a claimed job finished (answered with the job's PlanJobReply)."""
+
+    type: Literal["cellctl/PoolDone"] = "cellctl/PoolDone"
+    v: Literal[1] = 1
+    job_id: str = Field(max_length=128)
+    instance: str = Field(pattern=r"^[a-z][a-z0-9_-]{0,63}$")
+    state: Literal["done", "failed"]
+    plan_id: str | None = None
+    reason: str | None = None
+
+
+class PoolStatsRequest(WireMessage):
+    type: Literal["cellctl/PoolStatsRequest"] = "cellctl/PoolStatsRequest"
+    v: Literal[1] = 1
+
+
+class PoolStats(WireMessage):
+    """The job queue's counters: each job should be planned exactly once (``planned_twice`` 0)."""
+
+    type: Literal["cellctl/PoolStats"] = "cellctl/PoolStats"
+    v: Literal[1] = 1
+    submitted: int = 0
+    planned: int = 0
+    failed: int = 0
+    requeued: int = 0
+    planned_twice: int = 0
+    queued: int = 0
+    running: int = 0
+    per_worker: dict[str, int] = Field(default_factory=dict, description="jobs planned per worker instance")
+    workers: list[str] = Field(default_factory=list, description="pool workers alive now")
+
+
 MESSAGE_TYPES: dict[str, type[WireMessage]] = {
     m.model_fields["type"].default: m
     for m in (
@@ -750,6 +811,11 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
         PlanJobQuery,
         PlanLookupRequest,
         PlanLookupReply,
+        PoolClaim,
+        PoolAssignment,
+        PoolDone,
+        PoolStatsRequest,
+        PoolStats,
     )
 }
 """Registry used by the codec: ``"cellctl/<Name>"`` → model class."""

@@ -20,8 +20,15 @@ __all__ = [
     "cmd",
     "cmd_ack",
     "events",
+    "cell_from_key",
     "planner_job_progress",
     "planner_jobs",
+    "planner_jobs_any",
+    "planner_lookup_any",
+    "pool_alive",
+    "pool_claim",
+    "pool_done",
+    "pool_stats",
     "prefix",
     "result",
     "role_from_alive_key",
@@ -117,6 +124,52 @@ def planner_jobs(cell_id: str) -> str:
 
 def planner_job_progress(cell_id: str, job_id: str = "*") -> str:
     return f"{prefix(cell_id)}/planner/jobs/{job_id}/progress"
+
+
+def planner_jobs_any() -> str:
+    """The jobs key of every cell: the planner pool's queue serves them all (``cell/*/planner/jobs``)."""
+    return "cell/*/planner/jobs"
+
+
+def planner_lookup_any() -> str:
+    """The plan-cache lookup of every cell: pool workers answer for all cells (one shared cache)."""
+    return "cell/*/planner/lookup"
+
+
+def cell_from_key(key: str) -> str:
+    """The cell id of a ``cell/<id>/...`` key, else ConfigError."""
+    parts = str(key).split("/")
+    if len(parts) < 3 or parts[0] != "cell":
+        raise ConfigError(f"key {key!r} is not a cell key; expected 'cell/<id>/...'")
+    return check_cell_id(parts[1])
+
+
+_POOL = "pool/planner"
+"""The planner pool's own keys (compute host): not under any cell, the pool serves several."""
+
+
+def pool_claim() -> str:
+    """Queryable of the pool's job queue: a worker's claim gets the next job (or none)."""
+    return f"{_POOL}/claim"
+
+
+def pool_done() -> str:
+    """Queryable of the pool's job queue: a worker reports a claimed job done or failed."""
+    return f"{_POOL}/done"
+
+
+def pool_stats() -> str:
+    """Queryable of the pool's job queue: counters (jobs per worker, requeued, planned twice)."""
+    return f"{_POOL}/stats"
+
+
+def pool_alive(instance: str | None = None) -> str:
+    """Liveliness of a pool worker; a claim is held exactly as long as its claimant's token lives."""
+    if instance is None:
+        return f"{_POOL}/alive/*"
+    if not _OP.match(instance):
+        raise ConfigError(f"instance name {instance!r} is invalid: expected lower-case letters, digits, '_' or '-'")
+    return f"{_POOL}/alive/{instance}"
 
 
 def alive(cell_id: str, role: str, instance: str | None = None) -> str:

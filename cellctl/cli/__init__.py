@@ -32,6 +32,7 @@ VERB_MODULES = (
     "cellctl.cli.plan",
     "cellctl.cli.gateway",
     "cellctl.cli.hmi",
+    "cellctl.cli.router",
 )
 
 

@@ -45,7 +45,8 @@ __all__ = ["BACKENDS", "PlannerService", "run_worker"]
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
 
-BACKENDS = ("local",)
+BACKENDS = ("local", "pool")
+"""``local``: serves this cell's keys; ``pool``: claims jobs from a planner pool's queue (pool.py)."""
 
 
 def _pid_alive(pid: int) -> bool:
@@ -274,6 +275,11 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
     name = backend or "local"
     if name not in BACKENDS:
         raise ConfigError(f"planner backend {name!r} is unknown; expected one of {list(BACKENDS)}")
+    if name == "pool":
+        from cellctl.workers.planner.pool import run_pool_worker
+
+        run_pool_worker(cfg, stop_event)
+        return
     instance = f"p{os.getpid()}-{uuid.uuid4().hex[:4]}"
     session = open_session(cfg, "client")
     try:
