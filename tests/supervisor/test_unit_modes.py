@@ -7,6 +7,7 @@ import json
 import time
 
 import pytest
+from mcap.reader import make_reader
 
 from cellctl.app import build_cell
 from cellctl.bus.codec import encode
@@ -109,7 +110,15 @@ def test_modes_and_admin_over_zenoh_and_across_a_restart(cfg) -> None:  # noqa: 
             st = plc.wait_for(lambda s: s.unit_mode == "maintenance", 5)
             assert st is not None and st.unit_mode_code == 2
             plc.to_idle()
-            assert plc.run_cycle(timeout=30).verdict == "dirty"
+            plc.drain()
+            ack = plc.send(Command(command="start", user="hmi:bob", request_id="s-1"))
+            assert ack.accepted and ack.user == "hmi:bob" and ack.unit_mode == "maintenance"
+            res = plc.results.get(timeout=30)
+            assert res.verdict == "dirty"
+            plc.wait_for(lambda s: s.state == "Complete", 10)
+            with open(cfg.path(res.log), "rb") as f:  # the Command is recorded as received, user and all
+                cmds = [json.loads(m.data) for _, ch, m in make_reader(f).iter_messages() if ch.topic.endswith("/cmd")]
+            assert cmds[0]["user"] == "hmi:bob" and cmds[0]["request_id"] == "s-1"
             plc.to_idle()
             assert plc.unit_mode("manual").accepted  # in Idle
             st = plc.status()
