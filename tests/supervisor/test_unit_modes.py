@@ -138,3 +138,22 @@ def test_modes_and_admin_over_zenoh_and_across_a_restart(cfg) -> None:  # noqa: 
         assert admin.last_cycle is not None and admin.last_cycle.outcome == "completed"
     finally:
         cell.close()
+
+
+def test_cellctl_cmd_requests_a_unit_mode(cfg, capsys) -> None:  # noqa: ANN001
+    from cellctl.cli import main
+
+    cell = build_cell(cfg, identification=(None, None))
+    try:
+        ep = json.dumps(cfg.bus.listen)
+        sets = ["--set", f"bus.listen={ep}", "--set", f"bus.connect={ep}", "--timeout", "5"]
+        assert main(["cmd", "--unit-mode", "manual", "--user", "cli:test", *sets]) == 0
+        ack = json.loads(capsys.readouterr().out.splitlines()[0])
+        assert ack["accepted"] and ack["unit_mode"] == "manual" and ack["user"] == "cli:test"
+        assert cell.supervisor.unit_mode == UnitMode.manual
+        assert main(["cmd", "--unit-mode", "production", "--put", *sets]) == 0
+        assert json.loads(capsys.readouterr().out.splitlines()[0])["unit_mode"] == "production"
+        assert main(["cmd", "reset", "--unit-mode", "manual", *sets]) == 2  # both: refused before sending
+        assert "exactly one" in capsys.readouterr().err
+    finally:
+        cell.close()
