@@ -37,6 +37,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "sim cycles back to back (--n cycles): cycles/hour, RSS, open files",
     ),
     "hmi": ("cellctl.hmi.bench:bench_hmi", "GET /api/status p50/p99 of a separate HMI process while sim cycles run"),
+    "cluster": (
+        "cellctl.reliability.cluster:bench_cluster",
+        "3 cells, planner pool, PLC host in network namespaces: cycles, jobs, 1 vs 2 workers, link faults (root)",
+    ),
     "opcua": (
         "cellctl.gateway.opcua.bench:bench_opcua",
         "command -> StateCurrent through the OPC UA gateway beside raw Zenoh (--n rounds)",
