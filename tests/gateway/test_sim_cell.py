@@ -27,7 +27,7 @@ def test_node_opcua_runs_a_sim_cycle(tmp_path) -> None:  # noqa: ANN001
         gw_cfg = make_gw_cfg(tmp_path)
         with OpcuaGateway(run.cfg, gw_cfg).start_thread() as gw:
             wait_until(lambda: gw._down.get(run.cfg.cell_id) is None, 20, "the gateway's first Status")
-            out = node_plc(gw_cfg.endpoint, "methods", "line-plc", "line-plc-password-1", timeout=600)
+            out = node_plc(gw_cfg.endpoint, "methods", "line-plc", "line-plc-password-1", timeout=600)["methods"]
     assert [s["status"] for s in out["steps"]] == ["Good", "Good"]
     assert out["processed_after"] == out["processed_before"] + 1
     assert out["last_outcome"] == "completed"

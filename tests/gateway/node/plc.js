@@ -1,10 +1,10 @@
 // A PLC-side OPC UA client on node-opcua (an independent stack), driven by tests/gateway/test_node_opcua.py.
 //
-//   node plc.js URL SCENARIO [USER PASSWORD]
+//   node plc.js URL SCENARIO[,SCENARIO…] [USER PASSWORD]   (one session per scenario, in order)
 //
 // Scenarios: browse (anonymous: browse paths, reads, a refused write and call), handshake and methods
 // (Reset -> Idle -> Start -> a cycle -> Complete, watching StateCurrent by subscription and the Admin
-// counters), bad-input. Prints one JSON object on stdout; exits 1 on any unexpected error.
+// counters), bad-input. Prints one JSON object {scenario: result} on stdout; exits 1 on any unexpected error.
 "use strict";
 
 const {
@@ -28,20 +28,9 @@ function sleep(ms) {
   return new Promise((r) => setTimeout(r, ms));
 }
 
-async function main() {
-  const [url, scenario, user, password] = process.argv.slice(2);
-  const client = OPCUAClient.create({
-    applicationName: "cellctl-test-plc",
-    endpointMustExist: false,
-    securityMode: MessageSecurityMode.None,
-    securityPolicy: SecurityPolicy.None,
-    connectionStrategy: { maxRetry: 2, initialDelay: 200, maxDelay: 1000 },
-  });
-  await client.connect(url);
-  const identity = user ? { type: UserTokenType.UserName, userName: user, password } : undefined;
-  const session = await client.createSession(identity);
+async function runScenario(session, scenario) {
   const out = { scenario };
-  try {
+  {
     const nsArray = await session.readNamespaceArray();
     const pk = nsArray.indexOf(PACKML_NS);
     const cc = nsArray.indexOf(CELLCTL_NS);
@@ -114,7 +103,9 @@ async function main() {
         TimestampsToReturn.Both,
       );
       item.on("changed", (dv) => seen.push({ v: dv.value.value, source: dv.sourceTimestamp && dv.sourceTimestamp.toISOString() }));
-      await sleep(300);
+      // the first notification is the current value: from then on every change is seen
+      const subscribed = Date.now() + 15000;
+      while (seen.length === 0 && Date.now() < subscribed) await sleep(20);
       out.processed_before = await read("ProdProcessedCount");
       out.defective_before = await read("ProdDefectiveCount");
       out.steps = [];
@@ -154,11 +145,39 @@ async function main() {
     } else {
       throw new Error(`unknown scenario ${scenario}`);
     }
-  } finally {
-    await session.close();
-    await client.disconnect();
   }
-  process.stdout.write(JSON.stringify(out) + "\n");
+  return out;
+}
+
+async function main() {
+  const [url, scenarios, user, password] = process.argv.slice(2);
+  const results = {};
+  // one process for all scenarios (loading node-opcua takes seconds on a busy machine), a fresh
+  // connection and session for each, as separate PLC programs would have
+  for (const scenario of scenarios.split(",")) {
+    const client = OPCUAClient.create({
+      applicationName: "cellctl-test-plc",
+      endpointMustExist: false,
+      securityMode: MessageSecurityMode.None,
+      securityPolicy: SecurityPolicy.None,
+      connectionStrategy: { maxRetry: 2, initialDelay: 200, maxDelay: 1000 },
+    });
+    await client.connect(url);
+    try {
+      const anonymous = scenario === "browse" || !user;
+      const session = await client.createSession(
+        anonymous ? undefined : { type: UserTokenType.UserName, userName: user, password },
+      );
+      try {
+        results[scenario] = await runScenario(session, scenario);
+      } finally {
+        await session.close();
+      }
+    } finally {
+      await client.disconnect();
+    }
+  }
+  process.stdout.write(JSON.stringify(results) + "\n");
 }
 
 main().then(
