@@ -212,9 +212,11 @@ class CellLink:
 
     def _alarm_locked(self, level: str, text: str, cycle_id: str | None, stamp: str, key: str | None = None) -> None:
         # One fault, one alarm: the error event and the Status's last_error usually say the same thing.
+        # ("scanning failed: X", then last_error "X" in Aborting): same cycle, one text inside the other.
         key = key or text
-        if any(a.key == key and a.cycle_id == cycle_id and a.acked_by is None for a in self._alarms.values()):
-            return
+        for a in self._alarms.values():
+            if a.cycle_id == cycle_id and a.acked_by is None and (key in a.key or a.key in key):
+                return
         a = Alarm(next(self._seq), level, text, cycle_id, stamp, key=key)
         self._alarms[a.id] = a
         if len(self._alarms) > 200:  # keep the newest; acknowledged ones go first

@@ -315,13 +315,13 @@ function renderEvents(d) {
   const logged = !!session.user;
   $("alarm-hint").classList.toggle("hidden", logged);
   $("alarms").replaceChildren(...(d.alarms || []).map((a) => el("tr", {},
-    el("td", {}, time(a.stamp)), el("td", { class: a.acked_by ? "" : `level-${a.level}` }, a.level),
+    el("td", { class: "nowrap" }, time(a.stamp)), el("td", { class: a.acked_by ? "" : `level-${a.level}` }, a.level),
     el("td", {}, a.text), el("td", { class: "mono small" }, a.cycle_id || "—"),
     el("td", {}, a.acked_by ? `${a.acked_by}, ${time(a.acked_at)}` : logged
       ? el("button", { type: "button", id: `ack-${a.id}`, onclick: () => ackAlarm(a.id) }, "Acknowledge") : "open"))));
   if (!(d.alarms || []).length) $("alarms").append(el("tr", {}, el("td", { colspan: 5, class: "muted" }, "no alarms")));
   $("events").replaceChildren(...(d.events || []).map((e) => el("tr", {},
-    el("td", {}, time(e.stamp)), el("td", { class: `level-${e.level}` }, e.level), el("td", { class: "small" }, e.source), el("td", {}, e.text))));
+    el("td", { class: "nowrap" }, time(e.stamp)), el("td", { class: `level-${e.level}` }, e.level), el("td", { class: "small" }, e.source), el("td", {}, e.text))));
 }
 async function ackAlarm(id) {
   const r = await post(`/api/alarms/${id}/ack`, { nonce: nonce() });
