@@ -28,9 +28,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_opcua(args: argparse.Namespace) -> int:
     import asyncio
     import signal
+    import sys
 
     from cellctl.gateway.opcua import OpcuaGateway, load_gateway_config
 
+    # Zenoh callback, command and event-loop threads hand the GIL to each other on every command;
+    # the default 5 ms switch interval would sit in StateCurrent's latency whenever one of them computes.
+    sys.setswitchinterval(0.0005)
     cfg = config_from_args(args)
     gw_cfg = load_gateway_config(args.gateway, args.gw_overrides)
     # asyncua logs every request at INFO and each refused write at WARNING; our own log says what matters

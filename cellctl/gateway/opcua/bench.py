@@ -5,7 +5,8 @@ a plant. Each round sends one command per path, alternating Reset (Stopped → R
 (Idle → Stopping), and times from just before the request to the arrival of the first StateCurrent
 that differs from the wait state: by an OPC UA subscription (method call, or the PackTags handshake
 as one Write of CntrlCmd + CmdChangeRequest) and by a Zenoh subscriber on ``status`` (query on ``cmd``).
-Rounds interleave the paths, so load on the machine touches all of them alike.
+Paths take turns in blocks of 10 commands, so load on the machine touches all of them alike, and
+only the measured path's subscription is open (the bench's client parses nothing else meanwhile).
 """
 
 from __future__ import annotations
@@ -72,8 +73,16 @@ class _UaPath:
             def datachange_notification(self, node: Any, val: Any, data: Any) -> None:
                 path.changes.put_nowait((time.perf_counter(), val))
 
-        self.sub = await self.client.create_subscription(self.interval_ms, Handler())
+        self._handler = Handler()
+        self.sub: Any = None
+
+    async def subscribe(self) -> None:
+        self.sub = await self.client.create_subscription(self.interval_ms, self._handler)
         await self.sub.subscribe_data_change(self.client.get_node(self._id("Status/StateCurrent")))
+
+    async def unsubscribe(self) -> None:
+        await self.sub.delete()
+        self.sub = None
 
     def _id(self, p: str) -> Any:
         return self.ua.NodeId(f"cell1/{p}", self.ns)
@@ -195,7 +204,7 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-async def _measure(url: str, user: str, password: str, zenoh_ep: str, n: int) -> dict[str, Any]:
+async def _measure(url: str, user: str, password: str, zenoh_ep: str, n: int, block: int = 10) -> dict[str, Any]:
     paths = {
         "opcua": _UaPath(url, user, password, 0, "method"),
         "opcua_handshake": _UaPath(url, user, password, 0, "handshake"),
@@ -207,21 +216,32 @@ async def _measure(url: str, user: str, password: str, zenoh_ep: str, n: int) ->
     loop = asyncio.get_running_loop()
     probe = paths["opcua"]
     state_node = probe.client.get_node(probe._id("Status/StateCurrent"))
+
+    async def wait_state() -> int:
+        state = await state_node.read_value()
+        while state not in (IDLE, STOPPED):
+            await asyncio.sleep(0.005)
+            state = await state_node.read_value()
+        return state
+
     try:
-        for i in range(n):
-            for name in (*paths, "zenoh"):
-                state = await state_node.read_value()
-                while state not in (IDLE, STOPPED):
-                    await asyncio.sleep(0.005)
-                    state = await state_node.read_value()
-                if name == "zenoh":
-                    await loop.run_in_executor(None, z.one, state)
-                    # the OPC UA side must have caught up before the next path reads the state
-                    await probe.settle(IDLE if state == STOPPED else STOPPED)
-                else:
-                    await paths[name].one(state)
-            if (i + 1) % 50 == 0:
-                print(f"bench opcua: {i + 1}/{n} rounds", file=sys.stderr)
+        # Blocks of `block` commands per path, paths in turn: only the measured path's subscription
+        # is open, so the bench's own client does not parse the others' notifications meanwhile.
+        done = 0
+        while done < n:
+            k = min(block, n - done)
+            for path in paths.values():
+                await path.subscribe()
+                for _ in range(k):
+                    await path.one(await wait_state())
+                await path.unsubscribe()
+            for _ in range(k):
+                state = await wait_state()
+                await loop.run_in_executor(None, z.one, state)
+                await asyncio.sleep(0.02)  # let the wait state settle before reading it
+            done += k
+            if done % 50 == 0:
+                print(f"bench opcua: {done}/{n} rounds", file=sys.stderr)
     finally:
         z.close()
         for p in paths.values():
