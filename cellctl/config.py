@@ -145,8 +145,34 @@ class CameraConfig(_Model):
     noise_sigma: float = Field(default=2.0, ge=0, le=50, description="sim: sensor noise, 8-bit grey levels")
 
 
+class VerdictConfig(_Model):
+    """How a cycle's per-face dirt evidence becomes the bin verdict (docs/classifier/inspect.md)."""
+
+    rule: Literal["faces", "views"] = Field(
+        default="faces", description="faces: fused per-face probabilities; views: dirty if any view is dirty"
+    )
+    face_threshold: float = Field(default=0.5, gt=0, lt=1, description="a face is dirty at this fused probability")
+    min_dirty_area_cm2: float = Field(default=0.0, ge=0, description="faces rule: dirty only above this dirty area")
+    face_prior: float = Field(default=0.02, gt=0, lt=1, description="prior dirt probability of a face")
+
+
+class RelookConfig(_Model):
+    """Re-imaging an uncertain viewpoint from a nearby pose within the same cycle."""
+
+    max_views: int = Field(default=4, ge=0, le=64, description="re-looks per cycle (0: off)")
+    offset_m: float = Field(default=0.03, ge=0, le=0.2, description="sideways shift of the camera")
+    glance_deg: float = Field(default=12.0, ge=0, le=45, description="swing about the point looked at")
+    depth_m: float = Field(default=0.35, gt=0, le=2, description="distance of that point ahead of the camera")
+
+
 class ClassifierConfig(_Model):
     backend: Literal["torch"] = "torch"
+    decision: Literal["auto", "detector", "supervised"] = Field(
+        default="auto",
+        description="detector: supervised patch head + clean-only bank (<surface>.detect.pt); auto: it when present",
+    )
+    verdict: VerdictConfig = Field(default_factory=VerdictConfig)
+    relook: RelookConfig = Field(default_factory=RelookConfig)
     models_dir: Path = Path("models/classifier")
     imagenet_weights: Path | None = Field(default=None, description="optional local torchvision ResNet18 state_dict")
     variant: Literal["fp32", "fused"] = Field(

@@ -423,6 +423,11 @@ class ViewpointResult(BaseModel):
     p_dirty: float | None = None
     uncertain: bool = False
     error: str | None = None
+    p_supervised: float | None = None
+    anomaly_z: float | None = None
+    heatmap: str | None = Field(default=None, description="per-patch p_dirty, as in ClassifyReply")
+    heat_grid: int | None = None
+    relook_of: int | None = Field(default=None, description="index of the uncertain viewpoint this view re-looks at")
 
 
 class CycleResult(WireMessage):
@@ -637,6 +642,12 @@ class ClassifyReply(WireMessage):
     p_dirty: FiniteFloat = Field(ge=0.0, le=1.0)
     uncertain: bool = False
     model_id: str = Field(max_length=256)
+    p_supervised: FiniteFloat | None = Field(default=None, ge=0.0, le=1.0, description="supervised part alone")
+    anomaly_z: FiniteFloat | None = Field(default=None, description="clean-only part: largest patch distance, clean-σ")
+    heatmap: str | None = Field(
+        default=None, max_length=8192, description="per-patch p_dirty, base64 of uint8 p·255, row-major heat_grid²"
+    )
+    heat_grid: int | None = Field(default=None, ge=1, le=64)
 
 
 # --- planner --------------------------------------------------------------------------------

@@ -28,6 +28,7 @@ __all__ = [
     "CAMERA_POSE",
     "EVENTS",
     "FIXED_TOPICS",
+    "HEATMAP",
     "REPLY_SUFFIX",
     "REQUEST_SUFFIX",
     "SCENE",
@@ -53,8 +54,20 @@ SCENE = "/scene"
 """The dirt map as a 3D scene (``foxglove.SceneUpdate``)."""
 EVENTS = "/events"
 """Supervisor events of the cycle (``foxglove.Log``)."""
+HEATMAP = "/classifier/heatmap"
+"""Per-patch dirt probability of each classified view, colour-coded (``foxglove.CompressedImage``)."""
 
-FIXED_TOPICS = (CAMERA_IMAGE, CAMERA_POSE, BIN_IDENTIFICATION, BIN_IDENTIFICATION_FUSED, BIN_POSE, TF, SCENE, EVENTS)
+FIXED_TOPICS = (
+    CAMERA_IMAGE,
+    CAMERA_POSE,
+    BIN_IDENTIFICATION,
+    BIN_IDENTIFICATION_FUSED,
+    BIN_POSE,
+    TF,
+    SCENE,
+    EVENTS,
+    HEATMAP,
+)
 """Every topic whose name does not derive from a bus key."""
 
 REQUEST_SUFFIX = "/request"

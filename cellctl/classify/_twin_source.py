@@ -189,6 +189,7 @@ def make_twin_source(surface: str, size: int, shifted: bool, seed: int, config: 
                     "eye_bin": [round(float(v), 3) for v in T_bin_cam[:3, 3]],
                     "viewpoint": source,
                 },
+                surface=out.surface == tag,
             )
         raise ClassifierError(f"30 sampled {surface} viewpoints in a row did not show the surface; check the catalog")
 

@@ -2,7 +2,8 @@
 
 For each variant (``fp32`` eager; ``fused`` = BN folded + frozen graph; ``int8`` = FX static
 int8, measured for reference, not shipped because it is slower on this backbone) of the
-external model: batch-1 latency p50/p95 over ``--n`` single-image calls (preprocessing
+external model, and side by side the combined ``detector`` (:mod:`cellctl.classify.fusion`,
+when ``external.detect.pt`` exists: the whole per-image decision with its heat map): batch-1 latency p50/p95 over ``--n`` single-image calls (preprocessing
 included: decode-free RGB → resize → normalise → forward → softmax), images/s at batch 16,
 and accuracy on a fresh held-out set drawn from the same source as the training data
 (seed 10000 + ``--seed``, never used for training).
@@ -101,6 +102,27 @@ def bench_classify(opts: BenchOptions) -> dict[str, Any]:
             "images_per_s_b16": round(_throughput(model.predict_proba, images), 1),
             "accuracy": metrics(p, y, model.threshold, model.band)["accuracy"],
             "model_id": model.model_id,
+        }
+    det_path = cfg.path(cfg.classifier.models_dir) / f"{surface}.detect.pt"
+    if det_path.is_file():
+        from cellctl.classify.fusion import Detector
+
+        print("bench: detector (supervised patch head + clean-only bank + heat map)", file=sys.stderr)
+        det = Detector.load(det_path, surface=surface)
+
+        def det_proba(ims: list[np.ndarray]) -> np.ndarray:
+            return np.array([d.p_dirty for d in det.predict(ims)])
+
+        p50, p95 = _timings(det_proba, images, n)
+        p = det_proba(images)
+        out["detector"] = {
+            "ms_p50": round(p50, 2),
+            "ms_p95": round(p95, 2),
+            "images_per_s_b16": round(_throughput(det_proba, images), 1),
+            "accuracy": metrics(p, y, det.threshold, det.band)["accuracy"],
+            "model_id": det.model_id,
+            "note": "whole per-image decision: resize, frozen backbone to block 10, patch head, "
+            "memory-bank distances, fusion, calibration, heat map",
         }
     print("bench: int8 (reference)", file=sys.stderr)
     try:

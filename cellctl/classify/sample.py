@@ -30,6 +30,8 @@ class Sample:
     rgb: NDArray[np.uint8]
     powder: NDArray[np.float32]
     params: dict[str, Any]
+    surface: NDArray[np.bool_] | None = None
+    """Pixels showing the inspected surface (twin renders), None = all (close-up textures)."""
 
 
 def label_from_mask(

@@ -36,6 +36,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "cellctl.reliability.soak:bench_soak",
         "sim cycles back to back (--n cycles): cycles/hour, RSS, open files",
     ),
+    "inspect": (
+        "cellctl.classify.inspect_bench:bench_inspect",
+        "bin verdict + per-face dirt map vs ground truth over seeded sim cycles (--cycles N)",
+    ),
     "hmi": ("cellctl.hmi.bench:bench_hmi", "GET /api/status p50/p99 of a separate HMI process while sim cycles run"),
     "cluster": (
         "cellctl.reliability.cluster:bench_cluster",

@@ -4,6 +4,8 @@ Examples::
 
     cellctl dataset synth --surface external --n 1200 --out data/synth
     cellctl dataset synth --surface external --n 400 --out data/shifted --shifted --seed 7
+    cellctl dataset contam --surface external --n 1200 --out data/contam --seed 0
+    cellctl dataset contam --surface external --n 400 --out data/contam_shifted --shifted --seed 7
     cellctl train --surface external --data data/synth --out models/classifier/external.pt
     cellctl eval --surface external --data data/shifted --json
     cellctl classify img1.png img2.png --surface internal --json
@@ -43,6 +45,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_config_arguments(s)
     s.set_defaults(func=run_synth)
+    m = dsub.add_parser("contam", help="clean/dirty set over contamination families (twin renders + close-ups)")
+    m.add_argument("--surface", required=True, choices=SURFACES)
+    m.add_argument("--n", type=int, required=True, help="number of images (half clean, half dirty)")
+    m.add_argument("--out", required=True, help="dataset root; images go to OUT/<surface>/<clean|dirty>/")
+    m.add_argument("--shifted", action="store_true", help="the held-out generator (families/optics never trained on)")
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--source", choices=("mixed", "closeup"), default="mixed", help="closeup: no twin renders")
+    m.add_argument("--twin-fraction", type=float, default=0.4, help="share of draws on a twin render")
+    m.add_argument("--size", type=int, default=256)
+    add_config_arguments(m)
+    m.set_defaults(func=run_contam)
 
     t = sub.add_parser("train", help="train a surface's clean/dirty classifier")
     t.add_argument("--surface", required=True, choices=SURFACES)
@@ -83,12 +96,39 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(e)
     e.set_defaults(func=run_eval)
 
+    d = sub.add_parser("detector", help="the combined detector (supervised patch head + clean-only memory bank)")
+    dv = d.add_subparsers(dest="detector_verb", metavar="ACTION", required=True)
+    dt = dv.add_parser("train", help="fit a surface's detector on a `dataset contam` folder")
+    dt.add_argument("--surface", required=True, choices=SURFACES)
+    dt.add_argument("--data", required=True)
+    dt.add_argument("--out", default=None, help="default: <classifier.models_dir>/<surface>.detect.pt")
+    dt.add_argument("--seed", type=int, default=0)
+    dt.add_argument("--epochs", type=int, default=12)
+    dt.add_argument("--bank-size", type=int, default=1024)
+    dt.add_argument("--target-false-clean", type=float, default=0.01)
+    add_config_arguments(dt)
+    dt.set_defaults(func=run_detector_train)
+    de = dv.add_parser("eval", help="evaluate a surface's detector on every image of a folder")
+    de.add_argument("--surface", required=True, choices=SURFACES)
+    de.add_argument("--data", required=True)
+    de.add_argument("--model", default=None)
+    de.add_argument("--out", default=None, help="also write the JSON report here")
+    add_config_arguments(de)
+    de.set_defaults(func=run_detector_eval)
+
     c = sub.add_parser("classify", help="classify image files")
     c.add_argument("images", nargs="+")
     c.add_argument("--surface", required=True, choices=SURFACES)
     c.add_argument("--model", default=None)
     c.add_argument("--variant", choices=("fp32", "fused"), default="fp32")
     c.add_argument("--json", action="store_true", help="one JSON object per line")
+    c.add_argument(
+        "--decision",
+        choices=("auto", "detector", "supervised"),
+        default="auto",
+        help="detector: combined supervised + clean-only decision (<surface>.detect.pt); supervised: the "
+        "whole-image network only; auto: the detector when its file exists (default)",
+    )
     add_config_arguments(c)
     c.set_defaults(func=run_classify)
 
@@ -113,6 +153,24 @@ def run_synth(args: argparse.Namespace) -> int:
         source=args.source,
         size=args.size,
         config=cfg,
+    )
+    print(json.dumps(summary))
+    return 0
+
+
+def run_contam(args: argparse.Namespace) -> int:
+    from cellctl.classify.contam_dataset import contam_dataset
+
+    summary = contam_dataset(
+        args.out,
+        args.surface,
+        args.n,
+        seed=args.seed,
+        shifted=args.shifted,
+        source=args.source,
+        twin_fraction=args.twin_fraction,
+        size=args.size,
+        config=config_from_args(args),
     )
     print(json.dumps(summary))
     return 0
@@ -181,12 +239,56 @@ def run_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _detector_path(args: argparse.Namespace) -> Path:
+    from cellctl.classify.fusion import detector_path
+
+    given = args.out if args.func is run_detector_train else args.model
+    if given:
+        return Path(given)
+    cfg = config_from_args(args)
+    return detector_path(cfg.path(cfg.classifier.models_dir), args.surface)
+
+
+def run_detector_train(args: argparse.Namespace) -> int:
+    from cellctl.classify.fusion import train_detector
+
+    card = train_detector(
+        args.data,
+        args.surface,
+        _detector_path(args),
+        seed=args.seed,
+        epochs=args.epochs,
+        bank_size=args.bank_size,
+        target_false_clean=args.target_false_clean,
+    )
+    print(json.dumps({"model_id": card["model_id"], "test": card["metrics"]["test"], "seconds": card["train_seconds"]}))
+    return 0
+
+
+def run_detector_eval(args: argparse.Namespace) -> int:
+    from cellctl.classify.fusion import Detector, evaluate_detector
+
+    report = evaluate_detector(Detector.load(_detector_path(args), surface=args.surface), args.data, args.surface)
+    report["data"] = str(args.data)
+    print(json.dumps(report))
+    if args.out:
+        Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
+    return 0
+
+
 def run_classify(args: argparse.Namespace) -> int:
     from cellctl.classify.data import load_image
     from cellctl.classify.infer import SurfaceModel
     from cellctl.errors import CellError
 
-    model = SurfaceModel.load(_model_path(args), surface=args.surface, variant=args.variant)
+    from cellctl.classify.fusion import Detector, detector_path
+
+    cfg = config_from_args(args)
+    det_file = detector_path(cfg.path(cfg.classifier.models_dir), args.surface)
+    if args.decision == "detector" or (args.decision == "auto" and det_file.is_file() and not args.model):
+        model = Detector.load(det_file, surface=args.surface)
+    else:
+        model = SurfaceModel.load(_model_path(args), surface=args.surface, variant=args.variant)
     rc = 0
     for path in args.images:
         try:

@@ -1,4 +1,9 @@
-"""Draw a cycle's dirt map: the bin mesh coloured by faces seen dirty, seen clean, never seen."""
+"""Draw a cycle's dirt map: the bin mesh coloured by each face's dirt probability (or state).
+
+A dirt map with ``face_p`` (per-face fused probabilities, :mod:`cellctl.classify.heatmap`) is
+drawn on a green → yellow → red scale, unseen faces grey; an older map (lists of faces seen
+dirty / seen clean only) in the three state colours.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +14,7 @@ import numpy as np
 
 from cellctl.errors import RecordingError
 
-__all__ = ["COLOURS", "draw_dirt_map", "face_states"]
+__all__ = ["COLOURS", "draw_dirt_map", "face_colours", "face_states", "probability_colours"]
 
 COLOURS = {"dirty": (0.85, 0.15, 0.1, 1.0), "clean": (0.2, 0.7, 0.3, 1.0), "unseen": (0.8, 0.8, 0.82, 0.35)}
 
@@ -23,6 +28,30 @@ def face_states(n_faces: int, dirt_map: dict[str, Any]) -> np.ndarray:
             raise RecordingError(f"dirt map face id {int(ids.max())} is out of range for a mesh of {n_faces} faces")
         s[ids] = code
     return s
+
+
+def probability_colours(p: np.ndarray) -> np.ndarray:
+    """RGBA ``(F, 4)`` for probabilities ``(F,)``: green 0 → yellow 0.5 → red 1; NaN = unseen grey."""
+    p = np.asarray(p, np.float64)
+    q = np.clip(np.nan_to_num(p, nan=0.0), 0, 1)[:, None]
+    green, yellow, red = (np.array(COLOURS["clean"]), np.array((0.95, 0.8, 0.1, 1.0)), np.array(COLOURS["dirty"]))
+    rgba = np.where(q < 0.5, green + (yellow - green) * (q / 0.5), yellow + (red - yellow) * ((q - 0.5) / 0.5))
+    rgba[np.isnan(p)] = COLOURS["unseen"]
+    return rgba
+
+
+def face_colours(n_faces: int, dirt_map: dict[str, Any]) -> np.ndarray:
+    """RGBA per face: by probability when the map has ``face_p``, else by state."""
+    from cellctl.classify.heatmap import face_probabilities
+    from cellctl.errors import ClassifierError
+
+    try:
+        p = face_probabilities(dirt_map, n_faces)
+    except ClassifierError as err:
+        raise RecordingError(str(err)) from err
+    if p is not None:
+        return probability_colours(p)
+    return np.array([COLOURS["unseen"], COLOURS["clean"], COLOURS["dirty"]])[face_states(n_faces, dirt_map)]
 
 
 def draw_dirt_map(
@@ -42,7 +71,8 @@ def draw_dirt_map(
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     states = face_states(mesh.n_faces, dirt_map)
-    colours = np.array([COLOURS["unseen"], COLOURS["clean"], COLOURS["dirty"]])[states]
+    colours = face_colours(mesh.n_faces, dirt_map)
+    graded = "face_p" in dirt_map
     tris = mesh.vertices[mesh.faces]
     fig = plt.figure(figsize=(12, 6), dpi=110)
     lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
@@ -61,7 +91,13 @@ def draw_dirt_map(
         ax.set_title(name)
         ax.set_axis_off()
     n = np.bincount(states, minlength=3)
-    fig.suptitle(f"{title}  dirty faces {n[2]}, clean {n[1]}, unseen {n[0]} (red dirty, green clean, grey unseen)")
+    legend = (
+        "colour = fused dirt probability per face: green 0, yellow 0.5, red 1; grey unseen"
+        if graded
+        else "red dirty, green clean, grey unseen"
+    )
+    area = f", dirty area {dirt_map['dirty_area_m2'] * 1e4:.1f} cm²" if graded and "dirty_area_m2" in dirt_map else ""
+    fig.suptitle(f"{title}  dirty faces {n[2]}{area}, clean {n[1]}, unseen {n[0]}\n({legend})")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, bbox_inches="tight")

@@ -16,6 +16,7 @@ def test_fixed_topic_names_are_pinned() -> None:
         "/tf",
         "/scene",
         "/events",
+        "/classifier/heatmap",
     )
     assert len(set(topics.FIXED_TOPICS)) == len(topics.FIXED_TOPICS)
 

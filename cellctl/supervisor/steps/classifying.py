@@ -1,18 +1,67 @@
-"""classifying: gather the classifier replies and decide the verdict."""
+"""classifying: gather the classifier replies, re-look at uncertain viewpoints, decide the verdict.
+
+Re-look (``classifier.relook``): a viewpoint whose decision is uncertain is imaged again, in
+the same cycle, from a nearby pose — the camera swings by ``glance_deg`` about the point it
+looks at and shifts ``offset_m`` sideways (:func:`cellctl.classify.heatmap.relook_pose`), so a
+highlight or shadow that made the view ambiguous moves. Up to ``max_views`` re-looks per
+cycle, the most ambiguous views first (closest to the threshold); a re-look that is itself
+uncertain may be re-looked again while the budget lasts. Each re-look is one more
+:class:`~cellctl.messages.ViewpointResult` (``relook_of`` = the viewpoint's index); its
+evidence is fused with the original's: here by averaging the views' logits for the
+any-view rule, in reporting per face.
+
+The verdict set here is the any-view rule; with ``classifier.verdict.rule: faces`` reporting
+replaces it by the per-face verdict.
+"""
 
 from __future__ import annotations
 
 import concurrent.futures
+import math
 
-from cellctl.errors import ClassifierError, WorkerError
+from cellctl.bus import topics
+from cellctl.errors import ClassifierError, WorkerError, WorkerFailed
+from cellctl.messages import CaptureReply, CaptureRequest, MoveReply, MoveRequest, PoseMsg, ViewpointResult
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
+
+
+def _logit(p: float) -> float:
+    q = min(max(p, 1e-6), 1 - 1e-6)
+    return math.log(q / (1 - q))
+
+
+def with_reply(v: ViewpointResult, reply) -> ViewpointResult:  # noqa: ANN001
+    """The viewpoint result updated with a ClassifyReply's decision and scores."""
+    return v.model_copy(
+        update={
+            "label": reply.label,
+            "p_dirty": reply.p_dirty,
+            "uncertain": reply.uncertain,
+            "p_supervised": reply.p_supervised,
+            "anomaly_z": reply.anomaly_z,
+            "heatmap": reply.heatmap,
+            "heat_grid": reply.heat_grid,
+        }
+    )
+
+
+def record_heat(run: StepRun, reply) -> None:  # noqa: ANN001
+    """The reply's heat map as a colour image on :data:`~cellctl.bus.topics.HEATMAP`."""
+    if not reply.heatmap or not reply.heat_grid:
+        return
+    from cellctl.classify.heatmap import decode_heat, heat_png
+
+    cam = run.ctx.cfg.camera
+    w = 256  # the heat map has 16 patches a side: a small image shows it all
+    h = max(16, round(w * cam.height / cam.width))
+    run.ctx.log.image(topics.HEATMAP, heat_png(decode_heat(reply.heatmap, reply.heat_grid), w, h), "png", "camera")
 
 
 class Classifying(Step):
     NAME = "classifying"
     OUTCOMES = ("succeeded", "failed")
-    DESCRIPTION = "wait for outstanding classifications; verdict = dirty if any viewpoint is dirty"
+    DESCRIPTION = "wait for classifications; re-look at uncertain viewpoints; verdict = dirty if any view is dirty"
     READS = ("classifications", "viewpoints", "mode")
     WRITES = ("viewpoints", "verdict")
 
@@ -30,19 +79,94 @@ class Classifying(Step):
             except WorkerError as err:
                 ctx.viewpoints[i] = ctx.viewpoints[i].model_copy(update={"error": str(err)})
                 raise
-            ctx.viewpoints[i] = ctx.viewpoints[i].model_copy(
-                update={"label": reply.label, "p_dirty": reply.p_dirty, "uncertain": reply.uncertain}
-            )
+            ctx.viewpoints[i] = with_reply(ctx.viewpoints[i], reply)
+            record_heat(run, reply)
         ctx.classifications.clear()
         if ctx.mode == "collect":
             ctx.verdict = None
             return "succeeded"
-        labels = [v.label for v in ctx.viewpoints if v.label is not None]
+        n_relook = self._relook(run)
+        labels = self._view_labels(ctx.viewpoints)
         if not labels:
             raise ClassifierError("no viewpoint was classified")
-        ctx.verdict = "dirty" if "dirty" in labels else "clean"
-        n_unc = sum(v.uncertain for v in ctx.viewpoints)
+        ctx.verdict = "dirty" if "dirty" in labels.values() else "clean"
+        n_unc = sum(v.uncertain for v in ctx.viewpoints if v.relook_of is None)
         run.event(
-            "info", f"verdict {ctx.verdict}: {labels.count('dirty')}/{len(labels)} viewpoints dirty, {n_unc} uncertain"
+            "info",
+            f"verdict {ctx.verdict}: {list(labels.values()).count('dirty')}/{len(labels)} viewpoints dirty, "
+            f"{n_unc} uncertain, {n_relook} re-looks",
         )
         return "succeeded"
+
+    @staticmethod
+    def _view_labels(viewpoints: list[ViewpointResult]) -> dict[int, str]:
+        """Label per viewpoint index, a re-looked viewpoint's views fused (mean logit vs its threshold).
+
+        The threshold is not on the wire; a view's own label and ``p_dirty`` bound it: fused
+        views keep the label of the one whose logit is nearest the mean.
+        """
+        groups: dict[int, list[ViewpointResult]] = {}
+        for v in viewpoints:
+            if v.label is not None and v.p_dirty is not None:
+                groups.setdefault(v.index, []).append(v)
+        out = {}
+        for idx, vs in groups.items():
+            if len(vs) == 1:
+                out[idx] = vs[0].label
+                continue
+            mean = sum(_logit(v.p_dirty) for v in vs) / len(vs)  # type: ignore[arg-type]
+            out[idx] = min(vs, key=lambda v: abs(_logit(v.p_dirty) - mean)).label  # type: ignore[arg-type]
+        return out
+
+    def _relook(self, run: StepRun) -> int:
+        """Re-image uncertain viewpoints from nearby poses (see module doc); returns how many."""
+        ctx = run.ctx
+        rc = ctx.cfg.classifier.relook
+        if rc.max_views <= 0:
+            return 0
+        from cellctl.classify.heatmap import relook_pose
+        from cellctl.supervisor.steps.board_mask import mask_board
+        from cellctl.supervisor.steps.identifying import captured_image
+        from cellctl.supervisor.steps.scanning import classify_image
+
+        bin_type = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
+        done = 0
+        tried: dict[int, int] = {}
+        while done < rc.max_views:
+            pending = [
+                v
+                for v in ctx.viewpoints
+                if v.uncertain and v.camera_pose is not None and v.error is None and v.p_dirty is not None
+                # the latest view of its viewpoint decides whether to look again
+                and v is [w for w in ctx.viewpoints if w.index == v.index][-1]
+            ]
+            if not pending:
+                break
+            v = min(pending, key=lambda w: abs(_logit(w.p_dirty) - _logit(0.5)))  # type: ignore[arg-type]
+            run.checkpoint()
+            k = tried.get(v.index, 0)
+            tried[v.index] = k + 1
+            base = next(w for w in ctx.viewpoints if w.index == v.index and w.relook_of is None)
+            T = relook_pose(base.camera_pose.matrix(), k, rc.offset_m, rc.glance_deg, rc.depth_m)  # type: ignore[union-attr]
+            done += 1
+            try:
+                moved, _ = run.call(
+                    "robot", "move", MoveRequest(camera_pose=PoseMsg.from_matrix(T), settle_s=ctx.cfg.robot.settle_s), MoveReply
+                )
+            except WorkerFailed as err:
+                ctx.viewpoints.append(
+                    ViewpointResult(index=v.index, camera_pose=PoseMsg.from_matrix(T), error=str(err), relook_of=v.index)
+                )
+                continue
+            cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
+            data = captured_image(cap, image)
+            ctx.log.image(topics.CAMERA_IMAGE, data, cap.format, "camera")
+            img = data
+            if bin_type is not None and ctx.T_base_bin is not None:
+                img = mask_board(data, bin_type, ctx.T_base_bin, moved.camera_pose.matrix(), cap.intrinsics)
+            reply = classify_image(run, v.index, img, "png" if img is not data else cap.format, ctx.surface)
+            record_heat(run, reply)
+            ctx.viewpoints.append(
+                with_reply(ViewpointResult(index=v.index, camera_pose=moved.camera_pose, relook_of=v.index), reply)
+            )
+        return done

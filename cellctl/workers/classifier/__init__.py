@@ -2,7 +2,10 @@
 
 Request: :class:`~cellctl.messages.ClassifyRequest` as the query attachment, the encoded
 PNG/JPEG image as the payload. Reply: :class:`~cellctl.messages.ClassifyReply` (label,
-``p_dirty``, ``uncertain``, ``model_id``). Both surface models are loaded once at start.
+``p_dirty``, ``uncertain``, ``model_id``; from the combined detector also ``p_supervised``,
+``anomaly_z`` and the per-patch heat map). Both surface models are loaded once at start; a
+surface with a detector (``<surface>.detect.pt``, :mod:`cellctl.classify.fusion`) is decided by
+it unless ``classifier.decision`` is ``supervised``.
 Queries that are already queued when the worker picks one up are answered as one batch (up
 to ``classifier.max_batch``), one forward pass per surface. A bad image, an unknown surface or
 a surface whose weights are missing gets a :class:`~cellctl.errors.ClassifierError` error
@@ -46,15 +49,25 @@ class ClassifierService:
         threads: torch CPU threads (None: all cores).
     """
 
-    def __init__(self, models_dir: Path, variant: str = "fused", threads: int | None = None) -> None:
+    def __init__(
+        self, models_dir: Path, variant: str = "fused", threads: int | None = None, decision: str = "auto"
+    ) -> None:
         import os
 
         import torch
 
+        from cellctl.classify.fusion import load_detectors
         from cellctl.classify.infer import load_surface_models
 
         torch.set_num_threads(threads or os.cpu_count() or 1)
+        self.detectors: dict[str, Any] = {}
+        if decision in ("auto", "detector"):
+            self.detectors, missing = load_detectors(models_dir)
+            if decision == "detector" and missing:
+                raise ClassifierError(f"classifier.decision is 'detector' but: {missing}")
         self.models, self.problems = load_surface_models(models_dir, variant)
+        for s in self.detectors:
+            self.problems.pop(s, None)
         for s, why in self.problems.items():
             log.warning("classifier: no model for surface %s: %s", s, why)
         self._lock = threading.Lock()
@@ -66,7 +79,7 @@ class ClassifierService:
         for i, (req, data) in enumerate(items):
             try:
                 check_surface(req.surface, ClassifierError)
-                if req.surface not in self.models:
+                if req.surface not in self.models and req.surface not in self.detectors:
                     raise ClassifierError(f"no model for surface {req.surface!r}: {self.problems.get(req.surface)}")
                 if len(data) > MAX_IMAGE_BYTES:
                     raise ClassifierError(f"image of {len(data)} bytes exceeds the limit of {MAX_IMAGE_BYTES} bytes")
@@ -76,6 +89,21 @@ class ClassifierService:
                 out[i] = err
         with self._lock:
             for surface, entries in groups.items():
+                if surface in self.detectors:
+                    from cellctl.classify.heatmap import encode_heat
+
+                    for (i, _), d in zip(entries, self.detectors[surface].predict([im for _, im in entries]), strict=True):
+                        out[i] = ClassifyReply(
+                            label=d.label,
+                            p_dirty=d.p_dirty,
+                            uncertain=d.uncertain,
+                            model_id=d.model_id,
+                            p_supervised=d.p_supervised,
+                            anomaly_z=d.anomaly_z,
+                            heatmap=encode_heat(d.heat),
+                            heat_grid=int(d.heat.shape[0]),
+                        )
+                    continue
                 preds = self.models[surface].predict([img for _, img in entries])
                 for (i, _), pr in zip(entries, preds, strict=True):
                     out[i] = ClassifyReply(
@@ -188,7 +216,7 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
     if name not in BACKENDS:
         raise ConfigError(f"classifier backend {name!r} is unknown; expected one of {list(BACKENDS)}")
     c = cfg.classifier
-    service = ClassifierService(cfg.path(c.models_dir), c.variant, c.threads)
+    service = ClassifierService(cfg.path(c.models_dir), c.variant, c.threads, c.decision)
     session = open_session(cfg, "client")
     try:
         server = BatchingClassifyServer(session, cfg.cell_id, service, c.max_batch)

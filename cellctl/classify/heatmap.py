@@ -1,0 +1,294 @@
+"""Heat maps: compact wire form, a viewable image, projection onto mesh faces, fusion, re-look poses.
+
+Light (numpy + OpenCV, no torch): the supervisor imports it.
+
+* :func:`encode_heat` / :func:`decode_heat` — a per-patch dirt-probability map as base64 of
+  uint8 (p × 255), row-major; 16×16 = 344 characters.
+* :func:`heat_png` — the map colour-coded (``COLORMAP_INFERNO``) at the camera's aspect, for the
+  cycle MCAP (a Foxglove ``CompressedImage``).
+* :func:`project_heat` — the probability each visible face gets from one view: face sample
+  points (centroid and three points half-way to the corners) projected with the camera pose
+  and pinhole intrinsics into the image, which the detector squashed to its square grid;
+  bilinear lookup, the largest of the face's samples.
+* :class:`FaceFusion` — fuses views per face in log-odds: the detector's patch probabilities
+  are fitted on class-balanced patches, so ``logit(p)`` is a likelihood ratio, and independent
+  views add; a face prior turns the sum back into a probability. Each view's ratio is clipped
+  (±:data:`MAX_VIEW_LOGIT`) so one glaring view cannot settle a face alone.
+* :func:`fuse_views` → :class:`FaceMap` (its ``as_json`` is the CycleResult's ``dirt_map`` with
+  ``face_p``, one byte per face) and :func:`verdict` (the configurable bin rule).
+* :func:`relook_pose` — a nearby camera pose that keeps the same surface point in view: the
+  camera swings by a glance angle about a point ``depth`` ahead of it and shifts sideways.
+"""
+
+from __future__ import annotations
+
+import base64
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.errors import ClassifierError
+
+__all__ = [
+    "MAX_VIEW_LOGIT",
+    "UNSEEN_CODE",
+    "FaceFusion",
+    "FaceMap",
+    "ViewEvidence",
+    "decode_heat",
+    "encode_heat",
+    "face_probabilities",
+    "fuse_views",
+    "heat_png",
+    "project_heat",
+    "relook_pose",
+    "verdict",
+]
+
+MAX_VIEW_LOGIT = 4.0
+"""Largest log-likelihood ratio one view may add to a face (p 0.018–0.982)."""
+
+
+def encode_heat(heat: NDArray[np.floating]) -> str:
+    """``(G, G)`` probabilities → base64 of uint8 ``round(p·255)``."""
+    q = np.clip(np.round(np.asarray(heat, np.float64) * 255.0), 0, 255).astype(np.uint8)
+    return base64.b64encode(q.tobytes()).decode("ascii")
+
+
+def decode_heat(text: str, grid: int) -> NDArray[np.float32]:
+    """Inverse of :func:`encode_heat`.
+
+    Raises:
+        ClassifierError: not base64, or not ``grid``² values.
+    """
+    try:
+        raw = base64.b64decode(text.encode("ascii"), validate=True)
+    except (ValueError, UnicodeEncodeError) as err:
+        raise ClassifierError(f"heat map is not base64: {err}") from err
+    if len(raw) != grid * grid:
+        raise ClassifierError(f"heat map has {len(raw)} values, expected {grid}x{grid} = {grid * grid}")
+    return np.frombuffer(raw, np.uint8).reshape(grid, grid).astype(np.float32) / 255.0
+
+
+def heat_png(heat: NDArray[np.floating], width: int = 256, height: int = 144) -> bytes:
+    """The heat map as a colour PNG (inferno: black clean → yellow dirty) at ``width``×``height``."""
+    q = np.clip(np.asarray(heat, np.float32) * 255.0, 0, 255).astype(np.uint8)
+    big = cv2.resize(q, (width, height), interpolation=cv2.INTER_NEAREST)
+    ok, buf = cv2.imencode(".png", cv2.applyColorMap(big, cv2.COLORMAP_INFERNO))
+    if not ok:
+        raise ClassifierError("heat map PNG encoding failed")
+    return buf.tobytes()
+
+
+def _samples(mesh: Any, faces: NDArray[np.int64]) -> NDArray[np.float64]:
+    tri = mesh.vertices[mesh.faces[faces]]  # (F, 3, 3)
+    c = tri.mean(axis=1)
+    return np.stack([c, *(0.5 * (c + tri[:, k]) for k in range(3))], axis=1)  # (F, 4, 3)
+
+
+def project_heat(
+    heat: NDArray[np.floating],
+    T_bin_cam: NDArray[np.float64],
+    intrinsics: Any,
+    mesh: Any,
+    faces: NDArray[np.int64] | list[int],
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Probability per visible face from one view's heat map.
+
+    Args:
+        heat: ``(G, G)`` per-patch dirt probability of the whole (squashed) image.
+        T_bin_cam: camera optical frame (+Z forward, +Y down) in the bin frame (4, 4).
+        intrinsics: ``fx, fy, cx, cy, width, height`` attributes (px).
+        mesh: the bin mesh (bin frame).
+        faces: faces the view sees (the plan's visibility; occlusion already handled there).
+
+    Returns:
+        ``(face ids, p)`` for the faces whose samples land in the image.
+    """
+    faces = np.asarray(faces, np.int64)
+    faces = faces[(faces >= 0) & (faces < mesh.n_faces)]
+    if len(faces) == 0:
+        return faces, np.zeros(0)
+    g = heat.shape[0]
+    pts = _samples(mesh, faces).reshape(-1, 3)
+    T_cam_bin = np.linalg.inv(np.asarray(T_bin_cam, np.float64))
+    pc = pts @ T_cam_bin[:3, :3].T + T_cam_bin[:3, 3]
+    z = pc[:, 2]
+    ok = z > 1e-3
+    u = intrinsics.fx * pc[:, 0] / np.where(ok, z, 1.0) + intrinsics.cx
+    v = intrinsics.fy * pc[:, 1] / np.where(ok, z, 1.0) + intrinsics.cy
+    ok &= (u >= 0) & (u < intrinsics.width) & (v >= 0) & (v < intrinsics.height)
+    gx = np.clip(u / intrinsics.width * g - 0.5, 0, g - 1)
+    gy = np.clip(v / intrinsics.height * g - 0.5, 0, g - 1)
+    x0, y0 = np.floor(gx).astype(int), np.floor(gy).astype(int)
+    x1, y1 = np.minimum(x0 + 1, g - 1), np.minimum(y0 + 1, g - 1)
+    fx, fy = gx - x0, gy - y0
+    h = np.asarray(heat, np.float64)
+    val = (h[y0, x0] * (1 - fx) + h[y0, x1] * fx) * (1 - fy) + (h[y1, x0] * (1 - fx) + h[y1, x1] * fx) * fy
+    val = np.where(ok, val, -1.0).reshape(len(faces), 4)
+    seen = (val >= 0).any(axis=1)
+    return faces[seen], val[seen].max(axis=1)
+
+
+@dataclass
+class FaceFusion:
+    """Per-face dirt evidence accumulated over views (log-odds, see module doc).
+
+    Attributes:
+        n_faces: faces of the mesh.
+        prior: prior probability that a face is dirty.
+    """
+
+    n_faces: int
+    prior: float = 0.02
+    llr: NDArray[np.float64] = field(init=False)
+    views: NDArray[np.int32] = field(init=False)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.prior < 1.0:
+            raise ClassifierError(f"face prior {self.prior!r} must be in (0, 1)")
+        self.llr = np.zeros(self.n_faces)
+        self.views = np.zeros(self.n_faces, np.int32)
+
+    def add(self, faces: NDArray[np.int64], p: NDArray[np.float64]) -> None:
+        """One view's probabilities for ``faces``."""
+        q = np.clip(np.asarray(p, np.float64), 1e-6, 1 - 1e-6)
+        self.llr[faces] += np.clip(np.log(q / (1 - q)), -MAX_VIEW_LOGIT, MAX_VIEW_LOGIT)
+        self.views[faces] += 1
+
+    def probability(self) -> NDArray[np.float64]:
+        """``(F,)`` fused dirt probability (the prior where no view saw a face)."""
+        z = np.log(self.prior / (1 - self.prior)) + self.llr
+        return 1.0 / (1.0 + np.exp(-z))
+
+    def seen(self) -> NDArray[np.bool_]:
+        return self.views > 0
+
+
+def relook_pose(T_cam: NDArray[np.float64], k: int, offset_m: float, glance_deg: float, depth: float) -> NDArray[np.float64]:
+    """The ``k``-th re-look pose near camera pose ``T_cam`` (any frame; optical +Z forward).
+
+    The camera swings by ``glance_deg`` about the point ``depth`` m ahead of it (about its own
+    x axis for even ``k``, y for odd; the sign alternates every two), then shifts
+    ``offset_m`` sideways along the swing direction: the same spot seen at another glance
+    angle, where a highlight or shadow that made the view ambiguous has moved.
+    """
+    T = np.asarray(T_cam, np.float64)
+    axis = T[:3, 0] if k % 2 == 0 else T[:3, 1]
+    sign = 1.0 if (k // 2) % 2 == 0 else -1.0
+    a = np.deg2rad(glance_deg) * sign
+    ax = axis / np.linalg.norm(axis)
+    K = np.array([[0, -ax[2], ax[1]], [ax[2], 0, -ax[0]], [-ax[1], ax[0], 0]])
+    R = np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+    pivot = T[:3, 3] + depth * T[:3, 2]
+    out = np.eye(4)
+    out[:3, :3] = R @ T[:3, :3]
+    out[:3, 3] = pivot + R @ (T[:3, 3] - pivot)
+    side = np.cross(ax, out[:3, 2])
+    out[:3, 3] += sign * offset_m * side / max(np.linalg.norm(side), 1e-9)
+    return out
+
+
+UNSEEN_CODE = 255
+"""``face_p`` byte of a face no view saw; seen faces carry ``round(p · 254)``."""
+
+
+@dataclass(frozen=True)
+class ViewEvidence:
+    """What one classified view says about the faces it sees.
+
+    Attributes:
+        faces: the faces the plan says the view sees.
+        T_bin_cam: where the camera actually was, in the bin frame (4, 4).
+        heat: the detector's per-patch map, or None (a whole-image model): then every face of
+            the view gets the view's ``p_dirty``, the old coarse dirt map.
+        p_dirty: the view's image-level probability.
+    """
+
+    faces: NDArray[np.int64]
+    T_bin_cam: NDArray[np.float64]
+    heat: NDArray[np.float32] | None
+    p_dirty: float
+
+
+@dataclass(frozen=True)
+class FaceMap:
+    """Per-face result of a cycle: fused probability, seen, dirty (``p ≥ face_threshold``)."""
+
+    p: NDArray[np.float64]
+    seen: NDArray[np.bool_]
+    dirty: NDArray[np.bool_]
+    dirty_area_m2: float
+
+    def as_json(self) -> dict[str, Any]:
+        """The CycleResult's ``dirt_map``: face id lists (as before) + ``face_p`` (one byte per face)."""
+        code = np.where(self.seen, np.round(np.clip(self.p, 0, 1) * 254), UNSEEN_CODE).astype(np.uint8)
+        n = len(self.p)
+        return {
+            "faces_total": n,
+            "seen_dirty": np.flatnonzero(self.dirty).tolist(),
+            "seen_clean": np.flatnonzero(self.seen & ~self.dirty).tolist(),
+            "unseen_count": int(n - self.seen.sum()),
+            "dirty_area_m2": round(self.dirty_area_m2, 5),
+            "face_p": {
+                "encoding": "base64 uint8 per face: round(p*254), 255 unseen",
+                "data": base64.b64encode(code.tobytes()).decode("ascii"),
+            },
+        }
+
+
+def face_probabilities(dirt_map: dict[str, Any], n_faces: int) -> NDArray[np.float64] | None:
+    """Decode ``dirt_map["face_p"]``: ``(F,)`` probabilities, NaN where unseen; None if absent.
+
+    Raises:
+        ClassifierError: present but malformed or of another mesh size.
+    """
+    fp = dirt_map.get("face_p") if isinstance(dirt_map, dict) else None
+    if not fp:
+        return None
+    try:
+        raw = np.frombuffer(base64.b64decode(str(fp["data"]).encode("ascii"), validate=True), np.uint8)
+    except (KeyError, TypeError, ValueError) as err:
+        raise ClassifierError(f"dirt map face_p is malformed: {err}") from err
+    if len(raw) != n_faces:
+        raise ClassifierError(f"dirt map face_p has {len(raw)} faces, the mesh {n_faces}")
+    return np.where(raw == UNSEEN_CODE, np.nan, raw / 254.0)
+
+
+def fuse_views(
+    views: list[ViewEvidence], mesh: Any, intrinsics: Any, *, prior: float = 0.02, face_threshold: float = 0.5
+) -> FaceMap:
+    """All views of a cycle → per-face dirt probability (:class:`FaceFusion`) and dirty faces."""
+    fusion = FaceFusion(mesh.n_faces, prior)
+    for v in views:
+        if v.heat is not None:
+            faces, p = project_heat(v.heat, v.T_bin_cam, intrinsics, mesh, v.faces)
+        else:
+            faces = np.asarray(v.faces, np.int64)
+            faces = faces[(faces >= 0) & (faces < mesh.n_faces)]
+            p = np.full(len(faces), float(v.p_dirty))
+        fusion.add(faces, p)
+    p = fusion.probability()
+    seen = fusion.seen()
+    dirty = seen & (p >= face_threshold)
+    return FaceMap(p, seen, dirty, float(mesh.areas[dirty].sum()))
+
+
+def verdict(face_map: FaceMap, view_labels: list[str], rule: str = "faces", min_dirty_area_cm2: float = 0.0) -> str:
+    """The bin verdict.
+
+    ``faces``: dirty when the dirty faces' area exceeds ``min_dirty_area_cm2`` (0: any dirty
+    face). ``views``: dirty when any view is labelled dirty (the rule before per-face fusion).
+
+    Raises:
+        ClassifierError: unknown rule.
+    """
+    if rule == "views":
+        return "dirty" if "dirty" in view_labels else "clean"
+    if rule != "faces":
+        raise ClassifierError(f"verdict rule {rule!r} is unknown; expected 'faces' or 'views'")
+    area_cm2 = face_map.dirty_area_m2 * 1e4
+    return "dirty" if face_map.dirty.any() and area_cm2 >= min_dirty_area_cm2 else "clean"

@@ -1,0 +1,218 @@
+"""The contamination synthesiser, the held-out generator, the detector and the heat-map geometry."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from cellctl.classify.contamination import FAMILIES, closeup_steel, composite, draw_family, optics, Optics, visible_mask
+from cellctl.classify.heatmap import (
+    FaceFusion,
+    decode_heat,
+    encode_heat,
+    face_probabilities,
+    fuse_views,
+    project_heat,
+    relook_pose,
+    verdict,
+    ViewEvidence,
+)
+from cellctl.classify.shifted import HELD_OUT_FAMILIES
+from cellctl.errors import ClassifierError
+
+
+def test_every_family_draws_contamination_that_changes_the_image_only_where_it_lies() -> None:
+    rng = np.random.default_rng(0)
+    base = closeup_steel("external", 96, 128, rng)
+    for name in FAMILIES:
+        layer = draw_family(name, 96, 128, rng)
+        assert layer.alpha.shape == (96, 128) and 0 <= layer.alpha.min() and layer.alpha.max() <= 1, name
+        img, alpha = composite(base, layer)
+        far = alpha == 0
+        assert np.allclose(img[far], base[far], atol=1e-6) or layer.mode == "film", name
+        assert np.abs(img - base).max() > 0.02, name
+
+
+def test_composite_respects_the_surface_pixels() -> None:
+    rng = np.random.default_rng(1)
+    base = closeup_steel("internal", 64, 64, rng)
+    where = np.zeros((64, 64), bool)
+    where[:, :32] = True
+    _, alpha = composite(base, draw_family("powder", 64, 64, rng), where)
+    assert alpha[:, 32:].max() == 0
+
+
+def test_visible_mask_needs_contrast_after_the_optics() -> None:
+    rng = np.random.default_rng(2)
+    base = closeup_steel("external", 64, 64, rng)
+    layer = draw_family("powder", 64, 64, rng)
+    dirty, alpha = composite(base, layer)
+    o = Optics(noise_sigma=2.0, noise_seed=5)
+    vis = visible_mask(optics(dirty, o), optics(base, o), alpha)
+    assert vis.sum() > 0
+    assert not vis[alpha < 0.1].any()
+    assert visible_mask(optics(base, o), optics(base, o), alpha).sum() == 0  # same image: nothing visible
+
+
+def test_held_out_families_are_not_training_families() -> None:
+    assert not set(HELD_OUT_FAMILIES) & set(FAMILIES)
+    with pytest.raises(ClassifierError, match="unknown"):
+        draw_family("splatter", 8, 8, np.random.default_rng(0))
+
+
+def _digest(folder: Path) -> str:
+    h = hashlib.sha256()
+    for p in sorted(folder.rglob("*.png")):
+        h.update(p.name.encode() + p.read_bytes())
+    return h.hexdigest()
+
+
+@pytest.fixture(scope="module")
+def contam(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from cellctl.classify.contam_dataset import contam_dataset
+
+    root = tmp_path_factory.mktemp("contam")
+    for s in ("external", "internal"):
+        contam_dataset(root / "train", s, 48, seed=3, source="closeup", size=96)
+    contam_dataset(root / "shifted", "external", 16, seed=9, shifted=True, source="closeup", size=96)
+    return root
+
+
+def test_contam_dataset_is_seeded_labelled_and_has_masks(contam: Path, tmp_path: Path) -> None:
+    import csv
+    import json
+
+    from cellctl.classify.contam_dataset import contam_dataset
+
+    base = contam / "train" / "external"
+    dirty = sorted((base / "dirty").glob("*.png"))
+    assert len(dirty) == 24 and len(list((base / "clean").glob("*.png"))) == 24
+    assert {p.name for p in (base / "masks").glob("*.png")} == {p.name for p in dirty}
+    rows = list(csv.DictReader(open(base / "labels.csv")))
+    assert {r["family"] for r in rows if r["label"] == "dirty"} <= {
+        "+".join((a, b)) for a in FAMILIES for b in FAMILIES
+    } | set(FAMILIES)
+    prov = json.loads((base / "synth.json").read_text())[-1]
+    assert prov["seed"] == 3 and prov["generator"] == "cellctl-contam/1"
+    again = contam_dataset(tmp_path, "external", 48, seed=3, source="closeup", size=96)
+    assert again["counts"] == prov["counts"]
+    assert _digest(tmp_path / "external" / "dirty") == _digest(base / "dirty")
+    shifted = list(csv.DictReader(open(contam / "shifted" / "external" / "labels.csv")))
+    fams = {f for r in shifted if r["label"] == "dirty" for f in r["family"].split("+")}
+    assert fams and fams <= set(HELD_OUT_FAMILIES)
+
+
+def test_detector_trains_predicts_and_reloads(contam: Path, tmp_path: Path) -> None:
+    from cellctl.classify.fusion import Detector, evaluate_detector, train_detector
+
+    out = tmp_path / "external.detect.pt"
+    card = train_detector(contam / "train", "external", out, epochs=2, bank_size=64)
+    assert card["sha256"] and card["metrics"]["test"]["n"] > 0
+    assert not Path(card["data"]["root"]).is_absolute() or card["data"]["root"] == str(contam / "train")
+    det = Detector.load(out, surface="external")
+    from cellctl.classify.data import load_image
+
+    img = load_image(next((contam / "train" / "external" / "dirty").glob("*.png")))
+    d = det.predict([img])[0]
+    assert d.label in ("clean", "dirty") and d.heat.shape == (16, 16)
+    assert 0.0 <= d.p_dirty <= 1.0 and 0.0 <= d.p_supervised <= 1.0
+    assert set(d.as_dict()) >= {"label", "p_dirty", "uncertain", "model_id", "p_supervised", "anomaly_z"}
+    rep = evaluate_detector(det, contam / "shifted", "external")
+    assert rep["n"] == 16 and set(rep["by_family"]) - {"none"} <= set(HELD_OUT_FAMILIES) | {
+        f"{a}+{b}" for a in HELD_OUT_FAMILIES for b in HELD_OUT_FAMILIES
+    }
+    with pytest.raises(ClassifierError, match="expected 'internal'|for 'external'"):
+        Detector.load(out, surface="internal")
+    card_path = out.with_suffix(".json")
+    card_path.write_text(card_path.read_text().replace(card["sha256"], "0" * 64))
+    with pytest.raises(ClassifierError, match="other weights"):
+        Detector.load(out)
+
+
+def test_memory_bank_scores_a_foreign_patch_far_from_clean_ones() -> None:
+    import torch
+
+    from cellctl.classify.anomaly import MemoryBank
+
+    g = torch.Generator().manual_seed(0)
+    clean = torch.randn(20, 8, 4, 4, generator=g) * 0.1
+    bank = MemoryBank.fit(clean, 32)
+    q = bank.standardise(clean[:2].clone())
+    near = bank(q).max().item()
+    q[0, :, 1, 1] += 10.0
+    assert bank(q)[0, 1, 1].item() > 5 * max(near, 1e-3)
+
+
+def test_heat_roundtrip_and_bad_input() -> None:
+    h = np.linspace(0, 1, 256).reshape(16, 16)
+    assert np.abs(decode_heat(encode_heat(h), 16) - h).max() <= 0.5 / 255 + 1e-9
+    with pytest.raises(ClassifierError, match="256 values, expected 8x8"):
+        decode_heat(encode_heat(h), 8)
+    with pytest.raises(ClassifierError, match="base64"):
+        decode_heat("not base64!", 16)
+
+
+def _square_mesh() -> SimpleNamespace:
+    """Two triangles: the left (x<0) and the right (x>0) half of a 0.4 m square at z=0."""
+    v = np.array([[-0.2, -0.2, 0], [0.0, -0.2, 0], [0.0, 0.2, 0], [-0.2, 0.2, 0], [0.2, -0.2, 0], [0.2, 0.2, 0]], float)
+    f = np.array([[0, 1, 2], [1, 4, 5]])
+    return SimpleNamespace(vertices=v, faces=f, n_faces=2, areas=np.array([0.04, 0.04]), surface=np.zeros(2, int))
+
+
+def _camera_above() -> tuple[np.ndarray, SimpleNamespace]:
+    T = np.eye(4)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # optical +Z down onto the square, image x = bin x
+    T[2, 3] = 0.5
+    intr = SimpleNamespace(fx=400.0, fy=400.0, cx=160.0, cy=90.0, width=320, height=180)
+    return T, intr
+
+
+def test_heat_projects_onto_the_face_it_covers() -> None:
+    mesh = _square_mesh()
+    T, intr = _camera_above()
+    heat = np.zeros((16, 16))
+    heat[:, :8] = 0.95  # left half of the image is dirty
+    faces, p = project_heat(heat, T, intr, mesh, [0, 1])
+    got = dict(zip(faces.tolist(), p.tolist(), strict=True))
+    assert got[0] > 0.9 and got[1] < 0.5
+
+
+def test_face_fusion_needs_agreeing_views_and_keeps_unseen_faces_at_the_prior() -> None:
+    mesh = _square_mesh()
+    T, intr = _camera_above()
+    hot = np.zeros((16, 16))
+    hot[:, :8] = 0.97
+    one = fuse_views([ViewEvidence(np.array([0]), T, hot * 0 + 0.6, 0.6)], mesh, intr)
+    assert one.p[0] < 0.5  # one mildly positive view does not outweigh the prior
+    many = fuse_views([ViewEvidence(np.array([0, 1]), T, hot, 0.97)] * 3, mesh, intr)
+    assert many.dirty.tolist() == [True, False] and many.dirty_area_m2 == pytest.approx(0.04)
+    unseen = fuse_views([ViewEvidence(np.array([0]), T, hot, 0.97)], mesh, intr)
+    assert not unseen.seen[1]
+    js = many.as_json()
+    p = face_probabilities(js, 2)
+    assert p is not None and p[0] > 0.9 and p[1] < 0.1
+    assert np.isnan(face_probabilities(unseen.as_json(), 2)[1])
+    assert verdict(many, ["clean"], "faces") == "dirty" and verdict(many, ["clean"], "views") == "clean"
+    assert verdict(many, [], "faces", min_dirty_area_cm2=500.0) == "clean"
+    with pytest.raises(ClassifierError, match="rule"):
+        verdict(many, [], "majority")
+    with pytest.raises(ClassifierError, match="prior"):
+        FaceFusion(2, prior=0.0)
+
+
+def test_relook_pose_keeps_the_point_in_view_from_another_angle() -> None:
+    T, _ = _camera_above()
+    for k in range(4):
+        R = relook_pose(T, k, offset_m=0.0, glance_deg=12.0, depth=0.5)
+        pivot = T[:3, 3] + 0.5 * T[:3, 2]
+        ahead = R[:3, 3] + 0.5 * R[:3, 2]
+        assert np.allclose(ahead, pivot, atol=1e-9)
+        angle = np.degrees(np.arccos(np.clip(R[:3, 2] @ T[:3, 2], -1, 1)))
+        assert angle == pytest.approx(12.0, abs=1e-6)
+        assert np.allclose(R[:3, :3] @ R[:3, :3].T, np.eye(3), atol=1e-9)
+    shifted = relook_pose(T, 0, offset_m=0.03, glance_deg=0.0, depth=0.5)
+    assert np.linalg.norm(shifted[:3, 3] - T[:3, 3]) == pytest.approx(0.03)
