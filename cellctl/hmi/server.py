@@ -17,6 +17,7 @@ work, and errors are JSON ``{"error": "..."}`` with a matching HTTP code.
 from __future__ import annotations
 
 import asyncio
+import hmac
 import json
 import logging
 import threading
@@ -305,9 +306,7 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
                 raise HttpError(401, "your session has expired; log in again", login=True)
             raise HttpError(401, "log in first: commands need an operator or maintenance login", login=True)
         token = request.headers.get("x-csrf-token", "")
-        import hmac
-
-        if not token or not hmac.compare_digest(token, s.csrf):
+        if not token or not hmac.compare_digest(token.encode("utf-8", "replace"), s.csrf.encode()):
             raise HttpError(403, "missing or wrong CSRF token (X-CSRF-Token); reload the page")
         if s.role not in roles:
             raise HttpError(403, f"user {s.user!r} has role {s.role!r}; this needs one of {list(roles)}")
@@ -316,12 +315,8 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         return s
 
     @app.post("/api/login", tags=["session"])
-    async def login(request: Request) -> JSONResponse:
+    async def login(request: Request, body: LoginRequest) -> JSONResponse:
         """Log in; sets the session cookie and returns the CSRF token."""
-        try:
-            body = LoginRequest.model_validate_json(await request.body())
-        except ValidationError as err:
-            raise HttpError(422, f"expected JSON {{'user', 'password'}}: {err.errors()[0]['msg']}") from None
         client = request.client.host if request.client else "?"
         keys = (f"user:{body.user}", f"addr:{client}")
         wait = hmi.limiter.retry_after(*keys)

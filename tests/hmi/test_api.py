@@ -296,3 +296,16 @@ def test_the_event_stream_sends_updates_and_ends_with_its_client(cell, hmi, clie
     while hmi.streams:  # a page closed is a generator gone, not one left polling forever
         assert time.monotonic() < deadline, f"{hmi.streams} streams still open"
         time.sleep(0.1)
+
+
+def test_odd_tokens_and_bodies_are_refused_cleanly(cell, hmi, client: Client) -> None:
+    client.login("alice")
+    r = client.request("POST", "/api/cmd", {"command": "reset", "nonce": "n" * 20}, {"X-CSRF-Token": "é" * 10})
+    assert r.status == 403  # a non-ASCII token is a wrong token, not a server error
+    r = client.post("/api/cmd", {"command": "reset", "nonce": "../../etc"})
+    assert r.status == 422 and "nonce" in r.json()["error"]
+    r = client.request("POST", "/api/login", {"user": "alice"})
+    assert r.status == 422 and "password" in r.json()["error"]
+    r = client.post("/api/cmd", {"command": "reset", "user": "hmi:mallory"})
+    assert r.status == 422 and "user" in r.json()["error"]  # the HMI sets who sent it, never the client
+    assert cell.supervisor.top_state == "Stopped"
