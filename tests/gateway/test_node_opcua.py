@@ -67,6 +67,7 @@ def node_run(shared_cfg, shared_cell, shared_gw_cfg) -> dict[str, Any]:  # noqa:
 def test_node_browses_reads_and_is_refused_as_anonymous(node_run: dict) -> None:
     out = node_run["browse"]
     assert set(out["browse"].values()) == {"Good"}, out["browse"]
+    assert out["namespaces"] == {"packml": 2, "cellctl": 3}  # what docs/opcua.md says
     assert out["state"] == 2 and out["unit_mode"] == 1
     assert "BadUserAccessDenied" in out["write_cntrl_cmd"]
     assert "BadUserAccessDenied" in out["call_reset"]
