@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import copy
 import logging
 import threading
 import time
@@ -106,6 +107,7 @@ class CycleContext:
     rpc_seconds: dict[str, float] = field(default_factory=dict)
     rpc_count: int = 0
     _pool: ThreadPoolExecutor | None = None
+    _ended: threading.Event = field(default_factory=threading.Event)
 
     @property
     def surface(self) -> str:
@@ -120,6 +122,8 @@ class CycleContext:
         return self._pool
 
     def shutdown(self) -> None:
+        """The cycle ended: void background work (see :meth:`StepRun.detached`) and stop the pool."""
+        self._ended.set()
         if self._pool is not None:
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
@@ -133,6 +137,15 @@ class StepRun:
         self.token = token
         self.name = name
         self.cancelled = threading.Event()
+
+    def detached(self, name: str) -> StepRun:
+        """This run's calls for work that outlives the activation (a classification overlapping the
+        next move): a Hold or Suspend does not void it, only the end of the cycle does, so the
+        resumed cycle still finds its result."""
+        run = copy.copy(self)
+        run.name = name
+        run.cancelled = self.ctx._ended
+        return run
 
     def checkpoint(self) -> None:
         """Raise :class:`Cancelled` if this activation was cancelled."""

@@ -283,3 +283,23 @@ def test_collect_mode_stores_labelled_images_at_perturbed_poses(cfg, cell, plc, 
     assert [v.label for v in res.viewpoints] == ["dirty"] * 3
     assert "classify" not in fake.calls
     assert len(list((tmp_path / "ds").rglob("*.png"))) == 3
+
+
+def test_hold_with_a_classification_in_flight_resumes_and_completes(cfg, cell, plc) -> None:
+    """The Hold cancels the scanning activation, not the classification overlapping it."""
+    with FakeCell(cfg, n_viewpoints=4, move_delay_s=0.1, delays={"classify": 0.6}) as fake:
+        plc.cmd("reset")
+        plc.wait_state("Idle")
+        plc.cmd("start")
+        deadline = time.monotonic() + 10
+        while "classify" not in fake.calls and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert plc.cmd("hold").accepted  # the first classification is still being answered
+        plc.wait_state("Held")
+        time.sleep(0.8)
+        assert plc.cmd("unhold").accepted
+        plc.wait_state("Complete", timeout=30)
+        res = plc.results.get(timeout=5)
+    assert res.outcome == "completed", res.reason
+    assert sorted(v.index for v in res.viewpoints) == list(range(4))
+    assert all(v.label == "clean" for v in res.viewpoints)

@@ -20,7 +20,7 @@ from cellctl.messages import (
     StartParams,
     ViewpointResult,
 )
-from cellctl.supervisor.context import INITIAL_CONTEXT, CycleContext
+from cellctl.supervisor.context import INITIAL_CONTEXT, Cancelled, CycleContext
 from cellctl.supervisor.steps import STEPS
 from cellctl.supervisor.steps.approaching import Approaching
 from cellctl.supervisor.steps.checking_cache import CheckingCache
@@ -137,6 +137,19 @@ def test_scanning_visits_every_viewpoint_and_a_refused_one_costs_only_coverage(c
         assert ctx.classifications[0].result(timeout=5).label == "clean"
     finally:
         ctx.shutdown()
+
+
+def test_a_classification_outlives_a_hold_of_scanning_but_not_the_cycle(cfg) -> None:  # noqa: ANN001
+    ctx = context(cfg)
+    run = ScriptedRun(ctx, {})
+    background = run.detached("classify_background")
+    run.cancelled.set()  # Hold: the scanning activation is cancelled
+    background.checkpoint()  # ... its background work goes on
+    with pytest.raises(Cancelled):
+        run.checkpoint()
+    ctx.shutdown()  # the cycle ended
+    with pytest.raises(Cancelled):
+        background.checkpoint()
 
 
 def test_scanning_fails_when_no_viewpoint_was_reached(cfg) -> None:  # noqa: ANN001

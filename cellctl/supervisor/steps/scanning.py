@@ -26,12 +26,7 @@ from cellctl.supervisor.steps.identifying import captured_image
 
 def classify_image(run: StepRun, index: int, image: bytes, fmt: str, surface: str) -> ClassifyReply:
     reply, _ = run.call(
-        "classifier",
-        "classify",
-        ClassifyRequest(surface=surface, format=fmt),
-        ClassifyReply,  # type: ignore[arg-type]
-        payload=image,
-        account="classify_background",
+        "classifier", "classify", ClassifyRequest(surface=surface, format=fmt), ClassifyReply, payload=image
     )
     return reply
 
@@ -53,6 +48,8 @@ class Scanning(Step):
         perturb = ctx.params.perturb_m if collect else 0.0
         seed = ctx.params.seed
         bin_type = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
+        # classifications run on past a Hold (the scanning activation is cancelled, the cycle is not)
+        background = run.detached("classify_background")
         for k in range(ctx.next_viewpoint, len(plan.viewpoints)):
             vp = plan.viewpoints[k]
             if perturb > 0:
@@ -88,7 +85,7 @@ class Scanning(Step):
                 if bin_type is not None and ctx.T_base_bin is not None:
                     image = mask_board(data, bin_type, ctx.T_base_bin, moved.camera_pose.matrix(), cap.intrinsics)
                 ctx.classifications[len(ctx.viewpoints)] = ctx.pool.submit(
-                    classify_image, run, vp.index, image, "png" if image is not data else cap.format, surface
+                    classify_image, background, vp.index, image, "png" if image is not data else cap.format, surface
                 )
             ctx.viewpoints.append(result)
             ctx.next_viewpoint = k + 1
