@@ -100,12 +100,11 @@ class LiveCycle:
     captured: int = 0
     steps_seen: list[str] = field(default_factory=list)
     verdicts: list[dict[str, Any]] = field(default_factory=list)
-    image: bytes | None = None
-    image_format: str | None = None
     image_seq: int = 0
     result: dict[str, Any] | None = None
     messages: int = 0
     _last_image: bytes | None = None
+    _decoded: tuple[bytes, str] | None = None
 
     def fold(self, m: RecordedMessage) -> None:
         """Update the view with one log message (called by :class:`McapTail`)."""
@@ -150,16 +149,17 @@ class LiveCycle:
             self.result = obj
             self.bin_type = (obj.get("bin") or {}).get("type") or self.bin_type
 
-    def take_image(self) -> None:
-        """Decode the newest image's bytes (after a poll)."""
-        if self._last_image is None:
-            return
-        try:
-            obj = json.loads(self._last_image)
-            self.image, self.image_format = base64.b64decode(obj["data"]), obj.get("format", "png")
-        except (ValueError, KeyError, TypeError):
-            pass
-        self._last_image = None
+    def image(self) -> tuple[bytes, str] | None:
+        """The newest image's bytes and format, decoded on first request (not on every poll: a
+        base64 decode of each frame would hold the GIL the status requests need)."""
+        if self._last_image is not None:
+            try:
+                obj = json.loads(self._last_image)
+                self._decoded = (base64.b64decode(obj["data"]), obj.get("format", "png"))
+            except (ValueError, KeyError, TypeError):
+                pass
+            self._last_image = None
+        return self._decoded
 
     def as_dict(self) -> dict[str, Any]:
         res = self.result or {}
@@ -173,7 +173,7 @@ class LiveCycle:
             "captured": self.captured,
             "steps_seen": self.steps_seen,
             "verdicts": self.verdicts,
-            "image_seq": self.image_seq if self.image is not None else None,
+            "image_seq": self.image_seq or None,
             "heat_map": None,  # the classifier contract (ClassifyReply v1) carries no heat map yet
             "outcome": res.get("outcome"),
             "verdict": res.get("verdict"),

@@ -140,8 +140,6 @@ class LiveWatcher:
                 self.version += 1
         if self._tail is not None and self._tail.poll():
             with self._lock:
-                assert self.live is not None
-                self.live.take_image()
                 self.version += 1
 
     def view(self) -> dict[str, Any] | None:
@@ -150,9 +148,7 @@ class LiveWatcher:
 
     def image(self) -> tuple[bytes, str] | None:
         with self._lock:
-            if self.live is None or self.live.image is None:
-                return None
-            return self.live.image, self.live.image_format or "png"
+            return self.live.image() if self.live is not None else None
 
     def close(self) -> None:
         self._stop.set()

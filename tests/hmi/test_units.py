@@ -99,8 +99,7 @@ def test_the_tail_reads_a_log_as_it_grows_and_stops_at_a_partial_record(tmp_path
     live = LiveCycle("cell1", "c1")
     for m in seen:
         live.fold(m)
-    live.take_image()
-    assert live.image == b"\x89PNGfake" and live.step == "scanning" and live.steps_seen == ["scanning"]
+    assert live.image() == (b"\x89PNGfake", "png") and live.step == "scanning" and live.steps_seen == ["scanning"]
     log.close()
     assert tail.poll() == 0  # summary records are not messages
     not_mcap = tmp_path / "x.mcap"
