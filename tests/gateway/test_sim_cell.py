@@ -27,8 +27,12 @@ def test_node_opcua_runs_a_sim_cycle(tmp_path) -> None:  # noqa: ANN001
         gw_cfg = make_gw_cfg(tmp_path)
         with OpcuaGateway(run.cfg, gw_cfg).start_thread() as gw:
             wait_until(lambda: gw._down.get(run.cfg.cell_id) is None, 20, "the gateway's first Status")
-            out = node_plc(gw_cfg.endpoint, "methods", "line-plc", "line-plc-password-1", timeout=600)["methods"]
-    assert [s["status"] for s in out["steps"]] == ["Good", "Good"]
-    assert out["processed_after"] == out["processed_before"] + 1
-    assert out["last_outcome"] == "completed"
-    assert 6 in out["states_seen"] and out["states_seen"][-1] == 17
+            runs = node_plc(gw_cfg.endpoint, "browse,handshake,methods", "line-plc", "line-plc-password-1", timeout=900)
+    assert "BadUserAccessDenied" in runs["browse"]["write_cntrl_cmd"]
+    assert [s["change_request"] for s in runs["handshake"]["steps"]] == ["Good", "Good"]
+    assert [s["status"] for s in runs["methods"]["steps"]] == ["Good", "Good"]
+    for how in ("handshake", "methods"):
+        out = runs[how]
+        assert out["processed_after"] == out["processed_before"] + 1, how
+        assert out["last_outcome"] == "completed", how
+        assert 6 in out["states_seen"] and out["states_seen"][-1] == 17, how
