@@ -52,8 +52,9 @@ class ClusterOptions:
         relayed: cells whose compute link runs through a shaping relay.
         lease_ms: link lease of every router and session (bounds detection).
         cell_overrides: ``--set`` overrides for every cell daemon (after FAST_SIM).
-        station_offsets_m: per cell, the bin's x offset at its station (0 = the same pose as
-            cell1's: plans are shared; another value: a cache miss, its own plan).
+        bin_types: per cell, the bin type its twin inspects (default ``case_study``): cells with
+            the same bin type, station pose (bin in the robot base frame) and robot model share
+            one plan; another bin type is a cache miss and its own plan.
     """
 
     cells: int = 1
@@ -61,7 +62,7 @@ class ClusterOptions:
     relayed: tuple[str, ...] = ()
     lease_ms: int = 2000
     cell_overrides: tuple[str, ...] = ()
-    station_offsets_m: tuple[float, ...] = ()
+    bin_types: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not 1 <= self.cells <= 3:
@@ -201,7 +202,7 @@ class Cluster:
         for i in range(o.workers):
             self.start_worker(i)
         for i, c in enumerate(o.cell_ids):
-            self.start_cell(c, o.station_offsets_m[i] if i < len(o.station_offsets_m) else 0.0)
+            self.start_cell(c, o.bin_types[i] if i < len(o.bin_types) else "case_study")
         for c in o.cell_ids:
             self.agents[c] = self._agent(c)
 
@@ -220,7 +221,7 @@ class Cluster:
         args += ["--set", f"planner.plans_dir={self.plans_dir}"]
         self.procs[f"compute/planner{i}"] = self.plant.hosts["compute"].spawn(args, f"planner{i}")
 
-    def start_cell(self, c: str, offset_m: float) -> None:
+    def start_cell(self, c: str, bin_type: str) -> None:
         out = self.tmp / c
         sets = [
             f"cell.id={c}",
@@ -230,7 +231,7 @@ class Cluster:
             "supervisor.spawn_workers=[robot, camera, classifier]",
             "supervisor.required_workers=[robot, camera, classifier, planner]",
             "supervisor.status_period_s=0.5",
-            f"sim.bin_pose_xyz_yaw=[{offset_m}, 0.0, 0.0, 0.0]",
+            f"sim.bin_type={bin_type}",
             *FAST_SIM,
             *self.opts.cell_overrides,
         ]
@@ -331,7 +332,9 @@ def _agent_op(state: dict[str, Any], op: str, a: dict[str, Any]) -> Any:
         state["plc"] = plc
         return True
     plc: PlcClient = state["plc"]
-    if op == "wait_workers":
+    if op == "wait_workers":  # on a fresh Status: the last one may predate a fault
+        plc.last_status = None
+        plc.drain()
         return plc.wait_workers(a["roles"], a.get("timeout", 120))
     if op == "to_idle":
         plc.last_status = None
@@ -430,12 +433,18 @@ def first_cycles(cl: Cluster, timeout: float = 600.0) -> list[dict[str, Any]]:
     return out
 
 
-def link_fault(cl: Cluster, case: str, cell: str, lease_s: float, timeout: float = 300.0) -> dict[str, Any]:
+def link_fault(
+    cl: Cluster, case: str, cell: str, lease_s: float, timeout: float = 300.0, other: str | None = None
+) -> dict[str, Any]:
     """Inject one fault mid-cycle on ``cell``; detection time, safe state, recovery by Clear/Reset/Start.
 
-    Cases: ``link_down`` (the cell↔compute veth down for 2 leases), ``router_restart`` (the
+    Cases: ``link_down`` (the cell↔compute veth down for 2 leases; the router mesh may route
+    around it through the plant host and another cell host), ``isolate`` (both of the cell's
+    links down for 2 leases + 1 s: no path to the pool; the PLC sees nothing meanwhile, so the
+    times come from the cell's own index row), ``router_restart`` (the
     compute router killed and restarted), ``latency_loss`` (the relay at 80 ms ± 20 and 10 %
-    loss for one cycle; expected: no fault).
+    loss for one cycle; expected: no fault). ``other``: a cell that submits a planning job
+    while the fault lasts; whether the pool took it (``other_job``) shows it kept serving.
     """
     agent = cl.agents[cell]
     agent.call("to_idle", timeout=60)
@@ -445,8 +454,9 @@ def link_fault(cl: Cluster, case: str, cell: str, lease_s: float, timeout: float
             r = agent.call("cycle", timeout=timeout)
         finally:
             cl.shape(cell, delay_ms=0.0, loss=0.0)
-        return {"case": case, "cell": cell, "detection_s": None, "safe_state": None,
-                "cycle_outcome": r["outcome"], "recovered": r["outcome"] in ("completed", "replan_required")}
+        return {"case": case, "cell": cell, "shape": "80 ± 20 ms, 10 % chunks held 200 ms", "detection_s": None,
+                "safe_state": None, "cycle_outcome": r["outcome"], "cycle_s": round(r["t1"] - r["t0"], 2),
+                "recovered": r["outcome"] in ("completed", "replan_required")}
     start = agent.call("start")
     if not start["accepted"]:
         raise CellError(f"{cell}: start refused: {start['reason']}")
@@ -456,13 +466,35 @@ def link_fault(cl: Cluster, case: str, cell: str, lease_s: float, timeout: float
     if case == "link_down":
         link = cl.plant.link_between(cell, "compute")
         link.down()
+    elif case == "isolate":
+        links = [cl.plant.link_between(cell, h) for h in ("compute", "plant")]
+        for ln in links:
+            ln.down()
+        time.sleep(2 * lease_s + 1.0)
+        for ln in links:
+            ln.up()
+        return _isolate_outcome(cl, agent, cell, t_fault, timeout)
     elif case == "router_restart":
         cl.kill_router("compute")
     else:
-        raise ConfigError(f"link fault case {case!r} is unknown; expected link_down, router_restart, latency_loss")
-    safe = agent.call("wait_state", states=["Aborted", "Held", "Stopped"], timeout=lease_s + 30)
+        raise ConfigError(
+            f"link fault case {case!r} is unknown; expected link_down, isolate, router_restart, latency_loss"
+        )
+    # Complete: the cycle did not notice (the router mesh routed around a cut link)
+    safe = agent.call("wait_state", states=["Aborted", "Held", "Stopped", "Complete"], timeout=lease_s + 120)
     log = agent.call("log", since=t_fault)
     lost = next((e[0] for e in log if not e[3]), None)
+    other_job = None
+    if other is not None and case == "link_down":
+        job = cl.agents[other].call("submit", bin_type="case_study", x=2.0 + len(log) * 1e-3)
+        deadline = time.monotonic() + 2 * lease_s + 10
+        while time.monotonic() < deadline:
+            other_job = cl.agents[other].call("job", job_id=job["job_id"])
+            if other_job["state"] != "queued":
+                break
+            time.sleep(0.2)
+        other_job = {"cell": other, "state": other_job["state"] if other_job else None,
+                     "claimed_s": round(other_job["t"] - job["t"], 3) if other_job else None}
     if case == "link_down":
         time.sleep(max(0.0, 2 * lease_s - (time.time() - t_fault)))
         link.up()
@@ -478,10 +510,51 @@ def link_fault(cl: Cluster, case: str, cell: str, lease_s: float, timeout: float
     return {
         "case": case,
         "cell": cell,
-        "detection_s": None if safe is None else round(safe["t"] - t_fault, 3),
+        "detection_s": None if safe is None or safe["state"] == "Complete" else round(safe["t"] - t_fault, 3),
         "planner_lost_s": None if lost is None else round(lost - t_fault, 3),
         "safe_state": None if safe is None else safe["state"],
         "reason": None if safe is None else safe["last_error"],
+        "planner_back_s": round(t_seen - t_back, 3) if ok else None,
+        "recovered": bool(rec and rec["outcome"] in ("completed", "replan_required")),
+        "recovery_cycle": None if rec is None else rec["outcome"],
+        "other_cell_job": other_job,
+    }
+
+
+def _iso_to_epoch(stamp: str | None) -> float | None:
+    import datetime as dt
+
+    return None if stamp is None else dt.datetime.fromisoformat(stamp).timestamp()
+
+
+def _isolate_outcome(cl: Cluster, agent: PlcAgent, cell: str, t_fault: float, timeout: float) -> dict[str, Any]:
+    """After an isolation: when the cell's own record says the cycle ended, and how, then recover."""
+    import sqlite3
+
+    t_back = time.time()
+    ok = agent.call("wait_workers", roles=["planner"], timeout=60)
+    t_seen = time.time()
+    st = agent.call("status", timeout=10)
+    con = sqlite3.connect(f"file:{cl.tmp / cell / 'cells.db'}?mode=ro", uri=True)
+    try:
+        finished, outcome, reason = con.execute(
+            "SELECT finished, outcome, reason FROM cycles ORDER BY seq DESC LIMIT 1"
+        ).fetchone()
+    finally:
+        con.close()
+    t_end = _iso_to_epoch(finished)
+    rec = None
+    if ok:
+        agent.call("to_idle", timeout=60)
+        rec = agent.call("cycle", timeout=timeout)
+    return {
+        "case": "isolate",
+        "cell": cell,
+        "detection_s": None if t_end is None else round(t_end - t_fault, 3),
+        "detection_from": "the cell's index row (finished) against the cut",
+        "safe_state": st["state"],
+        "record_outcome": outcome,
+        "reason": reason,
         "planner_back_s": round(t_seen - t_back, 3) if ok else None,
         "recovered": bool(rec and rec["outcome"] in ("completed", "replan_required")),
         "recovery_cycle": None if rec is None else rec["outcome"],
@@ -514,12 +587,15 @@ def _pct(xs: list[float], q: float) -> float | None:
 
 
 def burst(cl: Cluster, per_cell: int, timeout: float = 900.0) -> dict[str, Any]:
-    """``per_cell`` replan requests from every cell at once (distinct poses); latency submit→done."""
+    """``per_cell`` replan requests from every cell at once; latency submit→done (0.5 s polling).
+
+    Every request is the same work (case-study bin, same pose): the pool does not merge equal
+    requests, so the latencies compare worker counts and nothing else.
+    """
     subs = []
-    for k in range(per_cell):
-        for i, (c, agent) in enumerate(cl.agents.items()):
-            x = 1.0 + 0.15 * (i * per_cell + k)  # distinct poses: every job really plans
-            subs.append((c, agent, agent.call("submit", bin_type="case_study", x=x)))
+    for _ in range(per_cell):
+        for c, agent in cl.agents.items():
+            subs.append((c, agent, agent.call("submit", bin_type="case_study", x=1.0)))
     lat, states = [], {}
     deadline = time.monotonic() + timeout
     pending = list(subs)
@@ -554,7 +630,7 @@ def bench_cluster(opts: BenchOptions) -> dict[str, Any]:
     per_cell = opts.n or 2
     tmp = Path(tempfile.mkdtemp(prefix="cellctl-cluster-"))
     o = ClusterOptions(cells=3, workers=2, relayed=("cell2",), cell_overrides=tuple(opts.overrides),
-                       station_offsets_m=(0.0, 0.0, 0.3))
+                       bin_types=("case_study", "case_study", "tote"))
     lease_s = o.lease_ms / 1000.0
     t_all = time.monotonic()
     with Cluster(o, tmp) as cl:
@@ -570,9 +646,10 @@ def bench_cluster(opts: BenchOptions) -> dict[str, Any]:
         b1 = burst(cl, per_cell)
         cl.start_worker(1)
         faults = []
-        for case, cell in (("link_down", "cell1"), ("latency_loss", "cell2"), ("router_restart", "cell3")):
+        for case, cell in (("link_down", "cell1"), ("isolate", "cell1"), ("latency_loss", "cell2"),
+                           ("router_restart", "cell3")):
             print(f"cluster: fault {case} on {cell} …", file=sys.stderr)
-            faults.append(link_fault(cl, case, cell, lease_s))
+            faults.append(link_fault(cl, case, cell, lease_s, other="cell3" if case == "link_down" else None))
         more = {c: a.call("cycle", timeout=300)["outcome"] for c, a in cl.agents.items()}
         stats = cl.agents["cell1"].call("pool_stats")
         records = records_check(cl)

@@ -83,6 +83,13 @@ class Pool:
         )
         log.close()
 
+    def restart_router(self) -> None:
+        """SIGKILL the router (queue and all) and start it again on the same files."""
+        p = self.procs.pop("router")
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait(timeout=10)
+        self._spawn("router", ["router", str(self.yaml)])
+
     def start_worker(self, i: int) -> None:
         sets = [f'bus.connect=["{self.ep}"]', f"bus.lease_ms={LEASE_MS}", f"planner.plans_dir={self.plans}"]
         self._spawn(f"w{i}", ["worker", "planner", "--backend", "pool", *[x for s in sets for x in ("--set", s)]])
@@ -203,6 +210,37 @@ def test_each_job_planned_exactly_once_by_two_workers(pool2: Pool) -> None:
     assert all(len(pool2.record(j)["planned_by"]) == 1 for _, j in jobs)
     # another cell's job id is not this cell's
     assert pool2.job("cell2", jobs[0][1]).state == "failed"
+
+
+def test_a_restarted_queue_keeps_its_jobs(tmp_path: Path) -> None:
+    """Queued jobs survive a SIGKILL of the compute router: the records in jobs_dir are the queue."""
+    pool = Pool(tmp_path, workers=0)
+    try:
+        deadline = time.monotonic() + 30
+        while True:  # the queue's queryables come up a moment after the router
+            try:
+                job = pool.submit("cell2", 1.0)
+                break
+            except AssertionError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.3)
+        pool.restart_router()
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                st = pool.job("cell2", job)
+                break
+            except AssertionError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.3)
+        assert st.state == "queued", st
+        assert pool.stats().submitted == 1
+        # no worker: the cells see no planner (the pool's token is only there while a worker lives)
+        assert not [r for r in pool.session.liveliness().get(keys.alive_all("cell2"), timeout=2) if r.ok is not None]
+    finally:
+        pool.close()
 
 
 def test_unknown_cell_is_refused_by_name(pool2: Pool) -> None:

@@ -209,9 +209,14 @@ class JobQueue:
             if job.state == "queued":
                 self._queue.append(job.job_id)
         self._grace_until = time.monotonic() + _RESTART_GRACE_S
-        self.stats.submitted = len(self.jobs)
-        self.stats.planned = sum(j.state == "done" for j in self.jobs.values())
-        self.stats.failed = sum(j.state == "failed" for j in self.jobs.values())
+        jobs = list(self.jobs.values())
+        self.stats.submitted = len(jobs)
+        self.stats.planned = sum(j.state == "done" for j in jobs)
+        self.stats.failed = sum(j.state == "failed" for j in jobs)
+        self.stats.planned_twice = sum(max(0, len(j.planned_by) - 1) for j in jobs)
+        for j in jobs:
+            if j.state == "done" and j.planned_by:
+                self.stats.per_worker[j.planned_by[0]] = self.stats.per_worker.get(j.planned_by[0], 0) + 1
 
     # --- the queue thread ---------------------------------------------------------------
 
