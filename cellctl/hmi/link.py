@@ -118,10 +118,14 @@ class CellLink:
         try:
             s = open_session(self.cfg, "client")
         except CellError as err:
+            # The page gets the endpoints and the hint, not Zenoh's text (it names source files);
+            # the log keeps the whole message.
+            hint = str(err).rsplit(" (", 1)[-1].rstrip(")") if str(err).endswith(")") else "is the daemon running?"
+            short = f"no daemon reachable at {', '.join(self.cfg.bus.connect)} ({hint}); retrying"
             with self._lock:
-                if self._open_error != str(err):
+                if self._open_error != short:
                     log.warning("HMI: %s (retrying every second)", err)
-                self._open_error = str(err)
+                self._open_error = short
             return
         c = self.cell
         subs = [

@@ -75,6 +75,7 @@ function showUnreachable(text) {
 
 function render(d) {
   const st = d.status;
+  if (!st && !d.reachable) { const chip = $("hdr-state"); chip.textContent = "unreachable"; chip.className = "state-chip abnormal"; }
   showUnreachable(d.reachable ? "" : `CELL UNREACHABLE: ${d.error || "no status"}${st ? ` (last known state ${st.state})` : ""}`);
   if (st) {
     setText("cell-name", st.cell);
