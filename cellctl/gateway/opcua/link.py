@@ -104,28 +104,40 @@ class CellLink:
                 )
             )
 
-    def command(self, cell: str, cmd: Command, timeout: float) -> Ack:
-        """Send ``cmd`` to ``cell`` by query and return its Ack (blocks up to ``timeout`` s).
+    def command(self, cell: str, cmd: Command, timeout: float, done: Callable[[Ack | CellError], None]) -> None:
+        """Send ``cmd`` to ``cell`` by query without blocking; ``done`` gets its Ack or the error.
 
-        Raises:
-            WorkerUnavailable: not connected, or no daemon serves the cell's command key.
-            WorkerTimeout: the daemon did not answer within ``timeout``.
-            ProtocolError: the reply is not an Ack.
+        ``done`` runs once, on a Zenoh thread, when the query is finished (replies in or timed out):
+        the caller's thread sends the query itself, with no hand-over to another thread first, which
+        is on the path of every command's StateCurrent change. The errors: WorkerUnavailable (not
+        connected, or no daemon serves the key), WorkerTimeout (no answer within ``timeout``),
+        ProtocolError (the reply is not an Ack).
         """
         session = self._session
         key = keys.cmd(cell)
         if session is None:
-            raise WorkerUnavailable(f"not connected to the cell bus {self.cfg.bus.connect}: {self.last_error}")
-        replies = list(session.get(key, payload=encode(cmd), timeout=timeout))
-        if not replies:
-            raise WorkerUnavailable(f"no cellctl daemon serves {key!r} (daemon down?)")
-        rep = replies[0]
-        if rep.ok is None:
-            raise WorkerTimeout(f"the daemon did not answer {key!r} within {timeout:g} s")
-        try:
-            return decode_as(Ack, rep.ok.payload.to_bytes())
-        except ProtocolError as err:
-            raise ProtocolError(f"the daemon answered {key!r} with something other than an Ack: {err}") from err
+            done(WorkerUnavailable(f"not connected to the cell bus {self.cfg.bus.connect}: {self.last_error}"))
+            return
+        first: list[Any] = []
+
+        def on_reply(rep: Any) -> None:
+            if not first:
+                first.append(rep)
+
+        def on_drop() -> None:
+            if not first:
+                done(WorkerUnavailable(f"no cellctl daemon serves {key!r} (daemon down?)"))
+            elif first[0].ok is None:
+                done(WorkerTimeout(f"the daemon did not answer {key!r} within {timeout:g} s"))
+            else:
+                try:
+                    done(decode_as(Ack, first[0].ok.payload.to_bytes()))
+                except ProtocolError as err:
+                    done(ProtocolError(f"the daemon answered {key!r} with something other than an Ack: {err}"))
+
+        # indirect=False: the two callbacks above only append and decode, so they run on Zenoh's thread
+        handler = zenoh.handlers.Callback(on_reply, on_drop, indirect=False)
+        session.get(key, handler, payload=encode(cmd), timeout=timeout)
 
     def query_status(self, cell: str, timeout: float = 2.0) -> bytes | None:
         """The cell's current Status payload by query, or None (not connected, no daemon)."""

@@ -39,7 +39,7 @@ from cellctl.errors import CellError, ConfigError, ProtocolError, WorkerTimeout,
 from cellctl.gateway.opcua.config import OpcuaConfig
 from cellctl.gateway.opcua.link import CellLink
 from cellctl.gateway.opcua.space import CELLCTL_NS, METHODS, PACKML_NS, VARIABLES, CellSpace, build_cell_space
-from cellctl.messages import Command, CycleResult, Event, PackMLCommand, Status, UnitMode
+from cellctl.messages import Ack, Command, CycleResult, Event, PackMLCommand, Status, UnitMode
 from cellctl.supervisor.definition import PackMLState
 from cellctl.surface import SURFACES
 
@@ -472,8 +472,20 @@ class OpcuaGateway:
             return await self._outcome(cell, None, S.BadInvalidArgument, f"invalid command: {err.errors()[0]['msg']}")
         self.commands_sent += 1
         loop = asyncio.get_running_loop()
+        answer: asyncio.Future[Ack | CellError] = loop.create_future()
+
+        def settle(res: Ack | CellError) -> None:
+            if not answer.done():
+                answer.set_result(res)
+
         try:
-            ack = await loop.run_in_executor(self._pool, self._link.command, cell, cmd, self.cfg.command_timeout_s)
+            self._link.command(
+                cell, cmd, self.cfg.command_timeout_s, lambda res: loop.call_soon_threadsafe(settle, res)
+            )
+            res = await answer
+            if isinstance(res, CellError):
+                raise res
+            ack = res
         except WorkerUnavailable as err:
             return await self._outcome(cell, None, S.BadCommunicationError, str(err))
         except WorkerTimeout as err:
