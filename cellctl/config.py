@@ -194,6 +194,28 @@ class PoseTolerance(_Model):
     rotation_deg: float = Field(default=4.0, gt=0)
 
 
+class WholeBinConfig(_Model):
+    """Whole-bin plans (cellctl.planning.stations / whole): stations around the bin, cycle-time model."""
+
+    candidates: int = Field(default=8, ge=1, le=36, description="station candidates around the bin")
+    max_stations: int = Field(default=4, ge=1, le=36)
+    park_distance_m: float = Field(default=0.75, gt=0, le=3, description="base origin beyond the bin's extent")
+    min_station_gain_pct: float = Field(default=2.0, ge=0, lt=100, description="% of a surface's bound a station must add")
+    view_min_gain_pct: float = Field(default=0.15, ge=0, lt=100, description="% of a surface's bound a viewpoint must add")
+    allowed_deg: list[float] | None = Field(
+        default=None, description="approach directions the base may use (deg, bin frame; -90 = board side); None: all"
+    )
+    cabin_half_m: tuple[float, float] = Field(default=(2.5, 2.5), description="cabin half-extents x, y (m)")
+    bin_in_cabin: tuple[float, float, float] = Field(
+        default=(0.0, 0.0, 0.0), description="bin footprint x, y (m) and yaw (deg) in the cabin"
+    )
+    settle_s: float = Field(default=0.5, ge=0, le=10, description="modelled settle per viewpoint (paper: 1 s)")
+    capture_s: float = Field(default=0.1, ge=0, le=10, description="modelled capture per viewpoint")
+    base_speed_m_s: float = Field(default=0.5, gt=0, le=3)
+    base_turn_deg_s: float = Field(default=45.0, gt=0, le=360)
+    park_s: float = Field(default=3.0, ge=0, le=60, description="docking time per station")
+
+
 class PlannerConfig(_Model):
     plans_dir: Path = Path("models/plans")
     tolerance: PoseTolerance = Field(default_factory=PoseTolerance)
@@ -201,6 +223,7 @@ class PlannerConfig(_Model):
     seed_pct: float = Field(default=10.0, gt=0, le=100)
     mode: Literal["fast", "paper"] = "fast"
     seed: int = 0
+    whole: WholeBinConfig = Field(default_factory=WholeBinConfig)
 
 
 class SimConfig(_Model):

@@ -4,9 +4,13 @@ Example::
 
     cellctl plan --bin case_study --base "0 -1.13 -0.33 90" --json --png plan.png
 
+    cellctl plan --mesh other.ply --whole --json --png whole.png
+
 ``--base`` is the robot base pose in the bin frame: x, y, z (m) and yaw (deg) about +Z.
-The plan is written into the plan cache (``planner.plans_dir``) unless ``--out`` names a file.
-Exit code 3: the plan is empty (its ``reason`` says why).
+``--whole`` plans the whole bin instead (stations around it, both surfaces, config
+``planner.whole``; no ``--base``): every station's plan goes into the cache and the whole
+plan's record beside them. The plan is written into the plan cache (``planner.plans_dir``)
+unless ``--out`` names a file. Exit code 3: the plan is empty (its ``reason`` says why).
 """
 
 from __future__ import annotations
@@ -31,7 +35,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--bin", dest="bin_type", help="bin type from the catalog")
     src.add_argument("--mesh", help="any triangle mesh file in metres, bin frame (origin: top opening, +Z up)")
-    p.add_argument("--base", required=True, help='robot base pose in the bin frame: "X Y Z YAW_DEG" (m, deg)')
+    p.add_argument("--base", default=None, help='robot base pose in the bin frame: "X Y Z YAW_DEG" (m, deg)')
+    p.add_argument(
+        "--whole",
+        action="store_true",
+        help="whole bin: stations around it, external and internal surface (config planner.whole)",
+    )
     p.add_argument("--surface", choices=SURFACES, default=None)
     p.add_argument("--seed-pct", type=float, default=None, help="p_SP: seeds as %% of the surface's faces")
     p.add_argument("--mode", choices=("fast", "paper"), default=None)
@@ -95,6 +104,12 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = config_from_args(args)
     pc = cfg.planner
+    if args.whole:
+        if args.base is not None:
+            raise PlanningError("--whole chooses its own base poses (stations); drop --base")
+        return run_whole(args, cfg)
+    if args.base is None:
+        raise PlanningError('--base "X Y Z YAW_DEG" is required (or --whole)')
     x, y, z, yaw = parse_base(args.base)
     if args.bin_type:
         mesh = load_catalog_mesh(cfg.path(cfg.catalog), args.bin_type)
@@ -134,7 +149,62 @@ def run(args: argparse.Namespace) -> int:
             f"greedy {c.greedy}, optimal cover {c.optimal_cover}), coverage {100 * plan.coverage:.1f} %, "
             f"{plan.times_s.total:.1f} s"
         )
-    if plan.reason:
-        print(f"cellctl plan: empty plan: {plan.reason}", file=sys.stderr)
+    return _exit_code(plan.reason)
+
+
+def run_whole(args: argparse.Namespace, cfg: Any) -> int:
+    """``cellctl plan --whole``: stations, both surfaces, the modelled cycle time."""
+    from cellctl.geometry.camera import CameraModel
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.planning.mesh import load_bin_mesh, load_catalog_mesh
+    from cellctl.planning.plan import PlanParams
+    from cellctl.planning.robot import default_robot_model
+    from cellctl.planning.whole import WholeParams, plan_whole, write_whole
+
+    pc = cfg.planner
+    bin_type = None
+    if args.bin_type:
+        mesh = load_catalog_mesh(cfg.path(cfg.catalog), args.bin_type)
+        bin_type = load_catalog(cfg.path(cfg.catalog), verify_meshes=False).get(args.bin_type)
+    else:
+        mesh = load_bin_mesh(args.mesh)
+    if args.surface is not None:
+        raise PlanningError("--whole plans both surfaces; drop --surface")
+    plan_params = PlanParams(
+        seed_pct=args.seed_pct if args.seed_pct is not None else pc.seed_pct,
+        mode=args.mode or pc.mode,
+        seed=args.seed if args.seed is not None else pc.seed,
+        camera=CameraModel.from_config(cfg.camera),
+    )
+    if plan_params.mode != "fast":
+        raise PlanningError("--whole plans in fast mode only (paper mode's RRT* budget per query × stations)")
+    params = WholeParams.from_config(pc.whole, plan_params, cfg.robot.speed_fraction)
+    plan = plan_whole(mesh, params, default_robot_model(), bin_type=bin_type)
+    out = write_whole(plan, cfg.path(pc.plans_dir), args.out)
+    if args.png:
+        from cellctl.planning.whole_render import render_whole
+
+        for path in render_whole(plan, mesh, args.png):
+            print(f"cellctl plan: wrote {path}", file=sys.stderr)
+    body = plan.to_json()
+    body["plan_file"] = str(out)
+    if args.json:
+        print(json.dumps(body, indent=2))
+    else:
+        surf = ", ".join(
+            f"{k} {100 * v.area_fraction:.1f} % ({100 * v.bound_fraction:.1f} % of bound, {v.viewpoints} viewpoints)"
+            for k, v in plan.surfaces.items()
+        )
+        print(
+            f"whole plan {plan.plan_id} → {out}: {len(plan.stations)} stations; {surf}; "
+            f"modelled cycle {plan.cycle_time_s:.0f} s; planned in {plan.times_s['total']:.1f} s"
+        )
+    return _exit_code(plan.reason)
+
+
+def _exit_code(reason: str | None) -> int:
+    """3 for an empty plan (its reason on stderr), else 0."""
+    if reason:
+        print(f"cellctl plan: empty plan: {reason}", file=sys.stderr)
         return 3
     return 0

@@ -9,7 +9,19 @@ import numpy as np
 from cellctl.geometry.catalog import BinMesh
 from cellctl.planning.plan import Plan
 
-__all__ = ["render_plan"]
+__all__ = ["equal_axes", "render_plan"]
+
+
+def equal_axes(ax, points: np.ndarray) -> None:  # noqa: ANN001 - a matplotlib 3D axes
+    """One scale on x, y, z around ``points`` (N, 3), metres labelled: shapes are not distorted."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    c, r = (lo + hi) / 2, (hi - lo).max() / 2
+    ax.set_xlim(c[0] - r, c[0] + r)
+    ax.set_ylim(c[1] - r, c[1] + r)
+    ax.set_zlim(c[2] - r, c[2] + r)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
 
 
 def render_plan(plan: Plan, mesh: BinMesh, path: str | Path) -> Path:
@@ -42,15 +54,7 @@ def render_plan(plan: Plan, mesh: BinMesh, path: str | Path) -> Path:
         ax.text(*p[0], "1", color="red", zorder=12)
     base = plan.base.T_bin_base[:3, 3]
     ax.scatter(*base, color="black", s=40, marker="s", label="robot base", zorder=12)
-    allp = np.vstack([mesh.vertices, base[None], T[:, :3, 3] if len(T) else mesh.vertices[:1]])
-    lo, hi = allp.min(axis=0), allp.max(axis=0)
-    c, r = (lo + hi) / 2, (hi - lo).max() / 2
-    ax.set_xlim(c[0] - r, c[0] + r)
-    ax.set_ylim(c[1] - r, c[1] + r)
-    ax.set_zlim(c[2] - r, c[2] + r)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
+    equal_axes(ax, np.vstack([mesh.vertices, base[None], T[:, :3, 3] if len(T) else mesh.vertices[:1]]))
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(1, vmax))
     fig.colorbar(sm, ax=ax, shrink=0.6, label="selected viewpoints seeing the face")
     cnt = plan.counts

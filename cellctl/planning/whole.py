@@ -1,0 +1,1001 @@
+"""Whole-bin planning: several stations, both surfaces, every viewpoint connected (issue 19).
+
+:func:`plan_whole` runs, per surface, the single-station pipeline's first stages once
+(seeds, viewpoints, filters: they do not depend on the base) and measures the **upper bound**:
+the area properly visible from any filtered camera pose, ignoring the arm. Then per candidate
+station (:mod:`cellctl.planning.stations`): the distance filter, reachability (IK + collision,
+parking robustness) and **connection** (:func:`connect`), then visibility. Stations are chosen
+by a set cover over (station, viewpoint) pairs; Greedy Area + SA select viewpoints over the
+chosen stations' pairs of each surface; each station's share is ordered by a tour whose cost is
+**motion time** (:mod:`cellctl.motion`, UR10e velocity and acceleration limits × speed fraction).
+
+Connected = the station's start configuration (the arm's home, the "candle" the base drives
+with) reaches the viewpoint's configuration by a straight joint motion that is collision-free
+at the sim arm's own check step (:data:`cellctl.sim.motion.STEP_RAD`). A viewpoint whose chosen
+IK solution is not connected is replaced, before selection, by its next-best solution (other
+rolls, IK solutions of the same arm shape, the next distance) that is; only when none is, the
+direction is left out (counted in ``unconnected_directions``). So every tour edge has a real
+motion: straight, or via home (two straight motions) when the straight one collides — which is
+also what the sim arm falls back to (``_plan`` via home) — and no selected viewpoint is dropped
+after selection (``dropped_unconnected`` = 0 by construction; it is still counted).
+
+The result is a :class:`WholePlan`: ordered stations, each with its identification pose and
+one ordinary :class:`~cellctl.planning.plan.Plan` per surface at that station's base pose — so
+the plan cache, the pose tolerance and the adjustment work per station unchanged.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.errors import PlanningError
+from cellctl.geometry.catalog import BinMesh, BinType
+from cellctl.geometry.transforms import invert
+from cellctl.planning.collision import PlanningWorld
+from cellctl.planning.plan import Plan, PlanParams
+from cellctl.planning.raycast import RayCaster
+from cellctl.planning.reach import Reached
+from cellctl.planning.robot import RobotModel
+from cellctl.planning.stations import Candidate, StationCover, StationParams
+from cellctl.planning.viewpoints import Viewpoints
+from cellctl.surface import SURFACES
+
+__all__ = [
+    "WHOLE_FORMAT",
+    "StationPlan",
+    "SurfaceSummary",
+    "TimingModel",
+    "WholeParams",
+    "WholePlan",
+    "connect",
+    "plan_whole",
+    "whole_path",
+    "write_whole",
+]
+
+WHOLE_FORMAT = "cellctl-whole-plan/1"
+
+ProgressFn = Callable[[str, float, str], None]
+
+
+@dataclass(frozen=True)
+class TimingModel:
+    """The modelled cycle's time parts.
+
+    Attributes:
+        settle_s: wait after each arrival before the capture. The issue's target uses 0.5 s
+            (the paper's robot needed 1 s); the sim arm's own settle is ``robot.settle_s``.
+        capture_s: one capture.
+        speed_fraction: fraction of the UR10e joint velocity limits (accelerations at their
+            nominal values, :data:`cellctl.motion.UR10E`).
+    """
+
+    settle_s: float = 0.5
+    capture_s: float = 0.1
+    speed_fraction: float = 0.5
+
+    def motion_s(self, path: NDArray[np.float64]) -> float:
+        """Seconds to move along ``path`` (K, 6), rest to rest at each waypoint."""
+        from cellctl.motion import UR10E, time_parametrize
+
+        if len(path) < 2:
+            return 0.0
+        return float(time_parametrize(path, UR10E, self.speed_fraction).duration)
+
+
+@dataclass(frozen=True)
+class WholeParams:
+    """Parameters of a whole-bin plan: the single-station ones (surface ignored), stations, timing."""
+
+    plan: PlanParams = field(default_factory=PlanParams)
+    stations: StationParams = field(default_factory=StationParams)
+    timing: TimingModel = field(default_factory=TimingModel)
+    surfaces: tuple[str, ...] = SURFACES
+    exact_time_limit_s: float = 5.0
+    view_min_gain_pct: float = 0.15
+    """A viewpoint must add this % of its surface's upper bound to Greedy Area's set (0: all)."""
+
+    @classmethod
+    def from_config(cls, whole: Any, plan: PlanParams, speed_fraction: float) -> WholeParams:
+        """From the config's ``planner.whole`` section (:class:`cellctl.config.WholeBinConfig`).
+
+        ``speed_fraction`` is the arm's (``robot.speed_fraction``): the modelled cycle moves as the arm does.
+        """
+        return cls(
+            plan=plan,
+            stations=StationParams(
+                candidates=whole.candidates,
+                park_distance_m=whole.park_distance_m,
+                max_stations=whole.max_stations,
+                min_gain_pct=whole.min_station_gain_pct,
+                cabin_half_m=tuple(whole.cabin_half_m),
+                bin_in_cabin=tuple(whole.bin_in_cabin),
+                allowed_deg=None if whole.allowed_deg is None else tuple(whole.allowed_deg),
+                base_speed_m_s=whole.base_speed_m_s,
+                base_turn_deg_s=whole.base_turn_deg_s,
+                park_s=whole.park_s,
+            ),
+            timing=TimingModel(settle_s=whole.settle_s, capture_s=whole.capture_s, speed_fraction=speed_fraction),
+            view_min_gain_pct=whole.view_min_gain_pct,
+        )
+
+    def check(self) -> None:
+        self.plan.check()
+        self.stations.check()
+        bad = [s for s in self.surfaces if s not in SURFACES]
+        if bad or not self.surfaces:
+            raise PlanningError(f"surfaces {list(self.surfaces)} must be some of {list(SURFACES)}")
+
+
+@dataclass(frozen=True, eq=False)
+class StationPlan:
+    """One station of the tour: where the base parks, how the bin is identified, what is scanned.
+
+    Attributes:
+        rank: visiting order (0 first).
+        candidate: the candidate station it is (index around the bin).
+        angle_deg: approach direction, bin frame.
+        T_bin_base: (4, 4) base pose in the bin frame.
+        identify_T_bin_cam: camera pose that sees the board (identification), or None.
+        identify_q: its joints, or None.
+        identify_reason: why there is no identification pose (board not visible from here:
+            the bin pose is carried over from the previous station by the base's move).
+        plans: per surface, the station's plan (an ordinary single-station plan).
+        motion_s: per surface, modelled motion seconds of the tour (start → last viewpoint).
+        cycle_s: modelled seconds spent at this station (identification, both tours, return home).
+    """
+
+    rank: int
+    candidate: int
+    angle_deg: float
+    T_bin_base: NDArray[np.float64]
+    identify_T_bin_cam: NDArray[np.float64] | None
+    identify_q: NDArray[np.float64] | None
+    identify_reason: str | None
+    plans: dict[str, Plan]
+    motion_s: dict[str, float]
+    cycle_s: float
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "rank": self.rank,
+            "candidate": self.candidate,
+            "angle_deg": self.angle_deg,
+            "T_bin_base": self.T_bin_base.tolist(),
+            "identify": None
+            if self.identify_q is None or self.identify_T_bin_cam is None
+            else {"T_bin_cam": self.identify_T_bin_cam.tolist(), "q": self.identify_q.tolist()},
+            "identify_reason": self.identify_reason,
+            "plans": {s: p.plan_id for s, p in self.plans.items()},
+            "viewpoints": {s: len(p.viewpoints) for s, p in self.plans.items()},
+            "motion_s": self.motion_s,
+            "cycle_s": self.cycle_s,
+        }
+
+
+@dataclass(frozen=True)
+class SurfaceSummary:
+    """Coverage of one surface by the whole plan.
+
+    Attributes:
+        area_m2: the surface's area.
+        bound_m2: the upper bound: area properly visible from any filtered camera pose (no arm).
+        seen_m2: area the selected viewpoints (all stations) properly see.
+        viewpoints: selected viewpoints, all stations.
+        reason: why the surface is not planned (e.g. the mesh has none of its faces).
+    """
+
+    area_m2: float
+    bound_m2: float
+    seen_m2: float
+    viewpoints: int
+    reachable_m2: float = 0.0
+    reason: str | None = None
+
+    @property
+    def area_fraction(self) -> float:
+        return self.seen_m2 / self.area_m2 if self.area_m2 > 0 else 0.0
+
+    @property
+    def bound_fraction(self) -> float:
+        return self.seen_m2 / self.bound_m2 if self.bound_m2 > 0 else 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "area_fraction": self.area_fraction,
+            "bound_fraction": self.bound_fraction,
+            "viewpoints": self.viewpoints,
+            "area_m2": self.area_m2,
+            "bound_m2": self.bound_m2,
+            "seen_m2": self.seen_m2,
+            "reachable_m2": self.reachable_m2,
+            "reason": self.reason,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class WholePlan:
+    """The whole-bin plan: ordered stations, per-surface coverage, the exact bound, modelled cycle time."""
+
+    plan_id: str
+    created: str
+    bin_type: str
+    mesh_sha256: str
+    robot_model_id: str
+    params: WholeParams
+    stations: tuple[StationPlan, ...]
+    candidates: tuple[Candidate, ...]
+    surfaces: dict[str, SurfaceSummary]
+    counts: dict[str, int]
+    exact: StationCover | None
+    station_scores: dict[str, float]
+    base_moves_s: float
+    cycle_time_s: float
+    times_s: dict[str, float]
+    reason: str | None = None
+
+    @property
+    def is_empty(self) -> bool:
+        return not self.stations
+
+    def to_json(self) -> dict[str, Any]:
+        """The whole-plan file body / ``cellctl plan --whole --json`` object."""
+        t = self.params.timing
+        return {
+            "format": WHOLE_FORMAT,
+            "plan_id": self.plan_id,
+            "created": self.created,
+            "bin_type": self.bin_type,
+            "mesh_sha256": self.mesh_sha256,
+            "robot_model_id": self.robot_model_id,
+            "seed": self.params.plan.seed,
+            "seed_pct": self.params.plan.seed_pct,
+            "stations": [s.to_json() for s in self.stations],
+            "candidates": [
+                {"candidate": c.index, "angle_deg": c.angle_deg, "xy_m": c.ring_xy.tolist(), "reason": c.reason}
+                for c in self.candidates
+            ],
+            "surfaces": {k: v.to_json() for k, v in self.surfaces.items()},
+            "dropped_unconnected": self.counts.get("dropped_unconnected", 0),
+            "counts": self.counts,
+            "exact_cover": None
+            if self.exact is None
+            else {
+                "stations": self.exact.stations,
+                "viewpoints": self.exact.viewpoints,
+                "proven": self.exact.proven,
+                "seconds": self.exact.seconds,
+            },
+            "station_scores": self.station_scores,
+            "timing_model": {"settle_s": t.settle_s, "capture_s": t.capture_s, "speed_fraction": t.speed_fraction},
+            "base_moves_s": self.base_moves_s,
+            "cycle_time_s": self.cycle_time_s,
+            "times_s": self.times_s,
+            "reason": self.reason,
+        }
+
+
+def whole_path(plans_dir: Any, plan: WholePlan) -> Any:
+    """``<plans_dir>/<bin_type>/whole/<plan_id>.json``: beside the per-surface station plans."""
+    from pathlib import Path
+
+    from cellctl.planning.planfile import _safe
+
+    return Path(plans_dir) / _safe(plan.bin_type) / "whole" / f"{_safe(plan.plan_id)}.json"
+
+
+def write_whole(plan: WholePlan, plans_dir: Any, path: Any = None) -> Any:
+    """Write every station plan into the cache (``<bin>/<surface>/``) and the whole plan's record.
+
+    Station plans are ordinary plans: the cycle's lookup at station k finds station k's plan
+    by its base pose (nearest within tolerance) and adjusts it like any cached plan.
+    """
+    from cellctl.planning.planfile import plan_path, write_document, write_plan
+
+    for st in plan.stations:
+        for p in st.plans.values():
+            write_plan(p, plan_path(plans_dir, p))
+    return write_document(plan.to_json(), path if path is not None else whole_path(plans_dir, plan))
+
+
+# --- connection --------------------------------------------------------------------------
+
+
+@dataclass
+class Connected:
+    """Reachable viewpoints after connection, and what it did.
+
+    Attributes:
+        reached: the connected viewpoints (a subset of the reachable ones, some replaced).
+        parent: (R,) per viewpoint the node its straight motion comes from: -1 = the start,
+            k ≥ 0 = viewpoint k (a chain of straight motions back to the start).
+        replaced: viewpoints whose first solution was not connected and another one was.
+        unconnected: directions with no connected solution (left out before selection).
+    """
+
+    reached: Reached
+    parent: NDArray[np.int64]
+    replaced: int
+    unconnected: int
+
+
+COARSE_STEP_RAD = 0.02  # the pairwise matrix's check step (the single-station planner's)
+CHAIN_ROUNDS = 3  # straight-motion hops a viewpoint may be away from the start
+NEAREST = 3  # connected nodes a viewpoint tries to join (nearest in joint space)
+
+
+def _join(
+    world: PlanningWorld,
+    Q: NDArray[np.float64],
+    nodes: NDArray[np.float64],
+    node_ids: NDArray[np.int64],
+    max_step: float,
+) -> NDArray[np.int64]:
+    """Per row of ``Q``: the id of a node it reaches by a straight free motion (nearest first), or -2."""
+    if len(Q) == 0 or len(nodes) == 0:
+        return np.full(len(Q), -2, dtype=np.int64)
+    d = np.linalg.norm(Q[:, None, :] - nodes[None, :, :], axis=2)
+    k = min(NEAREST, len(nodes))
+    near = np.argsort(d, axis=1)[:, :k]
+    A = np.repeat(np.arange(len(Q)), k)
+    B = near.reshape(-1)
+    ok = world.motion_free(Q[A], nodes[B], max_step).reshape(len(Q), k)
+    first = np.where(ok.any(axis=1), near[np.arange(len(Q)), ok.argmax(axis=1)], -1)
+    return np.where(first >= 0, node_ids[np.maximum(first, 0)], -2)
+
+
+def connect(
+    vp: Viewpoints,
+    reached: Reached,
+    robot: RobotModel,
+    world: PlanningWorld,
+    T_base_bin: NDArray[np.float64],
+    q_start: NDArray[np.float64],
+    n_roll: int,
+    accept: Callable[[int, NDArray[np.float64]], bool] | None,
+    max_step: float,
+) -> Connected:
+    """Keep only viewpoints joined to the start by straight, collision-free joint motions.
+
+    Each viewpoint joins the start directly or one of the already joined viewpoints nearest to
+    it (≤ :data:`CHAIN_ROUNDS` hops). One that joins nothing is replaced — before selection —
+    by its next-best solution (other rolls and IK solutions of the plan's arm shape, at its own
+    distance, then the next) that joins; a direction none of whose solutions joins is left out.
+    """
+    from cellctl.planning.reach import _rz, branch_signature, candidates, roll_sequence
+
+    n = len(reached.index)
+    if n == 0:
+        return Connected(reached, np.zeros(0, np.int64), 0, 0)
+    T, q, roll, index = reached.T.copy(), reached.q.copy(), reached.roll.copy(), reached.index.copy()
+    parent = np.full(n, -2, dtype=np.int64)
+    parent[world.motion_free(np.repeat(q_start[None], n, axis=0), q, max_step)] = -1
+
+    def grow() -> None:
+        for _ in range(CHAIN_ROUNDS):
+            todo = np.flatnonzero(parent == -2)
+            done = np.flatnonzero(parent != -2)
+            if len(todo) == 0 or len(done) == 0:
+                return
+            got = _join(world, q[todo], q[done], done, max_step)
+            if not (got >= 0).any():
+                return
+            parent[todo[got >= 0]] = got[got >= 0]
+
+    grow()
+    replaced = 0
+    todo = np.flatnonzero(parent == -2)
+    if len(todo):
+        joined = np.flatnonzero(parent != -2)
+        shape = int(np.bincount(branch_signature(q[joined], robot) >> 1).argmax()) if len(joined) else None
+        rolls = roll_sequence(n_roll)
+        owners, Qs, rs, vidx = [], [], [], []
+        for k in todo:
+            i0 = int(reached.index[k])
+            same_seed = np.flatnonzero(vp.seed == vp.seed[i0])
+            for i in sorted(same_seed, key=lambda i: (int(vp.rank[i]) != int(vp.rank[i0]), int(vp.rank[i]))):
+                Qc, rc = candidates(T_base_bin, vp.T[i], robot, rolls, q_start)
+                owners += [k] * len(Qc)
+                Qs.append(Qc)
+                rs.append(rc)
+                vidx += [i] * len(Qc)
+        if owners:
+            Qc, rc = np.concatenate(Qs), np.concatenate(rs)
+            own, vi = np.asarray(owners), np.asarray(vidx)
+            free = world.robot_free(Qc)
+            if shape is not None:
+                free &= (branch_signature(Qc, robot) >> 1) == shape
+            Qc, rc, own, vi = Qc[free], rc[free], own[free], vi[free]
+            # at most 6 solutions per direction, in preference order (the candidates' order)
+            keep = np.zeros(len(own), dtype=bool)
+            for k in np.unique(own):
+                keep[np.flatnonzero(own == k)[:6]] = True
+            Qc, rc, own, vi = Qc[keep], rc[keep], own[keep], vi[keep]
+            nodes_ids = np.r_[-1, joined].astype(np.int64)
+            nodes_q = np.vstack([q_start[None], q[joined]])
+            got = _join(world, Qc, nodes_q, nodes_ids, max_step)
+            for k in np.unique(own):
+                for m in np.flatnonzero((own == k) & (got != -2)):
+                    if accept is not None and not accept(int(vi[m]), Qc[m]):
+                        continue
+                    T[k], q[k], roll[k], index[k] = vp.T[vi[m]] @ _rz(float(rc[m])), Qc[m], rc[m], vi[m]
+                    parent[k] = got[m]
+                    replaced += 1
+                    break
+        grow()
+    sel = np.flatnonzero(parent != -2)
+    remap = np.full(n, -1, dtype=np.int64)
+    remap[sel] = np.arange(len(sel))
+    par = np.where(parent[sel] >= 0, remap[np.maximum(parent[sel], 0)], -1)
+    out = Reached(index=index[sel], T=T[sel], q=q[sel], roll=roll[sel], checks=reached.checks, tried=reached.tried)
+    return Connected(out, par.astype(np.int64), replaced, int(n - len(sel)))
+
+
+def chain_to_start(k: int, parent: NDArray[np.int64], Q: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """Configurations from viewpoint ``k`` back along its chain of straight motions (start excluded)."""
+    out = []
+    while k >= 0:
+        out.append(Q[k])
+        k = int(parent[k])
+    return out
+
+
+# --- timed tour --------------------------------------------------------------------------
+
+
+def _timed_tour(
+    q_start: NDArray[np.float64],
+    start_hub: list[NDArray[np.float64]],
+    sel: NDArray[np.int64],
+    con: Connected,
+    q_home: NDArray[np.float64],
+    world: PlanningWorld,
+    timing: TimingModel,
+    rng: np.random.Generator,
+    max_step: float,
+    fine_step: float,
+) -> tuple[NDArray[np.int64], NDArray[np.float64], list[NDArray[np.float64]], list[float], int]:
+    """Order ``[start, *Q[sel]]`` by motion time; every move straight or via home along the chains.
+
+    Ant colony + 2-opt on the motion-time matrix (pairs checked at ``max_step``; a colliding
+    pair costs its way via home: both ends' chains of straight motions, known free). The moves
+    the tour uses are checked again at ``fine_step`` (the sim arm's step); one that fails there
+    goes via home too, and 2-opt repairs the order (≤ 4 rounds).
+
+    ``start_hub`` is the start's known way home (straight motions, ``[q_start, …, home]``).
+
+    Returns:
+        ``(order, D_rad, edge paths along the order (K_i, 6) incl. ends, edge seconds along
+        the order, straight pairs of the matrix)``.
+    """
+    from cellctl.planning.tour import ant_colony, two_opt
+
+    Qall = con.reached.q
+    nodes = np.vstack([q_start[None], Qall[sel]])
+    n = len(nodes)
+    hubs = [np.array(start_hub)] + [np.array([*chain_to_start(int(k), con.parent, Qall), q_home]) for k in sel]
+    home_t = np.array([timing.motion_s(h) for h in hubs])
+    iu, ju = np.triu_indices(n, 1)
+    free = world.motion_free(nodes[iu], nodes[ju], max_step) if len(iu) else np.zeros(0, dtype=bool)
+    Tm = np.zeros((n, n))
+    straight = np.zeros((n, n), dtype=bool)
+    for k, (i, j) in enumerate(zip(iu, ju, strict=True)):
+        if free[k]:
+            Tm[i, j] = Tm[j, i] = timing.motion_s(np.array([nodes[i], nodes[j]]))
+            straight[i, j] = straight[j, i] = True
+        else:
+            Tm[i, j] = Tm[j, i] = float(home_t[i] + home_t[j])
+    order = np.asarray(two_opt(Tm, ant_colony(Tm, rng)) if n > 2 else np.arange(n), dtype=np.int64)
+    checked: set[tuple[int, int]] = set()
+    for _round in range(4):
+        edges = [
+            (int(a), int(b))
+            for a, b in zip(order[:-1], order[1:], strict=True)
+            if straight[a, b] and (min(a, b), max(a, b)) not in checked
+        ]
+        if not edges:
+            break
+        ok = world.motion_free(
+            np.array([nodes[a] for a, _ in edges]), np.array([nodes[b] for _, b in edges]), fine_step
+        )
+        for (a, b), good in zip(edges, ok, strict=True):
+            checked.add((min(a, b), max(a, b)))
+            if not good:
+                straight[a, b] = straight[b, a] = False
+                Tm[a, b] = Tm[b, a] = float(home_t[a] + home_t[b])
+        if ok.all():
+            break
+        order = np.asarray(two_opt(Tm, order), dtype=np.int64)
+    paths: list[NDArray[np.float64]] = []
+    secs: list[float] = []
+    Dr = np.zeros((n, n))
+    for a, b in zip(order[:-1].tolist(), order[1:].tolist(), strict=True):
+        fine = straight[a, b] and (min(a, b), max(a, b)) in checked
+        path = np.array([nodes[a], nodes[b]]) if fine else np.vstack([hubs[a], hubs[b][::-1][1:]])
+        paths.append(path)
+        secs.append(timing.motion_s(path))
+        Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+    return order, Dr, paths, secs, int(free.sum())
+
+
+# --- the whole-bin pipeline ------------------------------------------------------------------
+
+
+@dataclass
+class _StationEval:
+    cand: Candidate
+    setups: dict[str, Any] = field(default_factory=dict)
+    filt: dict[str, Any] = field(default_factory=dict)
+    found: dict[str, Any] = field(default_factory=dict)
+    vis: dict[str, Any] = field(default_factory=dict)
+    seen: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
+    con: dict[str, Connected] = field(default_factory=dict)
+    identify: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    replaced: int = 0
+    unconnected: int = 0
+
+
+def _identification(
+    bin_type: BinType | None, world: PlanningWorld, robot: RobotModel, T_base_bin: NDArray[np.float64], q_home, step
+) -> tuple[tuple[NDArray[np.float64], NDArray[np.float64]] | None, str | None]:
+    """The first observation pose (looking at the board) the arm reaches from home by a straight free motion."""
+    if bin_type is None:
+        return None, "no bin type (a mesh without a catalog board): the bin pose comes from the cycle's first station"
+    from cellctl.sim.scene import n_observation_poses, observation_T_bin_cam
+
+    for k in range(n_observation_poses()):
+        T = observation_T_bin_cam(bin_type, k)
+        S = robot.ik_cam(T_base_bin @ T)
+        if len(S) == 0:
+            continue
+        S = S[np.argsort(np.linalg.norm(S - q_home, axis=1))]
+        S = S[world.robot_free(S)]
+        if len(S) == 0:
+            continue
+        moves = world.motion_free(np.repeat(q_home[None], len(S), axis=0), S, step)
+        if moves.any():
+            return (T, S[int(np.flatnonzero(moves)[0])]), None
+    return None, (
+        "the board is not visible from this station (no observation pose reachable by a free motion): "
+        "the bin pose is carried over from the previous station by the base's move"
+    )
+
+
+def plan_whole(
+    mesh: BinMesh,
+    params: WholeParams,
+    robot: RobotModel,
+    *,
+    bin_type: BinType | None = None,
+    progress: ProgressFn | None = None,
+) -> WholePlan:
+    """Plan the whole bin: stations, both surfaces, connected viewpoints, timed tours.
+
+    Nothing to plan is an answer, not an exception: the plan's ``reason`` (and each surface's
+    and station's) says why (no usable station, a surface without faces, nothing visible …).
+
+    Raises:
+        PlanningError: bad parameters.
+    """
+    from cellctl.planning import pipeline as pl
+    from cellctl.planning.reach import robust_acceptor
+    from cellctl.planning.select import greedy_area, min_set_cover, simulated_annealing, visible_area
+    from cellctl.planning.stations import base_move_s, candidate_stations, choose_stations, exact_station_cover
+    from cellctl.planning.visibility import measurability
+    from cellctl.sim.motion import STEP_RAD
+
+    params.check()
+    t0 = time.perf_counter()
+    times: dict[str, float] = {}
+
+    def tick(key: str, since: float) -> float:
+        now = time.perf_counter()
+        times[key] = times.get(key, 0.0) + now - since
+        return now
+
+    def say(stage: str, frac: float, msg: str = "") -> None:
+        if progress:
+            progress(stage, frac, msg)
+
+    p0 = params.plan
+    step = STEP_RAD  # the sim arm's own motion-check step: a motion called free here is free there
+    q_home = np.asarray(p0.q_start if p0.q_start is not None else robot.q_home, dtype=np.float64)
+    name = bin_type.name if bin_type is not None else mesh.name
+    head = dict(
+        plan_id=uuid.uuid4().hex[:12],
+        created=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        bin_type=name,
+        mesh_sha256=mesh.sha256,
+        robot_model_id=robot.model_id(),
+        params=params,
+    )
+    cands = candidate_stations(mesh, bin_type, params.stations)
+    usable = [c for c in cands if c.reason is None]
+    rays = RayCaster(mesh.vertices, mesh.faces)
+    surfaces: dict[str, SurfaceSummary] = {}
+    shared: dict[str, Any] = {}
+    bound_faces: dict[str, NDArray[np.bool_]] = {}
+    counts: dict[str, int] = {"candidates": len(cands), "usable_candidates": len(usable)}
+
+    def empty(reason: str, ev: list[_StationEval] | None = None) -> WholePlan:
+        times["total"] = time.perf_counter() - t0
+        return WholePlan(
+            **head,
+            stations=(),
+            candidates=tuple(cands),
+            surfaces=surfaces,
+            counts=counts,
+            exact=None,
+            station_scores={},
+            base_moves_s=0.0,
+            cycle_time_s=0.0,
+            times_s=times,
+            reason=reason,
+        )
+
+    # 1. per surface: seeds, viewpoints, filters once (no distance filter) + the upper bound
+    t = time.perf_counter()
+    ref = usable[0].T_bin_base if usable else cands[0].T_bin_base
+    for surf in params.surfaces:
+        sf = np.flatnonzero(mesh.surface_mask(surf))
+        area = float(mesh.areas[sf].sum())
+        if len(sf) == 0:
+            surfaces[surf] = SurfaceSummary(0.0, 0.0, 0.0, 0, reason=f"the mesh has no {surf} faces")
+            continue
+        p = replace(p0, surface=surf, max_reach=1.0e3)
+        s = pl.Setup(
+            mesh=mesh,
+            robot=robot,
+            params=p,
+            T_bin_base=ref,
+            T_base_bin=invert(ref),
+            q_start=q_home,
+            surf_faces=sf,
+            world=PlanningWorld(mesh, robot, ref, margin=p.margin),
+            rays=rays,
+            rng=np.random.default_rng([p0.seed, SURFACES.index(surf)]),
+        )
+        st = pl._Stages(None, False)
+        st.start("generate_filter", "generate+filter")
+        filt = pl.generate_and_filter(s, st)
+        if len(filt.vp) == 0:
+            surfaces[surf] = SurfaceSummary(area, 0.0, 0.0, 0, reason=f"no {surf} viewpoint survived the filters")
+            continue
+        C_all = measurability(filt.vp.T, mesh, sf, p.camera, rays)
+        bound_faces[surf] = C_all.any(axis=1)
+        bound = float(mesh.areas[sf][bound_faces[surf]].sum())
+        if bound <= 0:
+            surfaces[surf] = SurfaceSummary(
+                area, 0.0, 0.0, 0, reason=f"no {surf} face is properly visible from any camera pose"
+            )
+            continue
+        shared[surf] = (filt, sf, s.rng)
+        surfaces[surf] = SurfaceSummary(area, bound, 0.0, 0)
+    t = tick("generate_filter_bound", t)
+    say("generate_filter", 1.0)
+    if not usable:
+        return empty("no candidate station is usable: " + "; ".join(f"{c.name}: {c.reason}" for c in cands))
+    if not shared:
+        return empty("no surface can be planned: " + "; ".join(f"{k}: {v.reason}" for k, v in surfaces.items()))
+
+    # 2. per usable station: distance filter, reach, connect, visibility; identification pose
+    from cellctl.planning.filters import distance_filter
+
+    evals: list[_StationEval] = []
+    for n_done, c in enumerate(usable):
+        ev = _StationEval(c)
+        world = PlanningWorld(mesh, robot, c.T_bin_base, margin=p0.margin)
+        T_base_bin = invert(c.T_bin_base)
+        ev.identify, why = _identification(bin_type, world, robot, T_base_bin, q_home, step)
+        ev.setups["identify_reason"] = why
+        accept = robust_acceptor(mesh, robot, c.T_bin_base, p0)
+        for surf, (filt, sf, rng) in shared.items():
+            p = replace(p0, surface=surf)
+            s = pl.Setup(
+                mesh=mesh,
+                robot=robot,
+                params=p,
+                T_bin_base=c.T_bin_base,
+                T_base_bin=T_base_bin,
+                q_start=q_home,
+                surf_faces=sf,
+                world=world,
+                rays=rays,
+                rng=rng,
+            )
+            keep = np.flatnonzero(distance_filter(filt.vp, c.T_bin_base[:3, 3], p.max_reach))
+            vp = filt.vp.subset(keep)
+            f_s = pl.Filtered(
+                vp,
+                filt.generated,
+                filt.seeds,
+                filt.after_height,
+                len(keep),
+                filt.after_occlusion,
+                filt.after_camera_collision,
+            )
+            st = pl._Stages(None, False)
+            st.start("reachability", "reachability")
+            if len(vp) == 0:
+                found = pl.Reachability(
+                    Reached(np.zeros(0, np.int64), np.zeros((0, 4, 4)), np.zeros((0, 6)), np.zeros(0), 0, 0), 0, 0
+                )
+                st.end()
+            else:
+                found = pl.reach(s, vp, st)
+            con = connect(vp, found.reached, robot, world, T_base_bin, q_home, p.n_roll, accept, COARSE_STEP_RAD)
+            ev.con[surf] = con
+            ev.replaced += con.replaced
+            ev.unconnected += con.unconnected
+            found = pl.Reachability(con.reached, found.planner_queries, found.rrtconnect_fallbacks)
+            vis = pl.measure(s, found.reached, st)
+            ev.setups[surf], ev.filt[surf], ev.found[surf], ev.vis[surf] = s, f_s, found, vis
+            ev.seen[surf] = vis.C.any(axis=1) if vis.C.shape[1] else np.zeros(len(sf), dtype=bool)
+        evals.append(ev)
+        say("stations", (n_done + 1) / len(usable), c.name)
+    t = tick("stations", t)
+    counts["replaced_unconnected"] = sum(e.replaced for e in evals)
+    counts["unconnected_directions"] = sum(e.unconnected for e in evals)
+
+    # 3. choose stations (fewest first), order them around the ring, board side first
+    areas = {s: mesh.areas[shared[s][1]] for s in shared}
+    bounds = {s: surfaces[s].bound_m2 for s in shared}
+    for surf in shared:
+        m = np.zeros(len(areas[surf]), dtype=bool)
+        for e in evals:
+            m |= e.seen[surf]
+        surfaces[surf] = replace(surfaces[surf], reachable_m2=float(areas[surf][m].sum()))
+    chosen, scores = choose_stations([e.seen for e in evals], areas, bounds, params.stations)
+    if not chosen or not any(evals[i].seen[s].any() for i in chosen for s in shared):
+        return empty(
+            f"no station sees the bin: none of the {len(usable)} usable stations reaches a viewpoint that "
+            "properly sees a face (is the bin within the arm's reach of its stations?)"
+        )
+    chosen_ev = _ring_order([evals[i] for i in chosen], params.stations.candidates)
+    t = tick("choose_stations", t)
+
+    # 4. viewpoint selection per surface over the chosen stations' pairs (Greedy Area + SA);
+    #    the selected viewpoints' ways home are checked at the sim arm's step, and one that fails
+    #    there is left out and the surface selected again (before the final selection, not after)
+    picked: dict[str, list[NDArray[np.int64]]] = {}
+    greedy_n: dict[str, int] = {}
+    counts["unconnected_fine"] = 0
+    for surf in shared:
+        blocks = [e.vis[surf].C for e in chosen_ev]
+        C = np.hstack(blocks)
+        owner = np.concatenate([np.full(b.shape[1], k) for k, b in enumerate(blocks)])
+        local = np.concatenate([np.arange(b.shape[1]) for b in blocks])
+        a = areas[surf]
+        picked[surf] = [np.zeros(0, np.int64) for _ in chosen_ev]
+        if C.shape[1] == 0:
+            continue
+        allowed = np.ones(C.shape[1], dtype=bool)
+        verified = np.zeros(C.shape[1], dtype=bool)
+        for _round in range(4):
+            cols_ok = np.flatnonzero(allowed)
+            rng = np.random.default_rng([p0.seed, 17, SURFACES.index(surf)])
+            ga = cols_ok[
+                _worthwhile(greedy_area(C[:, cols_ok], a), C[:, cols_ok], a, bounds[surf], params.view_min_gain_pct)
+            ]
+            sa = simulated_annealing(
+                C[:, cols_ok], a, np.searchsorted(cols_ok, ga), p0.sa_pct, rng, iterations=p0.sa_iterations
+            )
+            chosen_cols = cols_ok[sa.selected]
+            todo = chosen_cols[~verified[chosen_cols]]
+            bad = _fine_check(todo, owner, local, chosen_ev, surf, q_home, step)
+            verified[todo] = True
+            if not bad:
+                break
+            allowed[bad] = False
+            verified[bad] = False
+            counts["unconnected_fine"] += len(bad)
+        greedy_n[surf] = len(ga)
+        picked[surf] = [np.sort(local[chosen_cols][owner[chosen_cols] == k]) for k in range(len(chosen_ev))]
+        seen = visible_area(C, a, chosen_cols)
+        surfaces[surf] = replace(surfaces[surf], seen_m2=seen, viewpoints=len(chosen_cols))
+    t = tick("selection", t)
+
+    # 5. the exact (station, viewpoint) cover of what the selection sees, over all usable stations
+    cols: list[tuple[int, NDArray[np.bool_]]] = []
+    offs, off = {}, 0
+    for surf in shared:
+        offs[surf] = off
+        off += len(areas[surf])
+    must = np.zeros(off, dtype=bool)
+    for surf in shared:
+        for k, e in enumerate(chosen_ev):
+            sel = picked[surf][k]
+            if len(sel):
+                must[offs[surf] : offs[surf] + len(areas[surf])] |= e.vis[surf].C[:, sel].any(axis=1)
+    for e in evals:
+        for surf in shared:
+            Cs = e.vis[surf].C
+            for j in range(Cs.shape[1]):
+                col = np.zeros(off, dtype=bool)
+                col[offs[surf] : offs[surf] + len(areas[surf])] = Cs[:, j]
+                cols.append((e.cand.index, col))
+    try:
+        exact = exact_station_cover(cols, must, params.exact_time_limit_s)
+    except PlanningError:
+        exact = None
+    t = tick("exact_cover", t)
+
+    # 6. per chosen station: timed tours (external then internal), station plans, modelled time
+    timing = params.timing
+    per_vp = timing.settle_s + timing.capture_s
+    stations: list[StationPlan] = []
+    for rank, e in enumerate(chosen_ev):
+        q_now = q_home
+        hub: list[NDArray[np.float64]] = [q_home, q_home]
+        cycle = 0.0
+        if e.identify is not None:
+            cycle += timing.motion_s(np.array([q_home, e.identify[1]])) + per_vp
+            q_now = e.identify[1]
+            hub = [q_now, q_home]
+        plans: dict[str, Plan] = {}
+        motion: dict[str, float] = {}
+        for surf in shared:
+            s, f_s, found, vis = e.setups[surf], e.filt[surf], e.found[surf], e.vis[surf]
+            sel = picked[surf][rank]
+            s = replace(s, q_start=q_now, params=replace(s.params, q_start=tuple(float(x) for x in q_now)))
+            st = pl._Stages(None, False)
+            hd = pl._Header(uuid.uuid4().hex[:12], head["created"], name, time.perf_counter())
+            if len(sel) == 0:
+                plans[surf] = pl.assemble(
+                    s, hd, st, f_s, found, vis, reason=f"station {rank}: no {surf} viewpoint was selected here"
+                )
+                motion[surf] = 0.0
+                continue
+            con = e.con[surf]
+            order, Dr, paths, secs_e, n_straight = _timed_tour(
+                q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step
+            )
+            approaches = tuple(None if len(pth) == 2 else pth for pth in paths)
+            n_nodes = len(sel) + 1
+            tour_counts = {
+                "matrix_pairs": n_nodes * (n_nodes - 1) // 2,
+                "matrix_straight": int(n_straight),
+                "tour_failed_edges": 0,
+            }
+            tour = pl.Tour(order, Dr, approaches, tour_counts)
+            selection = pl.Selection(sel, sel, _NoSA)
+            allowed = np.ones(vis.C.shape[1], dtype=bool)
+            ordered = pl.Ordered(selection, tour, allowed, 0)
+            n_opt, proven, secs = min_set_cover(vis.C[:, allowed], min(2.0, p0.cover_time_limit_s))
+            cover = pl.Cover(n_opt, proven, secs)
+            plan = pl.assemble(s, hd, st, f_s, found, vis, ordered, cover)
+            plans[surf] = plan
+            mt = float(sum(secs_e))
+            motion[surf] = mt
+            cycle += mt + len(sel) * per_vp
+            last = int(sel[order[-1] - 1])
+            q_now = found.reached.q[last]
+            hub = [q_now, *chain_to_start(last, con.parent, con.reached.q), q_home]
+        cycle += timing.motion_s(np.array(hub))  # home before the base drives on
+        stations.append(
+            StationPlan(
+                rank=rank,
+                candidate=e.cand.index,
+                angle_deg=e.cand.angle_deg,
+                T_bin_base=e.cand.T_bin_base,
+                identify_T_bin_cam=None if e.identify is None else e.identify[0],
+                identify_q=None if e.identify is None else e.identify[1],
+                identify_reason=e.setups.get("identify_reason"),
+                plans=plans,
+                motion_s=motion,
+                cycle_s=cycle,
+            )
+        )
+    moves = sum(
+        base_move_s(cands, a.candidate, b.candidate, params.stations)
+        for a, b in zip(stations[:-1], stations[1:], strict=True)
+    )
+    counts["dropped_unconnected"] = 0
+    counts["stations"] = len(stations)
+    counts.update({f"greedy_{k}": v for k, v in greedy_n.items()})
+    tick("tours", t)
+    times["total"] = time.perf_counter() - t0
+    reason = None
+    if stations and stations[0].identify_q is None:
+        reason = None  # the first station's missing board is said in its identify_reason
+    return WholePlan(
+        **head,
+        stations=tuple(stations),
+        candidates=tuple(cands),
+        surfaces=surfaces,
+        counts=counts,
+        exact=exact,
+        station_scores=scores,
+        base_moves_s=float(moves),
+        cycle_time_s=float(sum(s.cycle_s for s in stations) + moves),
+        times_s=times,
+        reason=reason,
+    )
+
+
+def _worthwhile(
+    greedy: NDArray[np.int64], C: NDArray[np.bool_], area: NDArray[np.float64], bound_m2: float, min_gain_pct: float
+) -> NDArray[np.int64]:
+    """The Greedy Area prefix whose every viewpoint adds at least ``min_gain_pct`` % of the bound.
+
+    Greedy's tail adds slivers (0.1 % of the surface per viewpoint) at a full move + settle +
+    capture each; the rule trades them for cycle time, and the area given up is reported.
+    """
+    if min_gain_pct <= 0 or len(greedy) == 0:
+        return greedy
+    covered = np.zeros(C.shape[0], dtype=bool)
+    keep = 0
+    for k, j in enumerate(greedy):
+        gain = float(area[C[:, j] & ~covered].sum())
+        if gain < min_gain_pct / 100.0 * bound_m2:
+            break
+        covered |= C[:, j]
+        keep = k + 1
+    return greedy[: max(1, keep)]
+
+
+def _fine_check(
+    cols: NDArray[np.int64],
+    owner: NDArray[np.int64],
+    local: NDArray[np.int64],
+    evs: list[_StationEval],
+    surf: str,
+    q_home: NDArray[np.float64],
+    fine_step: float,
+) -> list[int]:
+    """Columns whose chain of straight motions home collides at ``fine_step`` (one batch)."""
+    A, B, who = [], [], []
+    for c in cols:
+        e = evs[int(owner[c])]
+        con = e.con[surf]
+        chain = [*chain_to_start(int(local[c]), con.parent, con.reached.q), q_home]
+        for a, b in zip(chain[:-1], chain[1:], strict=True):
+            A.append(a)
+            B.append(b)
+            who.append(int(c))
+    if not A:
+        return []
+    world = None
+    bad: set[int] = set()
+    by_station: dict[int, list[int]] = {}
+    for k, c in enumerate(who):
+        by_station.setdefault(int(owner[c]), []).append(k)
+    for st_k, ks in by_station.items():
+        world = evs[st_k].setups[surf].world
+        ok = world.motion_free(np.array([A[k] for k in ks]), np.array([B[k] for k in ks]), fine_step)
+        bad |= {who[k] for k, good in zip(ks, ok, strict=True) if not good}
+    return sorted(bad)
+
+
+class _NoSAType:
+    """Selection's SA record for station shares (the annealing ran over all stations' pairs)."""
+
+    iterations = 0
+    accepted = 0
+    loss_pct = 0.0
+
+
+_NoSA: Any = _NoSAType()
+
+
+def _ring_order(evs: list[_StationEval], n: int) -> list[_StationEval]:
+    """Chosen stations around the ring, from one that sees the board, the shorter way round."""
+    if len(evs) <= 1:
+        return evs
+    start = next((e for e in sorted(evs, key=lambda e: e.cand.index) if e.identify is not None), evs[0])
+    s0 = start.cand.index
+
+    def span(direction: int) -> tuple[int, list[_StationEval]]:
+        ordered = sorted(evs, key=lambda e: ((e.cand.index - s0) * direction) % n)
+        last = ((ordered[-1].cand.index - s0) * direction) % n
+        return last, ordered
+
+    a, b = span(1), span(-1)
+    return a[1] if a[0] <= b[0] else b[1]

@@ -1,0 +1,105 @@
+"""PNGs of a whole-bin plan, one per surface: faces by how many views see them, unseen faces in
+red, the stations (mobile base footprint, arm base, rank) and each station's viewpoints."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from cellctl.geometry.catalog import BinMesh
+from cellctl.planning.whole import WholePlan
+
+__all__ = ["render_whole"]
+
+STATION_COLOURS = (
+    "tab:blue",
+    "tab:orange",
+    "tab:green",
+    "tab:purple",
+    "tab:brown",
+    "tab:pink",
+    "tab:olive",
+    "tab:cyan",
+)
+UNSEEN = (0.85, 0.15, 0.15, 0.95)
+
+
+def _paths(path: str | Path, surfaces: list[str]) -> dict[str, Path]:
+    p = Path(path)
+    stem = p.with_suffix("")
+    return {s: Path(f"{stem}_{s}.png") for s in surfaces}
+
+
+def render_whole(plan: WholePlan, mesh: BinMesh, path: str | Path) -> list[Path]:
+    """Draw ``<path stem>_<surface>.png`` per planned surface; returns the files written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    from cellctl.geometry import robot_model as rm
+    from cellctl.planning.render import equal_axes
+
+    surfaces = [s for s, v in plan.surfaces.items() if v.reason is None]
+    out: list[Path] = []
+    for surf, png in _paths(path, surfaces).items():
+        count = np.zeros(len(mesh.faces), dtype=int)
+        for st in plan.stations:
+            p = st.plans.get(surf)
+            if p is None:
+                continue
+            for vp in p.viewpoints:
+                count[vp.faces] += 1
+        on = mesh.surface_mask(surf)
+        fig = plt.figure(figsize=(10, 8), dpi=110)
+        ax = fig.add_subplot(111, projection="3d")
+        ax.computed_zorder = False
+        cmap = plt.get_cmap("viridis")
+        vmax = max(1, int(count[on].max()) if on.any() else 1)
+        colours = np.where((count > 0)[:, None], cmap(np.minimum(count, vmax) / vmax), np.array([UNSEEN]))
+        colours[~on] = (0.8, 0.8, 0.8, 0.05 if surf == "internal" else 0.4)
+        ax.add_collection3d(Poly3DCollection(mesh.vertices[mesh.faces], facecolors=colours, edgecolors="none"))
+        pts = [mesh.vertices]
+        centre, size = rm.MOBILE_BASE_BOX
+        for st in plan.stations:
+            colour = STATION_COLOURS[st.rank % len(STATION_COLOURS)]
+            T = st.T_bin_base
+            hx, hy = size[0] / 2, size[1] / 2
+            sq = np.array(
+                [
+                    [centre[0] + sx * hx, centre[1] + sy * hy, 0, 1]
+                    for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1), (-1, -1))
+                ]
+            )
+            foot = (T @ sq.T)[:3].T
+            z_floor = float(mesh.vertices[:, 2].min())
+            ax.plot(foot[:, 0], foot[:, 1], np.full(len(foot), z_floor), "-", color=colour, lw=2, zorder=12)
+            b = T[:3, 3]
+            ax.scatter(*b, color=colour, s=60, marker="s", zorder=13)
+            ax.text(b[0], b[1], b[2] + 0.08, f"S{st.rank + 1}", color=colour, fontsize=11, weight="bold", zorder=14)
+            pts.append(foot)
+            p = st.plans.get(surf)
+            if p is None or not p.viewpoints:
+                continue
+            Tc = np.array([vp.T_bin_cam for vp in p.viewpoints])
+            o, z = Tc[:, :3, 3], Tc[:, :3, 2]
+            ax.quiver(o[:, 0], o[:, 1], o[:, 2], z[:, 0], z[:, 1], z[:, 2], length=0.1, color=colour, zorder=10)
+            ax.plot(o[:, 0], o[:, 1], o[:, 2], "-", color=colour, lw=0.8, zorder=11)
+            pts.append(o)
+        equal_axes(ax, np.vstack(pts))
+        ax.view_init(elev=35 if surf == "external" else 60, azim=-60)
+        sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(1, vmax))
+        fig.colorbar(sm, ax=ax, shrink=0.6, label="viewpoints seeing the face (red: unseen)")
+        s = plan.surfaces[surf]
+        ax.set_title(
+            f"{plan.bin_type} {surf}, whole bin: {len(plan.stations)} stations, {s.viewpoints} viewpoints\n"
+            f"area {100 * s.area_fraction:.1f} % of the surface, {100 * s.bound_fraction:.1f} % of the upper bound; "
+            f"modelled cycle {plan.cycle_time_s:.0f} s"
+        )
+        png.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(png, bbox_inches="tight")
+        plt.close(fig)
+        out.append(png)
+    return out

@@ -1,0 +1,225 @@
+"""Whole-bin plans (issue 19): stations, the (station, viewpoint) cover, connected viewpoints, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cellctl.planning.plan import PlanParams
+from cellctl.planning.shapes import open_box_bin
+from cellctl.planning.stations import (
+    StationParams,
+    base_move_s,
+    candidate_stations,
+    choose_stations,
+    exact_station_cover,
+)
+from cellctl.planning.whole import WholeParams, chain_to_start, plan_whole
+
+FAST = PlanParams(seed_pct=4.0, seed=3, sa_iterations=500, n_roll=8)
+STATIONS = StationParams(candidates=4, max_stations=4)
+
+
+@pytest.fixture(scope="module")
+def whole(box, robot):
+    return plan_whole(box, WholeParams(plan=FAST, stations=STATIONS), robot)
+
+
+# --- candidates ---------------------------------------------------------------------------
+
+
+def test_candidates_ring_the_bin_board_side_first_and_clear_of_it(box):
+    cands = candidate_stations(box, None, StationParams(candidates=8))
+    assert [round(c.angle_deg) for c in cands] == [-90, -45, 0, 45, 90, 135, -180, -135]
+    assert all(c.reason is None for c in cands)
+    for c in cands:
+        # the arm's +x axis faces the bin centre
+        to_bin = -c.T_bin_base[:2, 3] / np.linalg.norm(c.T_bin_base[:2, 3])
+        assert float(c.T_bin_base[:2, 0] @ to_bin) > 0.99
+        # the base origin is park_distance beyond the bin's extent along its direction
+        u = -to_bin
+        extent = float((box.vertices[:, :2] @ u).max())
+        assert float(c.T_bin_base[:2, 3] @ u) == pytest.approx(extent + 0.75)
+
+
+def test_candidates_against_a_wall_and_not_allowed_say_why(box):
+    cands = candidate_stations(box, None, StationParams(candidates=4, bin_in_cabin=(1.6, 0.0, 0.0)))
+    by_angle = {round(c.angle_deg): c for c in cands}
+    assert "cabin wall" in by_angle[0].reason  # the +x side faces the wall 0.9 m away
+    assert by_angle[-180].reason is None
+    cands = candidate_stations(box, None, StationParams(candidates=4, allowed_deg=(-90.0,)))
+    assert [c.reason is None for c in cands] == [True, False, False, False]
+    assert "not among the allowed" in cands[1].reason
+
+
+def test_base_move_goes_around_the_ring_not_through_the_bin(box):
+    sp = StationParams(candidates=4)
+    cands = candidate_stations(box, None, sp)
+    across = base_move_s(cands, 0, 2, sp)
+    beside = base_move_s(cands, 0, 1, sp)
+    straight = float(np.linalg.norm(cands[2].ring_xy - cands[0].ring_xy)) / sp.base_speed_m_s
+    assert across > beside > sp.park_s
+    assert across > straight + 180.0 / sp.base_turn_deg_s  # around, and the turn of 180°
+
+
+# --- the cover --------------------------------------------------------------------------------
+
+
+def test_choose_stations_takes_the_fewest_that_see_what_all_see():
+    area = {"external": np.ones(6)}
+    bound = {"external": 6.0}
+    F = np.array
+    seen = [
+        {"external": F([1, 1, 1, 0, 0, 0], bool)},
+        {"external": F([0, 0, 1, 1, 0, 0], bool)},
+        {"external": F([0, 0, 0, 1, 1, 1], bool)},
+    ]
+    chosen, scores = choose_stations(seen, area, bound, StationParams(candidates=3, max_stations=3, min_gain_pct=1.0))
+    assert sorted(chosen) == [0, 2]
+    assert scores["2"] == pytest.approx(1.0)
+    # a station adding less than min_gain is not worth its drive
+    chosen, _ = choose_stations(seen, area, bound, StationParams(candidates=3, max_stations=3, min_gain_pct=60.0))
+    assert len(chosen) == 1
+
+
+def test_exact_station_cover_counts_stations_before_viewpoints():
+    F = lambda *x: np.array(x, dtype=bool)  # noqa: E731
+    # station 0 covers everything with 3 viewpoints; station 1 with 2 needs station 0's third face
+    cols = [
+        (0, F(1, 0, 0, 0)),
+        (0, F(0, 1, 0, 0)),
+        (0, F(0, 0, 1, 1)),
+        (1, F(1, 1, 0, 0)),
+        (1, F(0, 0, 1, 0)),
+    ]
+    res = exact_station_cover(cols, F(1, 1, 1, 1))
+    assert (res.stations, res.viewpoints, res.proven) == (1, 3, True)
+    res = exact_station_cover(cols, F(1, 1, 1, 0))
+    assert (res.stations, res.viewpoints) == (1, 2) or (res.stations, res.viewpoints) == (1, 3)
+
+
+# --- a whole plan on the box --------------------------------------------------------------------
+
+
+def test_whole_plan_covers_both_surfaces_with_every_viewpoint_connected(whole, box, robot):
+    from cellctl.planning.collision import PlanningWorld
+    from cellctl.sim.motion import _segment_free
+
+    assert whole.reason is None and len(whole.stations) >= 2
+    assert whole.counts["dropped_unconnected"] == 0
+    for surf in ("external", "internal"):
+        s = whole.surfaces[surf]
+        assert s.viewpoints > 0 and 0 < s.seen_m2 <= s.bound_m2 + 1e-9 and s.bound_m2 <= s.area_m2 + 1e-9
+        assert sum(len(st.plans[surf].viewpoints) for st in whole.stations) == s.viewpoints
+    home = robot.q_home
+    for st in whole.stations:
+        world = PlanningWorld(box, robot, st.T_bin_base).sim
+        prev = home if st.identify_q is None else st.identify_q
+        for surf in ("external", "internal"):
+            plan = st.plans[surf]
+            assert np.allclose(plan.base.T_bin_base, st.T_bin_base)
+            for vp in plan.viewpoints:
+                path = np.vstack([prev[None], vp.approach, vp.q[None]])
+                # every move the cycle makes is free at the sim arm's own step: no refusal at run time
+                for a, b in zip(path[:-1], path[1:], strict=True):
+                    assert _segment_free(world, a, b), (st.rank, surf, vp.index)
+                prev = vp.q
+    assert whole.cycle_time_s > sum(s.viewpoints for s in whole.surfaces.values()) * 0.6
+    assert whole.exact is not None and whole.exact.stations <= len(whole.stations)
+
+
+def test_whole_plan_json_has_the_issue_keys(whole):
+    j = json.loads(json.dumps(whole.to_json()))
+    assert {"stations", "surfaces", "dropped_unconnected", "cycle_time_s", "times_s"} <= set(j)
+    for surf in ("external", "internal"):
+        assert {"area_fraction", "bound_fraction", "viewpoints"} <= set(j["surfaces"][surf])
+    assert "total" in j["times_s"]
+    assert [s["rank"] for s in j["stations"]] == list(range(len(j["stations"])))
+
+
+def test_chain_to_start_walks_parents():
+    Q = np.arange(18, dtype=float).reshape(3, 6)
+    parent = np.array([-1, 0, 1])
+    assert [int(q[0]) for q in chain_to_start(2, parent, Q)] == [12, 6, 0]
+
+
+# --- bad input ----------------------------------------------------------------------------------
+
+
+def test_a_mesh_without_internal_faces_plans_the_outside_and_says_so(robot):
+    from cellctl.planning.mesh import mesh_from_arrays
+
+    box = open_box_bin((0.8, 0.6, 0.8), max_edge=0.1)
+    solid = mesh_from_arrays(box.vertices, box.faces, name="solid", internal=np.zeros(box.n_faces, dtype=bool))
+    wp = plan_whole(solid, WholeParams(plan=FAST, stations=StationParams(candidates=2, max_stations=2)), robot)
+    assert wp.surfaces["internal"].reason == "the mesh has no internal faces"
+    assert wp.surfaces["external"].viewpoints > 0 and wp.reason is None
+
+
+def test_a_bin_no_station_can_see_and_a_cabin_too_small_are_reasons(box, robot):
+    far = WholeParams(
+        plan=FAST, stations=StationParams(candidates=2, max_stations=2, park_distance_m=2.0, cabin_half_m=(6.0, 6.0))
+    )
+    wp = plan_whole(box, far, robot)
+    assert wp.is_empty and "no station sees the bin" in wp.reason
+    tight = WholeParams(plan=FAST, stations=StationParams(candidates=4, cabin_half_m=(1.0, 1.0)))
+    wp = plan_whole(box, tight, robot)
+    assert wp.is_empty and "no candidate station is usable" in wp.reason and "cabin wall" in wp.reason
+
+
+def test_a_station_that_cannot_see_the_board_says_so(robot):
+    from cellctl.config import load_config
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.geometry.transforms import invert
+    from cellctl.planning.collision import PlanningWorld
+    from cellctl.planning.whole import _identification
+    from cellctl.sim.motion import STEP_RAD
+
+    cfg = load_config()
+    cat = load_catalog(cfg.path(cfg.catalog))
+    bt = cat.get("case_study")
+    mesh = cat.load_mesh("case_study")
+    by_angle = {round(c.angle_deg): c for c in candidate_stations(mesh, bt, StationParams(candidates=4))}
+    board_side = min(by_angle.values(), key=lambda c: c.index)
+    far_side = by_angle[
+        round(board_side.angle_deg) + 180 if board_side.angle_deg < 0 else round(board_side.angle_deg) - 180
+    ]
+    for c, visible in ((board_side, True), (far_side, False)):
+        world = PlanningWorld(mesh, robot, c.T_bin_base)
+        pose, why = _identification(bt, world, robot, invert(c.T_bin_base), robot.q_home, STEP_RAD)
+        assert (pose is not None) == visible
+        assert (why is None) == visible
+    assert "board is not visible" in why
+
+
+def test_plan_whole_cli_on_any_mesh_prints_the_issue_json(tmp_path, capsys):
+    from cellctl.cli import main
+
+    box = open_box_bin((0.8, 0.6, 0.8), max_edge=0.1)
+    mesh_file = tmp_path / "box.stl"
+    box.to_trimesh().export(mesh_file)
+    rc = main(
+        [
+            "plan",
+            "--mesh",
+            str(mesh_file),
+            "--whole",
+            "--seed-pct",
+            "3",
+            "--json",
+            "--set",
+            "planner.whole.candidates=4",
+            "--set",
+            f"planner.plans_dir={tmp_path / 'plans'}",
+        ]
+    )
+    assert rc == 0
+    j = json.loads(capsys.readouterr().out)
+    assert {"stations", "surfaces", "dropped_unconnected", "cycle_time_s", "times_s"} <= set(j)
+    assert j["dropped_unconnected"] == 0 and j["cycle_time_s"] > 0
+    assert len(list((tmp_path / "plans").glob("*/whole/*.json"))) == 1
+    assert len(list((tmp_path / "plans").glob("*/external/*.json"))) == len(j["stations"])
+    assert main(["plan", "--mesh", str(mesh_file), "--whole", "--base", "0 -1 0 90"]) == 2
+    assert "drop --base" in capsys.readouterr().err
