@@ -74,3 +74,21 @@ def test_cellctl_router_check_prints_the_effective_settings() -> None:
     )
     eff = json.loads(out.stdout)
     assert eff["host"] == "compute" and "tcp/compute.line.example:7447" in eff["listen/endpoints"]
+
+
+def test_pool_keys_are_valid_and_match_every_cell() -> None:
+    import zenoh
+
+    from cellctl.bus import keys
+
+    for k in (keys.planner_jobs_any(), keys.planner_lookup_any(), keys.pool_claim(), keys.pool_done(),
+              keys.pool_stats(), keys.pool_alive(), keys.pool_alive("p12-ab")):
+        assert str(zenoh.KeyExpr(k)) == k
+    assert zenoh.KeyExpr(keys.planner_jobs_any()).includes(zenoh.KeyExpr(keys.planner_jobs("cell7")))
+    assert zenoh.KeyExpr(keys.planner_lookup_any()).includes(zenoh.KeyExpr(keys.worker_op("c-2", "planner", "lookup")))
+    assert not zenoh.KeyExpr(keys.planner_jobs_any()).includes(zenoh.KeyExpr(keys.planner_job_progress("cell1", "j")))
+    assert keys.cell_from_key("cell/cell3/planner/jobs") == "cell3"
+    with pytest.raises(ConfigError, match="is not a cell key"):
+        keys.cell_from_key("pool/planner/claim")
+    with pytest.raises(ConfigError, match="instance name 'P!' is invalid"):
+        keys.pool_alive("P!")

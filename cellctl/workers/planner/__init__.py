@@ -12,7 +12,9 @@ Ops (``cellctl worker planner``):
   lookup + pose tolerance + IK/collision re-check at the measured pose, so the supervisor
   never imports OMPL/trimesh/open3d.
 
-Several workers may serve the same cell (each with its own liveliness instance name).
+Several workers may serve the same cell (each with its own liveliness instance name). A planner
+pool serving several cells from the compute host (``--backend pool``, one job to exactly one
+worker, one plan cache) is :mod:`cellctl.workers.planner.pool`.
 """
 
 from __future__ import annotations
