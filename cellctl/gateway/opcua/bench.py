@@ -160,7 +160,8 @@ class _ZenohPath:
         self.samples: list[float] = []
         self.seq = 0
 
-    def one(self, state: int) -> None:
+    def one(self, state: int) -> int:
+        """One command from wait state ``state``; returns the wait state it leads to, once reached."""
         while not self.states.empty():
             self.states.get_nowait()
         code = 1 if state == STOPPED else 3
@@ -174,7 +175,11 @@ class _ZenohPath:
             t1, val = self.states.get(timeout=10)
             if val != state:
                 self.samples.append((t1 - t0) * 1000)
-                return
+                break
+        target = IDLE if state == STOPPED else STOPPED
+        while val != target:
+            _, val = self.states.get(timeout=10)
+        return target
 
     def close(self) -> None:
         self.sub.undeclare()
@@ -235,10 +240,10 @@ async def _measure(url: str, user: str, password: str, zenoh_ep: str, n: int, bl
                 for _ in range(k):
                     await path.one(await wait_state())
                 await path.unsubscribe()
+            state = await wait_state()
             for _ in range(k):
-                state = await wait_state()
-                await loop.run_in_executor(None, z.one, state)
-                await asyncio.sleep(0.02)  # let the wait state settle before reading it
+                state = await loop.run_in_executor(None, z.one, state)
+            await probe.settle(state)  # the gateway's view catches up before the next OPC UA block
             done += k
             if done % 50 == 0:
                 print(f"bench opcua: {done}/{n} rounds", file=sys.stderr)
@@ -300,6 +305,7 @@ def bench_opcua(opts: BenchOptions) -> dict[str, Any]:
                     await asyncio.sleep(0.3)
 
         asyncio.run(ready())
+        load_start = os.getloadavg()[0]
         print(f"bench opcua: {n} rounds, gateway {url}, daemon {ep}", file=sys.stderr)
         result = asyncio.run(_measure(url, "bench", password, ep, n))
     finally:
@@ -314,6 +320,7 @@ def bench_opcua(opts: BenchOptions) -> dict[str, Any]:
         "commands": "alternating Reset (Stopped->Resetting) and Stop (Idle->Stopping), daemon without workers",
         "exit_codes": rc,
         "cpus": os.cpu_count(),
+        "loadavg_1m_at_start": round(load_start, 2),
         "loadavg_1m_at_end": round(load[0], 2),
         "logs": str(out_dir),
     }
