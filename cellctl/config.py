@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, field_validator, model_validator
 
 from cellctl.bus.keys import ROLES, check_cell_id
 from cellctl.errors import ConfigError
@@ -23,12 +23,14 @@ __all__ = [
     "BusConfig",
     "CameraConfig",
     "CellConfig",
+    "NozzleConfig",
     "ClassifierConfig",
     "PlannerConfig",
     "RecordingConfig",
     "RobotConfig",
     "SimConfig",
     "SupervisorConfig",
+    "WashConfig",
     "apply_overrides",
     "default_config_path",
     "load_config",
@@ -143,6 +145,40 @@ class CameraConfig(_Model):
     cx: float | None = Field(default=None, description="px; None: image centre")
     cy: float | None = Field(default=None, description="px; None: image centre")
     noise_sigma: float = Field(default=2.0, ge=0, le=50, description="sim: sensor noise, 8-bit grey levels")
+
+
+class NozzleConfig(_Model):
+    """The washing nozzle (:class:`cellctl.washing.nozzle.NozzleModel`), a second tool beside the camera."""
+
+    half_angle_deg: float = Field(default=12.0, gt=0, lt=60, description="spray cone half-angle")
+    working_distance_m: tuple[float, float] = Field(default=(0.12, 0.22), description="near, far stand-off (m)")
+    max_incidence_deg: float = Field(default=40.0, gt=0, lt=90, description="jet vs face normal, at most")
+    footprint_m: float = Field(default=0.05, gt=0, le=1, description="diameter of the spot one pass cleans")
+    removal_per_pass: float = Field(default=0.8, gt=0, le=1, description="fraction of the powder one pass removes")
+    clean_residual: float = Field(default=0.05, gt=0, lt=1, description="powder fraction that may stay")
+    overlap: float = Field(default=0.3, ge=0, lt=0.9, description="raster line overlap, fraction of the footprint")
+    mount_xyz_rpy: tuple[float, float, float, float, float, float] = Field(
+        default=(0.0, 0.0, 0.10, 0.0, 0.0, 0.0), description="nozzle tip in the flange frame: m, m, m, deg, deg, deg"
+    )
+    lance_radius_m: float = Field(default=0.015, gt=0, lt=0.1)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> NozzleConfig:
+        from cellctl.washing.nozzle import NozzleModel
+
+        try:
+            NozzleModel.from_config(self)
+        except ConfigError as err:
+            raise ValueError(str(err)) from None
+        return self
+
+
+class WashConfig(_Model):
+    """Wash-and-verify (cellctl.washing): which faces to wash and how many rounds."""
+
+    threshold: float = Field(default=0.5, gt=0, lt=1, description="face dirt probability that is washed")
+    margin_m: float = Field(default=0.02, ge=0, le=0.3, description="targets dilated by this much around dirt")
+    max_rounds: int = Field(default=3, ge=1, le=20, description="wash → re-inspect rounds before 'dirty'")
 
 
 class VerdictConfig(_Model):
@@ -262,6 +298,8 @@ class CellConfig(_Model):
     catalog: Path = Path("config/bins.yaml")
     robot: RobotConfig = Field(default_factory=RobotConfig)
     camera: CameraConfig = Field(default_factory=CameraConfig)
+    nozzle: NozzleConfig = Field(default_factory=NozzleConfig)
+    wash: WashConfig = Field(default_factory=WashConfig)
     classifier: ClassifierConfig = Field(default_factory=ClassifierConfig)
     planner: PlannerConfig = Field(default_factory=PlannerConfig)
     sim: SimConfig = Field(default_factory=SimConfig)
