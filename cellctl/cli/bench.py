@@ -27,6 +27,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "cellctl.planning.bench:bench_plan",
         "planner: fast vs paper mode, case-study bin, p_SP 10/40 (--n: paper RRT* budget in 0.1 s)",
     ),
+    "whole-bin": (
+        "cellctl.planning.bench:bench_whole_bin",
+        "whole-bin plans: catalog bins + a foreign mesh, stations, coverage per surface, cycle time (--n seeds)",
+    ),
     "faults": (
         "cellctl.reliability.faults:bench_faults",
         "kill/freeze each worker at each cycle step: detection time, safe state, recovery",

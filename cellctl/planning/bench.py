@@ -1,4 +1,5 @@
-"""``cellctl bench plan``: fast vs paper mode on the case-study bin, external surface."""
+"""``cellctl bench plan``: fast vs paper mode on the case-study bin, external surface;
+``cellctl bench whole-bin``: whole-bin plans of every catalog bin and a foreign mesh over seeds."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from typing import Any
 
 from cellctl.bench_options import BenchOptions
 
-__all__ = ["bench_plan"]
+__all__ = ["bench_plan", "bench_whole_bin", "foreign_mesh"]
 
 BENCH_BIN = "case_study"
 BENCH_BASE = (0.0, -1.13, -0.33, 90.0)  # the sim's nominal parking pose (cellctl.sim.scene)
@@ -39,4 +40,146 @@ def bench_plan(opts: BenchOptions) -> dict[str, Any]:
     out["speedup_p10"] = p["times_s"]["total"] / max(f["times_s"]["total"], 1e-9)
     a_f, a_p = f["area"]["visible_selected_m2"], p["area"]["visible_selected_m2"]
     out["selected_area_diff_pct_p10"] = 100.0 * (a_f - a_p) / a_p if a_p > 0 else None
+    return out
+
+
+# --- whole bin (issue 19) -------------------------------------------------------------------
+
+WHOLE_SEEDS = 10
+"""Seeds per bin (``--n`` overrides): every figure is reported as median and worst over them."""
+
+
+def foreign_mesh() -> Any:
+    """A bin the catalog does not have: long and narrow (0.5 × 1.1 m), a bulge, an inset opening, two legs.
+
+    Other proportions and features than the three catalog bins, to check the planner is not
+    tuned to them; no board (identification comes from the cycle's first station).
+    """
+    from cellctl.geometry.bin_meshes import BinDesign, build_mesh
+    from cellctl.planning.mesh import mesh_from_arrays
+    from cellctl.surface import FACE_TAG
+
+    d = BinDesign(
+        name="foreign_long",
+        description="long narrow bin with a bulge and an inset opening on two skids",
+        outline="rect",
+        half_x=0.25,
+        half_y=0.55,
+        sections=((0.0, 1.0, 1.0), (-0.25, 1.12, 1.06), (-0.65, 0.85, 0.9)),
+        hole=("inset", 0.07),
+        legs=((0.0, -0.38), (0.0, 0.38)),
+        leg_size=0.09,
+        leg_top_z=-0.65,
+        height=0.9,
+        n_perimeter=72,
+        row_spacing=0.08,
+        top_rings=3,
+    )
+    V, F, S = build_mesh(d)
+    return mesh_from_arrays(V, F, name=d.name, internal=S == FACE_TAG["internal"])
+
+
+def _whole_row(plan: Any) -> dict[str, Any]:
+    j = plan.to_json()
+    return {
+        "seed": j["seed"],
+        "stations": len(plan.stations),
+        "station_candidates": [s["candidate"] for s in j["stations"]],
+        "surfaces": {
+            k: {kk: v[kk] for kk in ("area_fraction", "bound_fraction", "viewpoints", "reason")}
+            for k, v in j["surfaces"].items()
+        },
+        "viewpoints": sum(v.viewpoints for v in plan.surfaces.values()),
+        "planning_s": plan.times_s["total"],
+        "planning_cpu_s": plan.times_s["cpu"],
+        "cycle_time_s": plan.cycle_time_s,
+        "base_moves_s": plan.base_moves_s,
+        "exact_cover": j["exact_cover"],
+        "dropped_unconnected": j["dropped_unconnected"],
+        "unverified_moves": plan.counts.get("unverified_moves", 0),
+        "replaced_unconnected": plan.counts.get("replaced_unconnected", 0),
+        "unconnected_directions": plan.counts.get("unconnected_directions", 0),
+        "reason": plan.reason,
+    }
+
+
+def _median_worst(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Median and worst over seeds: worst = lowest coverage, highest times and counts of losses."""
+    import numpy as np
+
+    def pair(vals: list[float], worst: str) -> dict[str, float]:
+        a = np.asarray(vals, dtype=float)
+        return {"median": float(np.median(a)), "worst": float(a.min() if worst == "min" else a.max())}
+
+    out: dict[str, Any] = {
+        "stations": pair([r["stations"] for r in rows], "max"),
+        "viewpoints": pair([r["viewpoints"] for r in rows], "max"),
+        "planning_s": pair([r["planning_s"] for r in rows], "max"),
+        "planning_cpu_s": pair([r["planning_cpu_s"] for r in rows], "max"),
+        "cycle_time_s": pair([r["cycle_time_s"] for r in rows], "max"),
+        "dropped_unconnected": pair([r["dropped_unconnected"] for r in rows], "max"),
+        "unverified_moves": pair([r["unverified_moves"] for r in rows], "max"),
+        "exact_cover_stations": pair([r["exact_cover"]["stations"] or 0 for r in rows if r["exact_cover"]], "max"),
+        "exact_cover_viewpoints": pair([r["exact_cover"]["viewpoints"] or 0 for r in rows if r["exact_cover"]], "max"),
+        "exact_cover_proven": sum(bool(r["exact_cover"] and r["exact_cover"]["proven"]) for r in rows),
+    }
+    for surf in rows[0]["surfaces"]:
+        got = [r["surfaces"][surf] for r in rows if r["surfaces"][surf]["reason"] is None]
+        if not got:
+            out[surf] = {"reason": rows[0]["surfaces"][surf]["reason"]}
+            continue
+        out[surf] = {
+            "area_fraction": pair([g["area_fraction"] for g in got], "min"),
+            "bound_fraction": pair([g["bound_fraction"] for g in got], "min"),
+            "viewpoints": pair([g["viewpoints"] for g in got], "max"),
+        }
+    return out
+
+
+def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
+    """``cellctl bench whole-bin``: the three catalog bins and a foreign mesh, ≥ 10 seeds each, p_SP 10.
+
+    Per bin: per seed the plan's figures, and median / worst over the seeds. ``--n`` = seeds
+    (default 10), ``--seed`` = the first seed. Planning time is wall time on this machine and
+    this process's CPU seconds (what a machine shared with other work does not inflate).
+    """
+    import os
+    import platform
+
+    from cellctl.geometry.camera import CameraModel
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.planning.mesh import load_catalog_mesh
+    from cellctl.planning.plan import PlanParams
+    from cellctl.planning.robot import default_robot_model
+    from cellctl.planning.whole import WholeParams, plan_whole
+
+    cfg = opts.load_config()
+    cat = load_catalog(cfg.path(cfg.catalog))
+    robot = default_robot_model()
+    seeds = list(range(opts.seed, opts.seed + (opts.n or WHOLE_SEEDS)))
+    bins: list[tuple[str, Any, Any]] = [(n, load_catalog_mesh(cfg.path(cfg.catalog), n), cat.get(n)) for n in cat.names]
+    bins.append(("foreign_long", foreign_mesh(), None))
+    out: dict[str, Any] = {
+        "seed_pct": cfg.planner.seed_pct,
+        "seeds": seeds,
+        "config": cfg.planner.whole.model_dump(mode="json"),
+        "speed_fraction": cfg.robot.speed_fraction,
+        "machine": {
+            "cpus": os.cpu_count(),
+            "load_avg_start": list(os.getloadavg()),
+            "python": platform.python_version(),
+        },
+        "bins": {},
+    }
+    for name, mesh, bt in bins:
+        rows = []
+        for seed in seeds:
+            print(f"bench whole-bin: {name} seed {seed}", file=sys.stderr)
+            plan_params = PlanParams(
+                seed_pct=cfg.planner.seed_pct, seed=seed, camera=CameraModel.from_config(cfg.camera)
+            )
+            params = WholeParams.from_config(cfg.planner.whole, plan_params, cfg.robot.speed_fraction)
+            rows.append(_whole_row(plan_whole(mesh, params, robot, bin_type=bt)))
+        out["bins"][name] = {"summary": _median_worst(rows), "runs": rows}
+    out["machine"]["load_avg_end"] = list(os.getloadavg())
     return out

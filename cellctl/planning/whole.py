@@ -461,7 +461,7 @@ def _timed_tour(
     rng: np.random.Generator,
     max_step: float,
     fine_step: float,
-) -> tuple[NDArray[np.int64], NDArray[np.float64], list[NDArray[np.float64]], list[float], int]:
+) -> tuple[NDArray[np.int64], NDArray[np.float64], list[NDArray[np.float64]], list[float], int, int]:
     """Order ``[start, *Q[sel]]`` by motion time; every move straight or via home along the chains.
 
     Ant colony + 2-opt on the motion-time matrix (pairs checked at ``max_step``; a colliding
@@ -473,7 +473,8 @@ def _timed_tour(
 
     Returns:
         ``(order, D_rad, edge paths along the order (K_i, 6) incl. ends, edge seconds along
-        the order, straight pairs of the matrix)``.
+        the order, straight pairs of the matrix, segments of the ways via home that collide at
+        ``fine_step``)``.
     """
     from cellctl.planning.tour import ant_colony, two_opt
 
@@ -522,7 +523,14 @@ def _timed_tour(
         paths.append(path)
         secs.append(timing.motion_s(path))
         Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
-    return order, Dr, paths, secs, int(free.sum())
+    # the ways via home the tour uses, at the sim arm's step too (the chains were joined at max_step)
+    via = [p for p in paths if len(p) > 2]
+    unverified = 0
+    if via:
+        A = np.vstack([p[:-1] for p in via])
+        B = np.vstack([p[1:] for p in via])
+        unverified = int((~world.motion_free(A, B, fine_step)).sum())
+    return order, Dr, paths, secs, int(free.sum()), unverified
 
 
 # --- the whole-bin pipeline ------------------------------------------------------------------
@@ -593,6 +601,7 @@ def plan_whole(
 
     params.check()
     t0 = time.perf_counter()
+    cpu0 = time.process_time()
     times: dict[str, float] = {}
 
     def tick(key: str, since: float) -> float:
@@ -626,6 +635,7 @@ def plan_whole(
 
     def empty(reason: str, ev: list[_StationEval] | None = None) -> WholePlan:
         times["total"] = time.perf_counter() - t0
+        times["cpu"] = time.process_time() - cpu0
         return WholePlan(
             **head,
             stations=(),
@@ -761,12 +771,9 @@ def plan_whole(
     chosen_ev = _ring_order([evals[i] for i in chosen], params.stations.candidates)
     t = tick("choose_stations", t)
 
-    # 4. viewpoint selection per surface over the chosen stations' pairs (Greedy Area + SA);
-    #    the selected viewpoints' ways home are checked at the sim arm's step, and one that fails
-    #    there is left out and the surface selected again (before the final selection, not after)
+    # 4. viewpoint selection per surface over the chosen stations' pairs (Greedy Area + SA)
     picked: dict[str, list[NDArray[np.int64]]] = {}
     greedy_n: dict[str, int] = {}
-    counts["unconnected_fine"] = 0
     for surf in shared:
         blocks = [e.vis[surf].C for e in chosen_ev]
         C = np.hstack(blocks)
@@ -776,26 +783,10 @@ def plan_whole(
         picked[surf] = [np.zeros(0, np.int64) for _ in chosen_ev]
         if C.shape[1] == 0:
             continue
-        allowed = np.ones(C.shape[1], dtype=bool)
-        verified = np.zeros(C.shape[1], dtype=bool)
-        for _round in range(4):
-            cols_ok = np.flatnonzero(allowed)
-            rng = np.random.default_rng([p0.seed, 17, SURFACES.index(surf)])
-            ga = cols_ok[
-                _worthwhile(greedy_area(C[:, cols_ok], a), C[:, cols_ok], a, bounds[surf], params.view_min_gain_pct)
-            ]
-            sa = simulated_annealing(
-                C[:, cols_ok], a, np.searchsorted(cols_ok, ga), p0.sa_pct, rng, iterations=p0.sa_iterations
-            )
-            chosen_cols = cols_ok[sa.selected]
-            todo = chosen_cols[~verified[chosen_cols]]
-            bad = _fine_check(todo, owner, local, chosen_ev, surf, q_home, step)
-            verified[todo] = True
-            if not bad:
-                break
-            allowed[bad] = False
-            verified[bad] = False
-            counts["unconnected_fine"] += len(bad)
+        rng = np.random.default_rng([p0.seed, 17, SURFACES.index(surf)])
+        ga = _worthwhile(greedy_area(C, a), C, a, bounds[surf], params.view_min_gain_pct)
+        sa = simulated_annealing(C, a, ga, p0.sa_pct, rng, iterations=p0.sa_iterations)
+        chosen_cols = sa.selected
         greedy_n[surf] = len(ga)
         picked[surf] = [np.sort(local[chosen_cols][owner[chosen_cols] == k]) for k in range(len(chosen_ev))]
         seen = visible_area(C, a, chosen_cols)
@@ -854,7 +845,7 @@ def plan_whole(
                 motion[surf] = 0.0
                 continue
             con = e.con[surf]
-            order, Dr, paths, secs_e, n_straight = _timed_tour(
+            order, Dr, paths, secs_e, n_straight, unverified = _timed_tour(
                 q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step
             )
             approaches = tuple(None if len(pth) == 2 else pth for pth in paths)
@@ -862,8 +853,9 @@ def plan_whole(
             tour_counts = {
                 "matrix_pairs": n_nodes * (n_nodes - 1) // 2,
                 "matrix_straight": int(n_straight),
-                "tour_failed_edges": 0,
+                "tour_failed_edges": unverified,
             }
+            counts["unverified_moves"] = counts.get("unverified_moves", 0) + unverified
             tour = pl.Tour(order, Dr, approaches, tour_counts)
             selection = pl.Selection(sel, sel, _NoSA)
             allowed = np.ones(vis.C.shape[1], dtype=bool)
@@ -902,6 +894,7 @@ def plan_whole(
     counts.update({f"greedy_{k}": v for k, v in greedy_n.items()})
     tick("tours", t)
     times["total"] = time.perf_counter() - t0
+    times["cpu"] = time.process_time() - cpu0  # CPU seconds: the figure a shared machine does not inflate
     reason = None
     if stations and stations[0].identify_q is None:
         reason = None  # the first station's missing board is said in its identify_reason
@@ -939,39 +932,6 @@ def _worthwhile(
         covered |= C[:, j]
         keep = k + 1
     return greedy[: max(1, keep)]
-
-
-def _fine_check(
-    cols: NDArray[np.int64],
-    owner: NDArray[np.int64],
-    local: NDArray[np.int64],
-    evs: list[_StationEval],
-    surf: str,
-    q_home: NDArray[np.float64],
-    fine_step: float,
-) -> list[int]:
-    """Columns whose chain of straight motions home collides at ``fine_step`` (one batch)."""
-    A, B, who = [], [], []
-    for c in cols:
-        e = evs[int(owner[c])]
-        con = e.con[surf]
-        chain = [*chain_to_start(int(local[c]), con.parent, con.reached.q), q_home]
-        for a, b in zip(chain[:-1], chain[1:], strict=True):
-            A.append(a)
-            B.append(b)
-            who.append(int(c))
-    if not A:
-        return []
-    world = None
-    bad: set[int] = set()
-    by_station: dict[int, list[int]] = {}
-    for k, c in enumerate(who):
-        by_station.setdefault(int(owner[c]), []).append(k)
-    for st_k, ks in by_station.items():
-        world = evs[st_k].setups[surf].world
-        ok = world.motion_free(np.array([A[k] for k in ks]), np.array([B[k] for k in ks]), fine_step)
-        bad |= {who[k] for k, good in zip(ks, ok, strict=True) if not good}
-    return sorted(bad)
 
 
 class _NoSAType:
