@@ -46,8 +46,12 @@ def run(args: argparse.Namespace) -> int:
                 session, rc.pool.cells, rc.pool.jobs_dir, rc.pool.max_attempts, rc.pool.claim_wait_s
             ).start()
         # One line on stderr that harnesses wait for (the daemon prints the same kind).
-        print(f"cellctl router {rc.host} listening on {rc.listen}, connecting {rc.connect}"
-              + (f", planner pool for {rc.pool.cells}" if rc.pool else ""), file=sys.stderr, flush=True)
+        print(
+            f"cellctl router {rc.host} listening on {rc.listen}, connecting {rc.connect}"
+            + (f", planner pool for {rc.pool.cells}" if rc.pool else ""),
+            file=sys.stderr,
+            flush=True,
+        )
         stop.wait()
     finally:
         if pool is not None:

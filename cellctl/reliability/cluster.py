@@ -208,7 +208,14 @@ class Cluster:
 
     def bus_set(self, port: int = ROUTER_PORT) -> list[str]:
         ep = json.dumps([_ep("127.0.0.1", port)])
-        return ["--set", f"bus.listen={ep}", "--set", f"bus.connect={ep}", "--set", f"bus.lease_ms={self.opts.lease_ms}"]
+        return [
+            "--set",
+            f"bus.listen={ep}",
+            "--set",
+            f"bus.connect={ep}",
+            "--set",
+            f"bus.lease_ms={self.opts.lease_ms}",
+        ]
 
     def start_router(self, host: str) -> None:
         yaml_path = self.compute_yaml if host == "compute" else self.tmp / f"router-{host}.yaml"
@@ -347,8 +354,15 @@ def _agent_op(state: dict[str, Any], op: str, a: dict[str, Any]) -> Any:
     if op == "cycle":
         t0 = time.time()
         res = plc.run_cycle(a.get("timeout", 300))
-        return {"cycle_id": res.cycle_id, "outcome": res.outcome.value, "reason": res.reason,
-                "planner_job_id": res.planner_job_id, "plan_id": res.plan_id, "t0": t0, "t1": time.time()}
+        return {
+            "cycle_id": res.cycle_id,
+            "outcome": res.outcome.value,
+            "reason": res.reason,
+            "planner_job_id": res.planner_job_id,
+            "plan_id": res.plan_id,
+            "t0": t0,
+            "t1": time.time(),
+        }
     if op == "wait_state":
         st = plc.wait_for(lambda s: s.state in a["states"], a.get("timeout", 60))
         return None if st is None else {"state": st.state, "t": time.time(), "last_error": st.last_error}
@@ -372,14 +386,17 @@ def _agent_op(state: dict[str, Any], op: str, a: dict[str, Any]) -> Any:
                 out.append((time.perf_counter() - t) * 1000.0)
         return out
     if op == "submit":
-        req = PlanJobRequest(bin_type=a.get("bin_type", "case_study"),
-                             bin_pose=PoseMsg.model_validate(a["pose"]) if "pose" in a else PoseMsg.from_matrix(_eye(a.get("x", 1.0))))
+        req = PlanJobRequest(
+            bin_type=a.get("bin_type", "case_study"),
+            bin_pose=PoseMsg.model_validate(a["pose"]) if "pose" in a else PoseMsg.from_matrix(_eye(a.get("x", 1.0))),
+        )
         t = time.time()
         (r,) = list(plc.session.get(keys.planner_jobs(plc.cell), payload=encode(req), timeout=10))
         return {"job_id": decode(r.ok.payload.to_bytes()).job_id, "t": t}
     if op == "job":
-        (r,) = list(plc.session.get(keys.planner_jobs(plc.cell), payload=encode(PlanJobQuery(job_id=a["job_id"])),
-                                    timeout=10))
+        (r,) = list(
+            plc.session.get(keys.planner_jobs(plc.cell), payload=encode(PlanJobQuery(job_id=a["job_id"])), timeout=10)
+        )
         rep = decode(r.ok.payload.to_bytes())
         return {"state": rep.state, "plan_id": rep.plan_id, "reason": rep.reason, "t": time.time()}
     if op == "lookup":
@@ -454,9 +471,16 @@ def link_fault(
             r = agent.call("cycle", timeout=timeout)
         finally:
             cl.shape(cell, delay_ms=0.0, loss=0.0)
-        return {"case": case, "cell": cell, "shape": "80 ± 20 ms, 10 % chunks held 200 ms", "detection_s": None,
-                "safe_state": None, "cycle_outcome": r["outcome"], "cycle_s": round(r["t1"] - r["t0"], 2),
-                "recovered": r["outcome"] in ("completed", "replan_required")}
+        return {
+            "case": case,
+            "cell": cell,
+            "shape": "80 ± 20 ms, 10 % chunks held 200 ms",
+            "detection_s": None,
+            "safe_state": None,
+            "cycle_outcome": r["outcome"],
+            "cycle_s": round(r["t1"] - r["t0"], 2),
+            "recovered": r["outcome"] in ("completed", "replan_required"),
+        }
     start = agent.call("start")
     if not start["accepted"]:
         raise CellError(f"{cell}: start refused: {start['reason']}")
@@ -493,8 +517,11 @@ def link_fault(
             if other_job["state"] != "queued":
                 break
             time.sleep(0.2)
-        other_job = {"cell": other, "state": other_job["state"] if other_job else None,
-                     "claimed_s": round(other_job["t"] - job["t"], 3) if other_job else None}
+        other_job = {
+            "cell": other,
+            "state": other_job["state"] if other_job else None,
+            "claimed_s": round(other_job["t"] - job["t"], 3) if other_job else None,
+        }
     if case == "link_down":
         time.sleep(max(0.0, 2 * lease_s - (time.time() - t_fault)))
         link.up()
@@ -615,7 +642,11 @@ def burst(cl: Cluster, per_cell: int, timeout: float = 900.0) -> dict[str, Any]:
         "done": sum(v == "done" for v in states.values()),
         "failed": sum(v == "failed" for v in states.values()),
         "unfinished": len(pending),
-        "latency_s": {"p50": _pct(lat, 50), "max": _pct(lat, 100), "mean": round(sum(lat) / len(lat), 2) if lat else None},
+        "latency_s": {
+            "p50": _pct(lat, 50),
+            "max": _pct(lat, 100),
+            "mean": round(sum(lat) / len(lat), 2) if lat else None,
+        },
         "makespan_s": round(max(lat), 2) if lat else None,
     }
 
@@ -629,8 +660,13 @@ def bench_cluster(opts: BenchOptions) -> dict[str, Any]:
     """
     per_cell = opts.n or 2
     tmp = Path(tempfile.mkdtemp(prefix="cellctl-cluster-"))
-    o = ClusterOptions(cells=3, workers=2, relayed=("cell2",), cell_overrides=tuple(opts.overrides),
-                       bin_types=("case_study", "case_study", "tote"))
+    o = ClusterOptions(
+        cells=3,
+        workers=2,
+        relayed=("cell2",),
+        cell_overrides=tuple(opts.overrides),
+        bin_types=("case_study", "case_study", "tote"),
+    )
     lease_s = o.lease_ms / 1000.0
     t_all = time.monotonic()
     with Cluster(o, tmp) as cl:
@@ -646,8 +682,12 @@ def bench_cluster(opts: BenchOptions) -> dict[str, Any]:
         b1 = burst(cl, per_cell)
         cl.start_worker(1)
         faults = []
-        for case, cell in (("link_down", "cell1"), ("isolate", "cell1"), ("latency_loss", "cell2"),
-                           ("router_restart", "cell3")):
+        for case, cell in (
+            ("link_down", "cell1"),
+            ("isolate", "cell1"),
+            ("latency_loss", "cell2"),
+            ("router_restart", "cell3"),
+        ):
             print(f"cluster: fault {case} on {cell} …", file=sys.stderr)
             faults.append(link_fault(cl, case, cell, lease_s, other="cell3" if case == "link_down" else None))
         more = {c: a.call("cycle", timeout=300)["outcome"] for c, a in cl.agents.items()}
@@ -656,27 +696,48 @@ def bench_cluster(opts: BenchOptions) -> dict[str, Any]:
         cells = []
         for c in o.cell_ids:
             rows = cl.index_rows(c)
-            cells.append({
-                "cell": c,
-                "cycles_completed": sum(r["outcome"] == "completed" for r in rows),
-                "cycles_recorded": len(rows),
-                "first_cycle": next(r["outcome"] for r in first if r["cell"] == c),
-                "last_cycle": more[c],
-                "records": records[c],
-            })
+            cells.append(
+                {
+                    "cell": c,
+                    "cycles_completed": sum(r["outcome"] == "completed" for r in rows),
+                    "cycles_recorded": len(rows),
+                    "first_cycle": next(r["outcome"] for r in first if r["cell"] == c),
+                    "last_cycle": more[c],
+                    "records": records[c],
+                }
+            )
     return {
-        "topology": {"hosts": ["compute", "plant", *o.cell_ids], "links": "veth, 169.254.0.0/16",
-                     "routers": "one per host", "relayed_link": "cell2<->compute", "lease_ms": o.lease_ms},
+        "topology": {
+            "hosts": ["compute", "plant", *o.cell_ids],
+            "links": "veth, 169.254.0.0/16",
+            "routers": "one per host",
+            "relayed_link": "cell2<->compute",
+            "lease_ms": o.lease_ms,
+        },
         "cells": cells,
         "plans_shared": {r["cell"]: {"first_cycle": r["outcome"], "plan_id": r.get("plan_id")} for r in first},
-        "jobs": {"submitted": stats["submitted"], "planned": stats["planned"], "failed": stats["failed"],
-                 "requeued": stats["requeued"], "planned_twice": stats["planned_twice"],
-                 "per_worker": stats["per_worker"]},
-        "burst": {"requests_per_cell": per_cell, "workers_2": b2, "workers_1": b1,
-                  "makespan_ratio_1_over_2": round(b1["makespan_s"] / b2["makespan_s"], 2)
-                  if b1["makespan_s"] and b2["makespan_s"] else None},
-        "cmd_ack_ms": {"path": "plant host -> plant router -> cell host router -> daemon",
-                       "n": len(rtt), "p50": _pct(rtt, 50), "p99": _pct(rtt, 99)},
+        "jobs": {
+            "submitted": stats["submitted"],
+            "planned": stats["planned"],
+            "failed": stats["failed"],
+            "requeued": stats["requeued"],
+            "planned_twice": stats["planned_twice"],
+            "per_worker": stats["per_worker"],
+        },
+        "burst": {
+            "requests_per_cell": per_cell,
+            "workers_2": b2,
+            "workers_1": b1,
+            "makespan_ratio_1_over_2": round(b1["makespan_s"] / b2["makespan_s"], 2)
+            if b1["makespan_s"] and b2["makespan_s"]
+            else None,
+        },
+        "cmd_ack_ms": {
+            "path": "plant host -> plant router -> cell host router -> daemon",
+            "n": len(rtt),
+            "p50": _pct(rtt, 50),
+            "p99": _pct(rtt, 99),
+        },
         "link_faults": faults,
         "bound_s": lease_s + 1.0,
         "wall_s": round(time.monotonic() - t_all, 1),

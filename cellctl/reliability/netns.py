@@ -197,7 +197,9 @@ class Plant:
             raise CellError(f"no link between {a!r} and {b!r}; links: {sorted(self.links)}")
         return link
 
-    def spawn(self, host: Host, argv: list[str], name: str, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
+    def spawn(
+        self, host: Host, argv: list[str], name: str, env: dict[str, str] | None = None
+    ) -> subprocess.Popen[bytes]:
         log = (self.tmp / f"{host.name}-{name}.log").open("ab")
         proc = subprocess.Popen(
             ["ip", "netns", "exec", host.ns, *argv],

@@ -201,7 +201,11 @@ def test_claims_are_leases_a_killed_claimant_requeues_then_fails_visibly(pool2: 
 def test_each_job_planned_exactly_once_by_two_workers(pool2: Pool) -> None:
     """Three jobs from two cells, two workers: each planned once, both workers used, records agree."""
     pool2.wait_workers(2)
-    jobs = [("cell1", pool2.submit("cell1", 1.0)), ("cell2", pool2.submit("cell2", 1.3)), ("cell1", pool2.submit("cell1", 1.6))]
+    jobs = [
+        ("cell1", pool2.submit("cell1", 1.0)),
+        ("cell2", pool2.submit("cell2", 1.3)),
+        ("cell1", pool2.submit("cell1", 1.6)),
+    ]
     for cell, j in jobs:
         assert pool2.wait_job(cell, j, ("done", "failed"), 400).state == "done"
     st = pool2.stats()

@@ -21,7 +21,9 @@ def _echo_server(port: int) -> None:
     def serve() -> None:
         while True:
             c, _ = srv.accept()
-            threading.Thread(target=lambda c=c: [c.sendall(d) for d in iter(lambda: c.recv(65536), b"")], daemon=True).start()
+            threading.Thread(
+                target=lambda c=c: [c.sendall(d) for d in iter(lambda: c.recv(65536), b"")], daemon=True
+            ).start()
 
     threading.Thread(target=serve, daemon=True).start()
 

@@ -34,7 +34,9 @@ def test_the_reference_plant_is_three_cells_a_compute_and_a_plant_host() -> None
         assert len(hosts[c].connect) == 3 and hosts[c].pool is None
 
 
-@pytest.mark.parametrize("path", sorted(set(DEPLOY.glob("*.yaml")) - set(DEPLOY.glob("*.router.yaml"))), ids=lambda p: p.name)
+@pytest.mark.parametrize(
+    "path", sorted(set(DEPLOY.glob("*.yaml")) - set(DEPLOY.glob("*.router.yaml"))), ids=lambda p: p.name
+)
 def test_every_example_cell_config_validates(path: Path) -> None:
     data = safe_yaml_load(path.read_text(), str(path))
     cfg = CellConfig.model_validate({**data, "root": project_root()})
@@ -54,7 +56,10 @@ def test_unknown_key_and_bad_endpoint_are_refused_by_name(tmp_path: Path) -> Non
         load_router_config(_write(tmp_path, {"host": "a", "listen": ["127.0.0.1:7447"]}))
     with pytest.raises(ConfigError, match=r"cells \['cell1', 'cell1'\] name a cell twice"):
         load_router_config(
-            _write(tmp_path, {"host": "a", "listen": ["tcp/127.0.0.1:7447"], "pool": {"cells": ["cell1", "cell1"], "jobs_dir": "j"}})
+            _write(
+                tmp_path,
+                {"host": "a", "listen": ["tcp/127.0.0.1:7447"], "pool": {"cells": ["cell1", "cell1"], "jobs_dir": "j"}},
+            )
         )
     with pytest.raises(ConfigError, match="does not exist"):
         load_router_config(tmp_path / "missing.yaml")
@@ -62,7 +67,10 @@ def test_unknown_key_and_bad_endpoint_are_refused_by_name(tmp_path: Path) -> Non
 
 def test_pool_jobs_dir_resolves_against_the_file(tmp_path: Path) -> None:
     rc = load_router_config(
-        _write(tmp_path, {"host": "compute", "listen": ["tcp/127.0.0.1:7447"], "pool": {"cells": ["cell1"], "jobs_dir": "jobs"}})
+        _write(
+            tmp_path,
+            {"host": "compute", "listen": ["tcp/127.0.0.1:7447"], "pool": {"cells": ["cell1"], "jobs_dir": "jobs"}},
+        )
     )
     assert rc.pool is not None and rc.pool.jobs_dir == tmp_path.resolve() / "jobs"
 
@@ -70,7 +78,10 @@ def test_pool_jobs_dir_resolves_against_the_file(tmp_path: Path) -> None:
 def test_cellctl_router_check_prints_the_effective_settings() -> None:
     out = subprocess.run(
         [sys.executable, "-m", "cellctl", "router", str(DEPLOY / "compute.router.yaml"), "--check"],
-        capture_output=True, text=True, timeout=60, check=True,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
     )
     eff = json.loads(out.stdout)
     assert eff["host"] == "compute" and "tcp/compute.line.example:7447" in eff["listen/endpoints"]
@@ -81,8 +92,15 @@ def test_pool_keys_are_valid_and_match_every_cell() -> None:
 
     from cellctl.bus import keys
 
-    for k in (keys.planner_jobs_any(), keys.planner_lookup_any(), keys.pool_claim(), keys.pool_done(),
-              keys.pool_stats(), keys.pool_alive(), keys.pool_alive("p12-ab")):
+    for k in (
+        keys.planner_jobs_any(),
+        keys.planner_lookup_any(),
+        keys.pool_claim(),
+        keys.pool_done(),
+        keys.pool_stats(),
+        keys.pool_alive(),
+        keys.pool_alive("p12-ab"),
+    ):
         assert str(zenoh.KeyExpr(k)) == k
     assert zenoh.KeyExpr(keys.planner_jobs_any()).includes(zenoh.KeyExpr(keys.planner_jobs("cell7")))
     assert zenoh.KeyExpr(keys.planner_lookup_any()).includes(zenoh.KeyExpr(keys.worker_op("c-2", "planner", "lookup")))

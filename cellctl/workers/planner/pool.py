@@ -61,7 +61,6 @@ from cellctl.messages import (
     PoolClaim,
     PoolDone,
     PoolStats,
-    PoolStatsRequest,
 )
 
 __all__ = ["JobQueue", "PoolJob", "run_pool_worker"]
@@ -251,7 +250,7 @@ class JobQueue:
             try:
                 claim = decode_as(PoolClaim, ev.payload, MAX_PAYLOAD_BYTES)
             except CellError as err:
-                self._reply(ev.query, lambda: _raise(err))
+                ev.query.reply_err(encode(ErrorReply(kind=type(err).__name__, reason=str(err))))
                 ev.query.drop()
                 return
             if claim.instance not in self._alive:
@@ -403,10 +402,6 @@ def _body(query: Any) -> bytes:
     return query.payload.to_bytes() if query.payload is not None else b""
 
 
-def _raise(err: Exception) -> Any:
-    raise err
-
-
 def _job_reply(job: PoolJob) -> PlanJobReply:
     state = job.state if job.state in ("queued", "running", "done", "failed") else "failed"
     return PlanJobReply(job_id=job.job_id, state=state, plan_id=job.plan_id, reason=job.reason)  # type: ignore[arg-type]
@@ -452,8 +447,13 @@ def run_pool_worker(cfg: Any, stop_event: threading.Event, instance: str | None 
                 assert job.job_id is not None and job.request is not None
                 service.run_job(job.job_id, job.request)
                 st = service.job_state(job.job_id)
-                _report(session, PoolDone(job_id=job.job_id, instance=name, state=_final(st.state),
-                                          plan_id=st.plan_id, reason=st.reason), stop_event)
+                _report(
+                    session,
+                    PoolDone(
+                        job_id=job.job_id, instance=name, state=_final(st.state), plan_id=st.plan_id, reason=st.reason
+                    ),
+                    stop_event,
+                )
         finally:
             token.undeclare()
             server.close()
