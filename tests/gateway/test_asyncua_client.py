@@ -170,7 +170,8 @@ def test_subscription_sees_the_acting_states(gateway: OpcuaGateway, url: str) ->
 
         async with Ua(url, USER, PASSWORD) as c:
             sub = await c.client.create_subscription(10, Handler())
-            await sub.subscribe_data_change(c.client.get_node(c.id("Status/StateCurrent")))
+            # a queue, so that two changes inside one publishing interval both arrive
+            await sub.subscribe_data_change(c.client.get_node(c.id("Status/StateCurrent")), queuesize=10)
             await asyncio.sleep(0.3)
             assert (await c.call("Reset"))[0].is_good()
             deadline = asyncio.get_running_loop().time() + 10
@@ -304,7 +305,7 @@ def test_client_that_disconnects_mid_call(gateway: OpcuaGateway, spy, url: str) 
         with pytest.raises(BaseException):  # noqa: B017 - whatever the client library makes of a dead socket
             await asyncio.wait_for(task, 5)
         async with Ua(url, USER, PASSWORD) as c2:
-            await asyncio.sleep(0.5)
+            await asyncio.sleep(1.0)  # a request that got out has reached the daemon by now
             state = await c2.read("Status/StateCurrent")
             # the call reached the bus at most once, and the state agrees with what reached it
             assert spy.count in (0, 1)
