@@ -20,6 +20,7 @@ from cellctl.errors import ConfigError
 from cellctl.surface import Surface
 
 __all__ = [
+    "BaseConfig",
     "BusConfig",
     "CameraConfig",
     "CellConfig",
@@ -30,6 +31,9 @@ __all__ = [
     "RobotConfig",
     "SimConfig",
     "SupervisorConfig",
+    "UrConfig",
+    "UrControllerConfig",
+    "UrFaultPolicy",
     "WashConfig",
     "apply_overrides",
     "default_config_path",
@@ -124,8 +128,36 @@ class RecordingConfig(_Model):
     index: Path = Path("logs/cells.db")
 
 
+class UrFaultPolicy(_Model):
+    """What the UR backend treats as a fault (reported, token withdrawn, motion stopped)."""
+
+    reduced_mode: StrictBool = Field(default=True, description="reduced (safety-scaled) mode is a fault")
+    data_stale_ms: float = Field(default=60.0, gt=0, le=1000, description="no fresh RTDE data this long: a fault")
+    monitor_hz: float = Field(default=100.0, ge=20, le=500, description="safety/joint poll rate of the worker")
+    watchdog_hz: float = Field(default=10.0, ge=1, le=500, description="controller stops the program below this")
+
+
+class UrConfig(_Model):
+    """``robot.backend: ur`` — a UR10e over ur-rtde (RTDE 30004, script 30003, dashboard 29999)."""
+
+    host: str = Field(default="127.0.0.1", description="controller address (ur-rtde fixes the ports)")
+    expected_model: str = Field(default="UR10e", description="checked against the dashboard's model")
+    expected_serial: str | None = Field(default=None, description="checked against the dashboard's serial")
+    accel_fraction: float = Field(default=1.0, gt=0, le=1, description="of the motion module's acceleration limits")
+    stop_decel: float = Field(default=4.0, gt=0, le=40, description="stopJ deceleration, rad/s² (leading axis)")
+    connect_attempts: int = Field(default=4, ge=1, le=20, description="connect tries, back-off doubling from 0.25 s")
+    tcp_warn_m: float = Field(default=0.005, gt=0, le=0.1, description="robot TCP vs model FK: warn above")
+    joint_tolerance_rad: float = Field(default=0.002, gt=0, le=0.1, description="arrival check at a goal")
+    twin: StrictBool = Field(
+        default=False, description="the controller is `cellctl sim ur-controller`: publish the twin's SimState"
+    )
+    faults: UrFaultPolicy = Field(default_factory=UrFaultPolicy)
+
+
 class RobotConfig(_Model):
-    backend: Literal["sim"] = "sim"
+    backend: Literal["sim", "ur"] = "sim"
+    speed_fraction: float = Field(default=0.5, gt=0, le=1, description="of the UR10e joint speed limits (sim and ur)")
+    ur: UrConfig = Field(default_factory=UrConfig)
     speed_scale: float = Field(default=1.0, gt=0, le=1000, description="sim: >1 runs motions faster")
     settle_s: float = Field(default=0.2, ge=0, le=10)
     joint_state_hz: float = Field(default=10.0, gt=0, le=500)
@@ -262,6 +294,27 @@ class PlannerConfig(_Model):
     whole: WholeBinConfig = Field(default_factory=WholeBinConfig)
 
 
+class UrControllerConfig(_Model):
+    """``cellctl sim ur-controller``: the emulated UR10e controller (a twin component)."""
+
+    host: str = Field(default="127.0.0.1", description="loopback address it listens on (127.0.0.0/8)")
+    control_port: int = Field(default=30099, ge=1024, le=65535, description="fault-injection text socket")
+    model: str = "UR10"
+    serial: str = "20235500001"
+    polyscope: str = Field(default="5.11.1.108318", description="PolyScope version it reports (e-Series: 5.x)")
+    robot_mode: Literal["RUNNING", "IDLE", "POWER_OFF"] = "RUNNING"
+    remote_control: StrictBool = True
+    unlock_delay_s: float = Field(default=5.0, ge=0, le=60, description="protective stop: unlock after (s)")
+    stop_decel: float = Field(default=10.0, gt=0, le=40, description="safety stops' deceleration, rad/s²")
+
+
+class BaseConfig(_Model):
+    """The mobile base: ``sim`` (the twin parks it) or ``manual`` (an operator/PLC parks and confirms)."""
+
+    backend: Literal["sim", "manual"] = "sim"
+    confirm_timeout_s: float = Field(default=300.0, gt=0, le=3600, description="manual: wait for the confirmation")
+
+
 class SimConfig(_Model):
     """The pybullet twin's scenario (used by sim backends only)."""
 
@@ -274,6 +327,7 @@ class SimConfig(_Model):
     seed: int = 0
     approach_error_m: float = Field(default=0.02, ge=0, le=0.5)
     approach_error_deg: float = Field(default=1.0, ge=0, le=30)
+    ur_controller: UrControllerConfig = Field(default_factory=UrControllerConfig)
 
 
 class CellSection(_Model):
@@ -297,6 +351,7 @@ class CellConfig(_Model):
     recording: RecordingConfig = Field(default_factory=RecordingConfig)
     catalog: Path = Path("config/bins.yaml")
     robot: RobotConfig = Field(default_factory=RobotConfig)
+    base: BaseConfig = Field(default_factory=BaseConfig)
     camera: CameraConfig = Field(default_factory=CameraConfig)
     nozzle: NozzleConfig = Field(default_factory=NozzleConfig)
     wash: WashConfig = Field(default_factory=WashConfig)

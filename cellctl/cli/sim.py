@@ -3,6 +3,9 @@
 * ``cellctl sim render --bin TYPE [--dirty] --out FILE.png`` — overview picture of the cell
   (robot parked beside the bin, arm at observation pose 0, board, powder if dirty);
   ``--view camera`` renders what the eye-in-hand camera sees instead.
+* ``cellctl sim ur-controller [--host 127.0.0.x]`` — an emulated UR10e controller for ur-rtde
+  (RTDE 30004, script 30003/30002, dashboard 29999, fault injection on
+  ``sim.ur_controller.control_port``: ``echo protective_stop | nc 127.0.0.1 30099``).
 * ``cellctl bins list`` — the catalog: type, faces, board ids, size, mesh sha256.
 * ``cellctl bins generate`` — regenerate meshes, board images and ``config/bins.yaml``.
 """
@@ -31,6 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--out", required=True, help="PNG file to write")
     add_config_arguments(r)
     r.set_defaults(func=render)
+    u = ss.add_parser("ur-controller", help="emulate a UR10e controller on loopback (for robot.backend: ur)")
+    u.add_argument("--host", default=None, help="loopback address (default: sim.ur_controller.host)")
+    add_config_arguments(u)
+    u.set_defaults(func=ur_controller)
 
     b = sub.add_parser("bins", help="the bin catalog")
     bs = b.add_subparsers(dest="bins_cmd", metavar="SUBCOMMAND", required=True)
@@ -40,6 +47,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     g = bs.add_parser("generate", help="regenerate models/bins/* and config/bins.yaml from the designs")
     add_config_arguments(g)
     g.set_defaults(func=bins_generate)
+
+
+def ur_controller(args: argparse.Namespace) -> int:
+    import threading
+
+    from cellctl.cli.worker import install_stop_signals
+    from cellctl.sim import ur_controller as emu
+
+    cfg = config_from_args(args)
+    stop = threading.Event()
+    install_stop_signals(stop)
+    emu.run(cfg, stop, args.host)
+    return 0
 
 
 def render(args: argparse.Namespace) -> int:

@@ -92,7 +92,14 @@ class WorkerServer:
 
     def announce(self) -> None:
         """Declare the liveliness token: from now on the supervisor sees this worker alive."""
-        self._token = self.session.liveliness().declare_token(keys.alive(self.cell_id, self.role, self.instance))
+        if self._token is None:
+            self._token = self.session.liveliness().declare_token(keys.alive(self.cell_id, self.role, self.instance))
+
+    def withdraw(self) -> None:
+        """Undeclare the token while serving on: the role is unavailable (e.g. a robot safety fault)."""
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
 
     def _drain(self, op: str, inbox: queue.Queue[Any]) -> None:
         while not self._closed.is_set():

@@ -1,4 +1,4 @@
-"""Robot worker: ``cellctl worker robot --backend sim``.
+"""Robot worker: ``cellctl worker robot --backend sim|ur``.
 
 Serves (``cell/<id>/robot/<op>``, request → reply):
 
@@ -6,7 +6,10 @@ Serves (``cell/<id>/robot/<op>``, request → reply):
 * ``move``: :class:`~cellctl.messages.MoveRequest` → :class:`~cellctl.messages.MoveReply`
 * ``state``: :class:`~cellctl.messages.RobotStateRequest` → :class:`~cellctl.messages.RobotState`
 * ``stop``: :class:`~cellctl.messages.StopRequest` → the same StopRequest (acknowledged)
-* sim only: ``scenario``: :class:`~cellctl.messages.SimScenarioRequest` → :class:`~cellctl.messages.SimState`,
+* ur only: ``maintenance``: :class:`~cellctl.messages.RobotMaintenanceRequest` →
+  :class:`~cellctl.messages.RobotMaintenanceReply` (an operator's explicit action; never automatic)
+* twin only (sim, or ur against ``cellctl sim ur-controller``): ``scenario``:
+  :class:`~cellctl.messages.SimScenarioRequest` → :class:`~cellctl.messages.SimState`,
   and ``cell/<id>/sim/state`` (queryable: :class:`~cellctl.messages.SimStateRequest` → SimState)
 
 Publishes :class:`~cellctl.messages.JointState` on ``cell/<id>/robot/joints`` at
@@ -16,7 +19,11 @@ worker keeps serving.
 
 Safety: a motion stops when the supervisor's liveliness token goes away (supervisor crashed,
 or this worker lost its link to the router, e.g. after being frozen), so the arm never keeps
-moving for a supervisor that can no longer stop it.
+moving for a supervisor that can no longer stop it. A backend **fault** (ur: protective/emergency/
+safeguard stop, reduced mode, lost RTDE) is published as an error :class:`~cellctl.messages.Event`
+on ``cell/<id>/events`` and the worker **withdraws its liveliness token** until an operator
+clears it, so the supervisor holds or aborts the cycle by ``supervisor.on_worker_lost`` through
+the same contract as a dead worker, while the worker keeps answering ``state`` and ``maintenance``.
 """
 
 from __future__ import annotations
@@ -34,8 +41,10 @@ from cellctl.errors import ConfigError
 from cellctl.geometry.robot_model import JOINT_NAMES
 from cellctl.messages import (
     ApproachRequest,
+    Event,
     JointState,
     MoveRequest,
+    RobotMaintenanceRequest,
     RobotStateRequest,
     SimScenarioRequest,
     SimStateRequest,
@@ -48,7 +57,7 @@ __all__ = ["BACKENDS", "Robot", "make_robot", "run_worker", "serve_robot"]
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
 
-BACKENDS = ("sim",)
+BACKENDS = ("sim", "ur")
 
 
 def make_robot(cfg: CellConfig, backend: str | None = None, **kwargs: object) -> Robot:
@@ -62,18 +71,22 @@ def make_robot(cfg: CellConfig, backend: str | None = None, **kwargs: object) ->
         from cellctl.workers.robot._sim import SimRobot
 
         return SimRobot(cfg, **kwargs)  # type: ignore[arg-type]
+    if name == "ur":
+        from cellctl.workers.robot._ur import UrRobot
+
+        return UrRobot(cfg, **kwargs)  # type: ignore[arg-type]
     raise ConfigError(f"robot backend {name!r} is unknown; expected one of {list(BACKENDS)}")
 
 
 def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -> None:  # noqa: ANN001
     """Serve ``robot`` on ``session`` until ``stop`` is set (blocking)."""
     from cellctl.workers._server import WorkerServer
-    from cellctl.workers.robot._sim import SimRobot
 
     cell = cfg.cell_id
     changed = threading.Event()
-    if isinstance(robot, SimRobot):
-        robot.on_change = changed.set
+    twin = bool(getattr(robot, "publishes_twin", False))
+    if hasattr(robot, "on_change"):
+        robot.on_change = changed.set  # type: ignore[attr-defined]
 
     def _stop(req: StopRequest, _raw: bytes | None) -> StopRequest:
         robot.stop(req.reason)
@@ -86,16 +99,33 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
     # history: a token declared before this subscriber must still report its DELETE
     sup_watch = session.liveliness().declare_subscriber(keys.alive(cell, "supervisor"), _supervisor_seen, history=True)
     pub_j = session.declare_publisher(keys.robot_joints(cell))
-    pub_s = session.declare_publisher(keys.sim_state(cell)) if isinstance(robot, SimRobot) else None
+    pub_s = session.declare_publisher(keys.sim_state(cell)) if twin else None
+    pub_e = session.declare_publisher(keys.events(cell))
     with WorkerServer(session, cell, "robot") as server:
+
+        def _fault(reason: str | None) -> None:  # monitor thread, not a Zenoh callback
+            if reason is not None:
+                server.withdraw()  # the supervisor holds/aborts as for a lost worker
+                pub_e.put(encode(Event(level="error", text=f"robot fault: {reason}")))
+            else:
+                pub_e.put(encode(Event(level="warning", text="robot fault cleared by maintenance")))
+                server.announce()
+
+        if hasattr(robot, "on_fault"):
+            robot.on_fault = _fault  # type: ignore[attr-defined]
+            if getattr(robot, "fault", None) is not None:
+                _fault(robot.fault)  # type: ignore[attr-defined]
         server.serve("approach", ApproachRequest, lambda r, _: robot.approach(r))
         server.serve("move", MoveRequest, lambda r, _: robot.move(r))
         server.serve("state", RobotStateRequest, lambda r, _: robot.state())
         server.serve("stop", StopRequest, _stop)
-        if isinstance(robot, SimRobot):
+        if hasattr(robot, "maintenance"):
+            server.serve("maintenance", RobotMaintenanceRequest, lambda r, _: robot.maintenance(r))  # type: ignore[attr-defined]
+        if twin:
             server.serve("scenario", SimScenarioRequest, lambda r, _: robot.set_scenario(r))
             server.serve("sim_state", SimStateRequest, lambda r, _: robot.sim_state(), key=keys.sim_state(cell))
-        server.announce()
+        if getattr(robot, "fault", None) is None:
+            server.announce()
         log.info("robot worker serving cell %s", cell)
         period = 1.0 / cfg.robot.joint_state_hz
         last_sim = 0.0
@@ -113,6 +143,7 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
             robot.stop("worker shutting down")
             sup_watch.undeclare()
             pub_j.undeclare()
+            pub_e.undeclare()
             if pub_s is not None:
                 pub_s.undeclare()
 

@@ -1,12 +1,12 @@
-"""The simulated robot: UR10e on a mobile base in the twin's cell.
+"""What every arm backend shares: the cell's collision world, planning, the Robot operations.
 
-It owns the **scenario** (bin type and pose, dirt, seed, where the base parked), because
-parking error and the bin's pose must be the same for motion, collisions and the camera's
-renders. The camera worker reads it through :class:`~cellctl.messages.SimState`.
-
-Motions follow the joint path of :func:`cellctl.sim.motion.plan_path` in simulated time at
-half the UR10e joint speed limits × ``robot.speed_scale``; joints are updated along the way
-(published by the worker), and :meth:`SimRobot.stop` interrupts a motion where it is.
+A :class:`PlannedRobot` owns the **scenario** (bin type and pose, dirt, seed, where the base
+parked), because parking error and the bin's pose must be the same for motion, collisions and
+(in the twin) the camera's renders; the camera worker reads it through
+:class:`~cellctl.messages.SimState`. Motions are joint paths of
+:func:`cellctl.sim.motion.plan_path`, time-parametrised by :mod:`cellctl.motion`; a backend
+only says how a trajectory is executed (:meth:`PlannedRobot._execute`) and where the joints
+come from (:meth:`PlannedRobot._read_joints`).
 """
 
 from __future__ import annotations
@@ -34,18 +34,17 @@ from cellctl.messages import (
     SimScenarioRequest,
     SimState,
 )
+from cellctl.motion import UR10E, Trajectory, time_parametrize
 from cellctl.sim import scene
 from cellctl.sim.collision import CollisionWorld
 from cellctl.sim.motion import path_length, plan_path
 from cellctl.workers.robot._port import Robot
 
-__all__ = ["SimRobot"]
+__all__ = ["DRIVE_S", "FROZEN_GAP_S", "PlannedRobot"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
 
-SPEED_FRACTION = 0.5
-"""Nominal motion speed as a fraction of the joint speed limits."""
 DRIVE_S = 4.0
 """Simulated time the mobile base needs to park (divided by speed_scale)."""
 FROZEN_GAP_S = 1.0
@@ -58,8 +57,8 @@ missed heartbeat (protective stop). Far above a loaded machine's scheduling jitt
 """
 
 
-class SimRobot(Robot):
-    """The sim backend of the robot role.
+class PlannedRobot(Robot):
+    """A planned-motion arm on the mobile base (subclasses: sim, UR).
 
     Args:
         cfg: the cell config (``robot``, ``sim``, ``catalog`` sections).
@@ -130,8 +129,18 @@ class SimRobot(Robot):
 
     @property
     def joints(self) -> NDArray[np.float64]:
+        return self._read_joints()
+
+    def _read_joints(self) -> NDArray[np.float64]:
         with self._lock:
             return self._q.copy()
+
+    def trajectory(self, path: NDArray[np.float64]) -> Trajectory:
+        """``path`` timed within the UR10e limits at ``robot.speed_fraction``."""
+        return time_parametrize(path, UR10E, self.cfg.robot.speed_fraction, self._accel_fraction())
+
+    def _accel_fraction(self) -> float:
+        return 1.0
 
     def _changed(self) -> None:
         if self.on_change is not None:
@@ -148,40 +157,8 @@ class SimRobot(Robot):
         self._stop.clear()
 
     def _execute(self, path: NDArray[np.float64]) -> float:
-        """Follow ``path`` in simulated time; returns the duration (s). Raises RobotError if stopped."""
-        speed = rm.MAX_JOINT_SPEED * SPEED_FRACTION * self.cfg.robot.speed_scale
-        seg_t = np.array([np.max(np.abs(b - a) / speed) for a, b in zip(path[:-1], path[1:], strict=True)])
-        total = float(seg_t.sum())
-        cum = np.concatenate([[0.0], np.cumsum(seg_t)])
-        dt = 1.0 / self.cfg.robot.joint_state_hz
-        t0 = time.monotonic()
-        last = t0
-        self._moving = True
-        try:
-            while True:
-                now = time.monotonic()
-                self._check_not_frozen(max(now - last, now - self._tick), "motion")
-                if self._stop.is_set():  # before moving: a stop that came during planning holds
-                    raise RobotError(
-                        f"motion stopped ({self._stop_reason or 'stop requested'}) at joints "
-                        f"{np.round(self.joints, 4).tolist()}"
-                    )
-                last = now
-                t = now - t0
-                if t >= total:
-                    q = path[-1].copy()
-                else:
-                    k = int(np.searchsorted(cum, t, side="right") - 1)
-                    f = (t - cum[k]) / max(seg_t[k], 1e-12)
-                    q = path[k] + f * (path[k + 1] - path[k])
-                with self._lock:
-                    self._q = q
-                self._changed()
-                if t >= total:
-                    return total
-                time.sleep(min(dt, total - t))
-        finally:
-            self._moving = False
+        """Follow ``path`` (its :meth:`trajectory`); returns the duration (s). Raises RobotError if stopped."""
+        raise NotImplementedError
 
     def _go(self, q_goal: NDArray[np.float64]) -> tuple[float, float]:
         path = self._plan(self.joints, q_goal)

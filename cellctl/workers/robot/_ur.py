@@ -1,0 +1,511 @@
+"""The UR10e backend: ur-rtde (``rtde_control``, ``rtde_receive``, ``dashboard_client``).
+
+Execution: the planned path, timed by :mod:`cellctl.motion`, goes to the controller as **one
+asynchronous** ``moveJ(path)`` with blend radius 0, not as ``servoJ`` streaming. Why: the
+controller then runs the trajectory in its own 500 Hz loop — a Python worker on a loaded
+machine cannot hold a 2–8 ms servo deadline, and a missed deadline is a jerk or a protective
+stop on a real arm; blend 0 keeps the arm on the collision-checked straight segments (the
+motion module's profile per segment is the controller's ``movej`` profile: same leading-axis
+speed and acceleration), and the asynchronous call leaves the worker free to watch safety,
+the supervisor's token and its own stalls while the arm moves, and to ``stopJ`` at any moment.
+
+Safety: a monitor thread polls the RTDE state at ``robot.ur.faults.monitor_hz`` (100 Hz: ≤ 10 ms
+plus the 8 ms RTDE period to notice) and latches a **fault** on protective stop, emergency
+stop, safeguard stop, reduced mode, a robot mode other than RUNNING, a lost or stale RTDE
+connection, or the control program stopping during a motion. A fault stops the motion
+(``stopJ``), refuses further motions and is only cleared by an explicit maintenance command.
+The controller's RTDE watchdog (``setWatchdog``) stops the program if this worker stops
+kicking it (a frozen worker, a dropped link), so a motion never outlives its worker.
+
+ur-rtde's interfaces are not thread-safe: every call goes through :attr:`UrRobot.io` (one lock).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from cellctl.config import CellConfig
+from cellctl.errors import RobotError
+from cellctl.geometry import robot_model as rm
+from cellctl.geometry.catalog import Catalog
+from cellctl.messages import RobotMaintenanceReply, RobotMaintenanceRequest, RobotState
+from cellctl.workers.robot._planned import PlannedRobot
+
+__all__ = ["UrRobot", "classify_fault", "path_deviation"]
+
+log = logging.getLogger(__name__)
+log.addHandler(logging.NullHandler())
+
+_ROBOT_MODES = {
+    -1: "NO_CONTROLLER",
+    0: "DISCONNECTED",
+    1: "CONFIRM_SAFETY",
+    2: "BOOTING",
+    3: "POWER_OFF",
+    4: "POWER_ON",
+    5: "IDLE",
+    6: "BACKDRIVE",
+    7: "RUNNING",
+    8: "UPDATING_FIRMWARE",
+}
+_RUNNING = 7
+_PLAYING = 2
+_FAULT_BITS = (  # safety_status_bits (RTDE guide), most severe first
+    ((1 << 5) | (1 << 6) | (1 << 7), "emergency stop"),
+    (1 << 9, "safety fault"),
+    (1 << 8, "safety violation"),
+    (1 << 2, "protective stop"),
+    (1 << 4, "safeguard stop"),
+)
+_REDUCED = 1 << 1
+_RTDE_VARIABLES = [
+    "timestamp",
+    "actual_q",
+    "actual_TCP_pose",
+    "robot_mode",
+    "safety_mode",
+    "safety_status_bits",
+    "runtime_state",
+    "speed_scaling",
+    "target_speed_fraction",
+]
+
+
+def classify_fault(safety_bits: int, robot_mode: int, reduced_is_fault: bool) -> str | None:
+    """The fault a safety word and robot mode mean, or None when the arm may move."""
+    for mask, name in _FAULT_BITS:
+        if safety_bits & mask:
+            return name
+    if reduced_is_fault and safety_bits & _REDUCED:
+        return "reduced mode"
+    if robot_mode != _RUNNING:
+        return f"robot mode {_ROBOT_MODES.get(robot_mode, robot_mode)} (not RUNNING)"
+    return None
+
+
+def path_deviation(path: NDArray[np.float64], q: NDArray[np.float64]) -> float:
+    """Largest joint deviation (rad) of ``q`` from the nearest point of the piecewise-linear ``path``."""
+    best = float(np.abs(q - path[0]).max())
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        d = b - a
+        den = float(d @ d)
+        s = 0.0 if den == 0 else float(np.clip((q - a) @ d / den, 0.0, 1.0))
+        best = min(best, float(np.abs(q - (a + s * d)).max()))
+    return best
+
+
+class UrRobot(PlannedRobot):
+    """The ``ur`` backend of the robot role.
+
+    Args:
+        cfg: cell config (``robot.ur`` for the controller; ``sim`` for the cell layout).
+        catalog: an already loaded catalog.
+        on_change: called after the joints or the scenario changed.
+        on_fault: called with the fault's text when one is latched, and with None when the
+            operator cleared it (the worker withdraws/redeclares its liveliness token).
+
+    Raises:
+        RobotError: the controller is unreachable, not a UR10e, in local control, not RUNNING
+            (the mode is named), safety-stopped, or refuses ur-rtde's recipes.
+    """
+
+    def __init__(
+        self,
+        cfg: CellConfig,
+        catalog: Catalog | None = None,
+        on_change: Callable[[], None] | None = None,
+        on_fault: Callable[[str | None], None] | None = None,
+    ) -> None:
+        self.io = threading.Lock()
+        """The one lock around every ur-rtde call (its interfaces are not thread-safe)."""
+        self.ur = cfg.robot.ur
+        self.on_fault = on_fault
+        self._c: Any = None
+        self._r: Any = None
+        self._d: Any = None
+        self._fault: str | None = None
+        self._q_meas: NDArray[np.float64] | None = None
+        self._tcp: NDArray[np.float64] | None = None
+        self._ts = -1.0
+        self._data_t = time.monotonic()
+        self._runtime = 0
+        self.speed_slider: float | None = None
+        self.tracking: deque[float] = deque(maxlen=100_000)
+        """Path deviation (rad) of every sample during motions (``cellctl bench ur``)."""
+        self.fault_log: list[tuple[float, str]] = []
+        """(monotonic time, text) of every latched fault."""
+        super().__init__(cfg, catalog, on_change)
+        self._connect()
+        self._monitor_stop = threading.Event()
+        self._monitor = threading.Thread(target=self._watch, name="ur-safety-monitor", daemon=True)
+        self._monitor.start()
+
+    def _accel_fraction(self) -> float:
+        return self.ur.accel_fraction
+
+    @property
+    def publishes_twin(self) -> bool:
+        """Against the emulator, this worker publishes the twin's SimState with the arm's RTDE joints."""
+        return self.ur.twin
+
+    # --- connection -------------------------------------------------------------------------
+
+    def _connect(self) -> None:
+        """Connect with doubling back-off; refusals that retrying cannot fix raise at once."""
+        delay = 0.25
+        last: Exception | None = None
+        for attempt in range(self.ur.connect_attempts):
+            try:
+                self._connect_once()
+                return
+            except _Refused as err:
+                self._disconnect()
+                raise RobotError(str(err)) from None
+            except RuntimeError as err:  # ur-rtde: socket errors, timeouts
+                self._disconnect()
+                last = err
+                log.warning("UR connect attempt %d failed: %s", attempt + 1, err)
+                time.sleep(delay)
+                delay *= 2
+        raise RobotError(
+            f"cannot connect to the UR controller at {self.ur.host} after {self.ur.connect_attempts} attempts: {last}"
+        )
+
+    def _connect_once(self) -> None:
+        import dashboard_client
+        import rtde_control
+        import rtde_receive
+
+        host = self.ur.host
+        with self.io:
+            d = dashboard_client.DashboardClient(host)
+            d.connect()
+            self._d = d
+            version = d.polyscopeVersion()
+            model = d.getRobotModel().strip()
+            major = int(version.split(".")[0]) if version[:1].isdigit() else 0
+            name = f"{model}e" if major >= 5 and not model.endswith("e") else model
+            if name != self.ur.expected_model:
+                raise _Refused(
+                    f"wrong robot model: the dashboard reports {model!r} (PolyScope {version}, i.e. {name}); "
+                    f"robot.ur.expected_model is {self.ur.expected_model!r}"
+                )
+            if self.ur.expected_serial is not None:
+                serial = d.getSerialNumber().strip()
+                if serial != self.ur.expected_serial:
+                    raise _Refused(
+                        f"wrong robot: serial number {serial!r}, "
+                        f"robot.ur.expected_serial is {self.ur.expected_serial!r}"
+                    )
+            if not d.isInRemoteControl():
+                raise _Refused("the robot is in local control mode: switch the pendant to remote control")
+            mode = d.robotmode().split(":")[-1].strip()
+            if mode != "RUNNING":
+                raise _Refused(
+                    f"the robot is not in RUNNING mode (robot mode {mode}); power it on and release the brakes "
+                    "(maintenance actions power_on, brake_release)"
+                )
+            safety = d.safetystatus().split(":")[-1].strip()
+            if safety not in ("NORMAL", "REDUCED"):
+                raise _Refused(f"the robot's safety status is {safety}; clear it on the pendant or by maintenance")
+            try:
+                self._r = rtde_receive.RTDEReceiveInterface(host, 125.0, _RTDE_VARIABLES)
+                self._c = rtde_control.RTDEControlInterface(host)
+                self._c.setWatchdog(self.ur.faults.watchdog_hz)
+            except RuntimeError as err:
+                if "already in use" in str(err) or "not found" in str(err).lower():
+                    raise _Refused(f"the controller refused ur-rtde's RTDE recipe: {err}") from None
+                raise
+            self._read_state()
+        log.info("connected to %s at %s (PolyScope %s)", name, host, version)
+        self._check_tcp()
+
+    def _disconnect(self) -> None:
+        with self.io:
+            for h in (self._c, self._r):
+                if h is not None:
+                    try:
+                        h.disconnect()
+                    except RuntimeError:
+                        pass
+            if self._d is not None:
+                try:
+                    self._d.disconnect()
+                except RuntimeError:
+                    pass
+            self._c = self._r = self._d = None
+
+    def close(self) -> None:
+        if hasattr(self, "_monitor_stop"):
+            self._monitor_stop.set()
+            self._monitor.join(timeout=1.0)
+        self._stopj()
+        self._disconnect()
+        super().close()
+
+    # --- state ------------------------------------------------------------------------------
+
+    def _read_state(self) -> dict[str, Any]:
+        """One poll of the RTDE state (caller holds :attr:`io`)."""
+        r = self._r
+        st = {
+            "connected": bool(r.isConnected()),
+            "ts": float(r.getTimestamp()),
+            "q": np.array(r.getActualQ(), dtype=np.float64),
+            "tcp": np.array(r.getActualTCPPose(), dtype=np.float64),
+            "bits": int(r.getSafetyStatusBits()),
+            "mode": int(r.getRobotMode()),
+            "runtime": int(r.getRuntimeState()),
+            "slider": float(r.getTargetSpeedFraction()),
+        }
+        if st["q"].shape == (6,):
+            self._q_meas = st["q"]
+            self._tcp = st["tcp"]
+        self._runtime = st["runtime"]
+        self.speed_slider = st["slider"]
+        return st
+
+    def _read_joints(self) -> NDArray[np.float64]:
+        q = self._q_meas
+        return (q if q is not None else super()._read_joints()).copy()
+
+    def state(self) -> RobotState:
+        st = super().state()
+        return st.model_copy(update={"speed_slider": self.speed_slider, "fault": self._fault})
+
+    def _check_tcp(self) -> None:
+        q, tcp = self._q_meas, self._tcp
+        if q is None or tcp is None or tcp.shape != (6,):
+            return
+        T = rm.fk(q)
+        dp = float(np.linalg.norm(T[:3, 3] - tcp[:3]))
+        R = Rotation.from_rotvec(tcp[3:]).as_matrix()
+        dr = float(np.degrees(Rotation.from_matrix(T[:3, :3].T @ R).magnitude()))
+        if dp > self.ur.tcp_warn_m:
+            log.warning(
+                "robot TCP differs from the cell's robot model by %.1f mm, %.2f deg (> %.1f mm): wrong model, "
+                "TCP offset or calibration? Flange/camera poses come from the model.",
+                dp * 1e3,
+                dr,
+                self.ur.tcp_warn_m * 1e3,
+            )
+        self.tcp_error_m = dp
+
+    tcp_error_m: float = 0.0
+    """Robot TCP vs the model's FK at the last check (m)."""
+
+    # --- safety monitor ---------------------------------------------------------------------
+
+    @property
+    def fault(self) -> str | None:
+        return self._fault
+
+    def _watch(self) -> None:
+        period = 1.0 / self.ur.faults.monitor_hz
+        stale = self.ur.faults.data_stale_ms / 1e3
+        while not self._monitor_stop.wait(period):
+            reason: str | None = None
+            with self.io:
+                if self._r is None:
+                    continue
+                try:
+                    st = self._read_state()
+                    if self._c is not None and self._runtime == _PLAYING:
+                        self._c.kickWatchdog()
+                except RuntimeError as err:
+                    st = None
+                    reason = f"lost RTDE connection to {self.ur.host}: {err}"
+            now = time.monotonic()
+            if st is not None:
+                if st["ts"] != self._ts:
+                    self._ts, self._data_t = st["ts"], now
+                if not st["connected"]:
+                    reason = f"lost RTDE connection to {self.ur.host}"
+                elif now - self._data_t > stale:
+                    reason = f"no RTDE data for {1e3 * (now - self._data_t):.0f} ms (controller stalled or link lost)"
+                else:
+                    reason = classify_fault(st["bits"], st["mode"], self.ur.faults.reduced_mode)
+                    if reason is None and self._moving and st["runtime"] != _PLAYING:
+                        reason = "the control program stopped during a motion (RTDE watchdog or controller)"
+            if reason is not None and self._fault is None:
+                self._latch(reason)
+            if st is not None and self._moving:
+                self._changed()
+
+    def _latch(self, reason: str) -> None:
+        self._fault = reason
+        self.fault_log.append((time.monotonic(), reason))
+        log.error("UR fault: %s", reason)
+        self.stop(f"UR fault: {reason}")
+        self._stopj()
+        if self.on_fault is not None:
+            try:
+                self.on_fault(reason)
+            except Exception:
+                log.exception("on_fault callback failed")
+
+    def _reupload(self) -> None:
+        """Send the control program again and wait until it runs (caller holds :attr:`io`).
+
+        ur-rtde's ``reuploadScript`` returns once the script is sent, before the program starts.
+        """
+        if not self._c.reuploadScript():
+            raise RobotError(f"could not send the control program to {self.ur.host}")
+        deadline = time.monotonic() + 3.0
+        while not self._c.isProgramRunning():
+            if time.monotonic() > deadline:
+                raise RobotError("the control program did not start within 3 s (robot mode, safety or local control?)")
+            time.sleep(0.005)
+        self._c.setWatchdog(self.ur.faults.watchdog_hz)
+
+    def _stopj(self) -> None:
+        with self.io:
+            if self._c is not None:
+                try:
+                    self._c.stopJ(self.ur.stop_decel, False)
+                except RuntimeError as err:
+                    log.warning("stopJ failed: %s", err)
+
+    def stop(self, reason: str) -> None:
+        super().stop(reason)
+        if self._moving and not reason.startswith("UR fault"):
+            # the supervisor-token rule: stop the arm now, not when the motion loop next looks
+            threading.Thread(target=self._stopj, name="ur-stopj", daemon=True).start()
+
+    # --- motion -----------------------------------------------------------------------------
+
+    def _refuse_if_faulted(self, what: str) -> None:
+        if self._fault is not None:
+            raise RobotError(
+                f"cannot {what}: UR fault active ({self._fault}); an operator must clear it "
+                "(maintenance: unlock_protective_stop / power_on / brake_release, then clear_fault)"
+            )
+        if self._c is None:
+            raise RobotError(f"cannot {what}: not connected to the UR controller at {self.ur.host}")
+
+    def _execute(self, path: NDArray[np.float64]) -> float:
+        self._refuse_if_faulted("move")
+        traj = self.trajectory(path)
+        entries = traj.movej_path()
+        q0 = self.joints
+        if float(np.abs(q0 - path[0]).max()) > self.ur.joint_tolerance_rad * 5:
+            raise RobotError(
+                f"the arm is at {np.round(q0, 4).tolist()}, not where the path starts "
+                f"({np.round(path[0], 4).tolist()}); refusing to move"
+            )
+        if not entries:
+            return 0.0
+        with self.io:
+            if not self._c.isProgramRunning():
+                self._reupload()  # e.g. the watchdog stopped it while the worker was idle
+            ok = self._c.moveJ(entries, True)
+        if not ok:
+            raise RobotError(f"the UR controller refused the motion ({self._fault or 'program not ready'})")
+        t0 = time.monotonic()
+        last = t0
+        self._moving = True
+        period = 1.0 / self.ur.faults.monitor_hz
+        slow = max(self.speed_slider or 1.0, 0.05)
+        try:
+            while True:
+                time.sleep(period)
+                now = time.monotonic()
+                self._check_not_frozen(max(now - last, now - self._tick), "motion")
+                last = now
+                if self._fault is not None:
+                    raise RobotError(f"motion aborted: UR fault ({self._fault}) at {np.round(self.joints, 4).tolist()}")
+                if self._stop.is_set():
+                    raise RobotError(
+                        f"motion stopped ({self._stop_reason or 'stop requested'}) "
+                        f"at {np.round(self.joints, 4).tolist()}"
+                    )
+                with self.io:
+                    running = bool(self._c.getAsyncOperationProgressEx().isAsyncOperationRunning())
+                q = self.joints
+                self.tracking.append(path_deviation(path, q))
+                if not running:
+                    err = float(np.abs(q - path[-1]).max())
+                    if err <= self.ur.joint_tolerance_rad:
+                        self._check_tcp()
+                        return now - t0
+                    if now - t0 > 0.5:  # the RTDE sample may lag the controller's finish by a period
+                        raise RobotError(
+                            f"the motion ended {err:.4f} rad short of its goal ({self._fault or 'stopped'})"
+                        )
+                if now - t0 > traj.duration / slow + 5.0:
+                    raise RobotError(f"the motion did not finish within {traj.duration / slow + 5.0:.1f} s")
+        except RobotError:
+            self._stopj()  # never leave an arm moving behind a failed motion
+            raise
+        finally:
+            self._moving = False
+            self._changed()
+
+    # --- maintenance (an operator's explicit commands) ----------------------------------------
+
+    def maintenance(self, req: RobotMaintenanceRequest) -> RobotMaintenanceReply:
+        """Run one maintenance action; ``clear_fault`` only when the robot is healthy again.
+
+        Raises:
+            RobotError: the controller refused the action, or (clear_fault) what is still wrong.
+        """
+        log.warning("maintenance %s by %s", req.action, req.user)
+        if req.action == "clear_fault":
+            return self._clear_fault(req)
+        with self.io:
+            if self._d is None:
+                raise RobotError(f"not connected to the UR dashboard at {self.ur.host}")
+            try:
+                if req.action == "unlock_protective_stop":
+                    self._d.unlockProtectiveStop()
+                    detail = "Protective stop releasing"
+                elif req.action == "close_safety_popup":
+                    self._d.closeSafetyPopup()
+                    detail = "closing safety popup"
+                elif req.action == "power_on":
+                    self._d.powerOn()
+                    detail = "Powering on"
+                else:
+                    self._d.brakeRelease()
+                    detail = "Brake releasing"
+            except (RuntimeError, ValueError) as err:  # ur-rtde raises logic_error → RuntimeError
+                raise RobotError(f"the UR dashboard refused {req.action}: {err}") from None
+        return RobotMaintenanceReply(action=req.action, detail=detail, fault=self._fault)
+
+    def _clear_fault(self, req: RobotMaintenanceRequest) -> RobotMaintenanceReply:
+        reconnect = self._c is None or self._r is None
+        if not reconnect:
+            with self.io:
+                try:
+                    st = self._read_state()
+                    reconnect = not st["connected"]
+                except RuntimeError:
+                    reconnect = True
+        if reconnect:
+            self._disconnect()
+            self._connect()  # raises naming what is wrong (mode, safety, link)
+        with self.io:
+            st = self._read_state()
+            still = classify_fault(st["bits"], st["mode"], self.ur.faults.reduced_mode)
+            if still is not None:
+                raise RobotError(f"cannot clear the fault: {still} is still active")
+            self._reupload()
+            self._data_t = time.monotonic()
+        was, self._fault = self._fault, None
+        self._stop.clear()
+        if self.on_fault is not None:
+            self.on_fault(None)
+        return RobotMaintenanceReply(action=req.action, detail=f"cleared ({was or 'no fault'})", fault=None)
+
+
+class _Refused(Exception):
+    """A connection refusal that retrying will not fix (wrong model, mode, local control)."""
