@@ -301,7 +301,8 @@ def write_whole(plan: WholePlan, plans_dir: Any, path: Any = None) -> Any:
 
     for st in plan.stations:
         for p in st.plans.values():
-            write_plan(p, plan_path(plans_dir, p))
+            if p.viewpoints:  # an empty station share is skipped by the cycle, not looked up
+                write_plan(p, plan_path(plans_dir, p))
     return write_document(plan.to_json(), path if path is not None else whole_path(plans_dir, plan))
 
 
@@ -583,11 +584,14 @@ def plan_whole(
     *,
     bin_type: BinType | None = None,
     progress: ProgressFn | None = None,
+    job_id: str | None = None,
 ) -> WholePlan:
     """Plan the whole bin: stations, both surfaces, connected viewpoints, timed tours.
 
     Nothing to plan is an answer, not an exception: the plan's ``reason`` (and each surface's
     and station's) says why (no usable station, a surface without faces, nothing visible …).
+
+    ``job_id`` (the planner worker's job) is recorded in every station plan.
 
     Raises:
         PlanningError: bad parameters.
@@ -863,7 +867,7 @@ def plan_whole(
             n_opt, proven, secs = min_set_cover(vis.C[:, allowed], min(2.0, p0.cover_time_limit_s))
             cover = pl.Cover(n_opt, proven, secs)
             plan = pl.assemble(s, hd, st, f_s, found, vis, ordered, cover)
-            plans[surf] = plan
+            plans[surf] = replace(plan, job_id=job_id)
             mt = float(sum(secs_e))
             motion[surf] = mt
             cycle += mt + len(sel) * per_vp

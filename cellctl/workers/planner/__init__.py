@@ -244,10 +244,13 @@ class PlannerService:
                 camera=CameraModel.from_config(self.cfg.camera),  # the camera the cycle will capture with
             )
             mesh = self._mesh(req.bin_type)
-            T_bin_base = invert(req.bin_pose.matrix())
-            plan = make_plan(mesh, T_bin_base, params, self.robot, bin_type=req.bin_type, progress=progress)
-            plan = dataclasses.replace(plan, job_id=job_id)
-            write_plan(plan, plan_path(self.plans_dir, plan))
+            if req.whole:
+                plan = self._whole(job_id, req, mesh, params, progress)
+            else:
+                T_bin_base = invert(req.bin_pose.matrix())
+                plan = make_plan(mesh, T_bin_base, params, self.robot, bin_type=req.bin_type, progress=progress)
+                plan = dataclasses.replace(plan, job_id=job_id)
+                write_plan(plan, plan_path(self.plans_dir, plan))
         except Exception as err:  # noqa: BLE001 - a failed job must not kill the worker
             reason = f"{type(err).__name__}: {err}"
             log.warning("job %s failed: %s", job_id, reason)
@@ -256,7 +259,18 @@ class PlannerService:
             return
         self._write_record(job_id, state="done", plan_id=plan.plan_id, reason=plan.reason)
         self._progress(job_id, "done", 1.0, "done", plan.reason, plan_id=plan.plan_id)
-        log.info("job %s done: plan %s, %d viewpoints", job_id, plan.plan_id, len(plan.viewpoints))
+        log.info("job %s done: plan %s", job_id, plan.plan_id)
+
+    def _whole(self, job_id: str, req: PlanJobRequest, mesh: Any, params: Any, progress: Any) -> Any:
+        """A whole-bin job: stations and both surfaces; every station plan lands in the cache."""
+        from cellctl.geometry.catalog import load_catalog
+        from cellctl.planning.whole import WholeParams, plan_whole, write_whole
+
+        bin_type = load_catalog(self.cfg.path(self.cfg.catalog), verify_meshes=False).get(req.bin_type)
+        wp = WholeParams.from_config(self.cfg.planner.whole, params, self.cfg.robot.speed_fraction)
+        plan = plan_whole(mesh, wp, self.robot, bin_type=bin_type, progress=progress, job_id=job_id)
+        write_whole(plan, self.plans_dir)
+        return plan
 
     def close(self) -> None:
         self._queue.put(None)
