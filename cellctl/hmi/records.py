@@ -73,7 +73,7 @@ class CycleRecords:
         self.logs_root = cfg.path(cfg.recording.dir).resolve()
         self._lock = threading.Lock()
         self._cache: dict[tuple[str, int], dict[str, Any]] = {}
-        self._png_dir = Path(tempfile.mkdtemp(prefix="cellctl-hmi-"))
+        self._pngs: dict[str, bytes] = {}
         self._audit: tuple[float, tuple[int, float], dict[str, Any]] | None = None
         self._catalog: Any = None
         self._recent: dict[tuple[str, int], Any] = {}
@@ -240,11 +240,13 @@ class CycleRecords:
         obj = imgs[n].json()
         return base64.b64decode(obj["data"]), obj.get("format", "png")
 
-    def dirt_map_png(self, cycle_id: str) -> Path:
-        """The cycle's dirt map drawn on its bin mesh (rendered once per cycle, into a temp folder)."""
-        out = self._png_dir / f"{cycle_id}.png"
-        if out.is_file():
-            return out
+    def dirt_map_png(self, cycle_id: str) -> bytes:
+        """The cycle's dirt map drawn on its bin mesh, as PNG bytes (rendered once, the last 32 kept
+        in memory: an HMI killed by a signal leaves no cache folder behind)."""
+        with self._lock:
+            hit = self._pngs.get(cycle_id)
+        if hit is not None:
+            return hit
         d = self.detail(cycle_id)
         res = d["result"] or {}
         dm, bin_type = res.get("dirt_map"), (res.get("bin") or {}).get("type")
@@ -257,10 +259,14 @@ class CycleRecords:
 
             self._catalog = load_catalog(self.cfg.path(self.cfg.catalog))
         mesh = self._catalog.load_mesh(bin_type)
-        tmp = out.with_suffix(".tmp.png")
-        draw_dirt_map(mesh, dm, tmp, title=f"{cycle_id} {res.get('verdict') or ''}")
-        tmp.replace(out)
-        return out
+        with tempfile.TemporaryDirectory(prefix="cellctl-hmi-") as tmp:
+            out = draw_dirt_map(mesh, dm, Path(tmp) / "dirt_map.png", title=f"{cycle_id} {res.get('verdict') or ''}")
+            png = out.read_bytes()
+        with self._lock:
+            self._pngs[cycle_id] = png
+            while len(self._pngs) > 32:
+                self._pngs.pop(next(iter(self._pngs)))
+        return png
 
     # --- audit -------------------------------------------------------------------------------
 
@@ -335,6 +341,5 @@ class CycleRecords:
         return {"status": "tamper" if findings else "ok", "findings": findings, "head": head}
 
     def close(self) -> None:
-        import shutil
-
-        shutil.rmtree(self._png_dir, ignore_errors=True)
+        with self._lock:
+            self._pngs.clear()

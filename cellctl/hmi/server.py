@@ -509,8 +509,8 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         return FileResponse(p, media_type="application/octet-stream", filename=f"{cycle_id}.mcap")
 
     @app.get("/api/cycles/{cycle_id}/dirt_map.png", tags=["records"])
-    def dirt_map(cycle_id: str) -> FileResponse:
-        return FileResponse(hmi.records.dirt_map_png(cycle_id), media_type="image/png")
+    def dirt_map(cycle_id: str) -> Response:
+        return Response(hmi.records.dirt_map_png(cycle_id), media_type="image/png")
 
     @app.get("/api/cycles/{cycle_id}/images/{n}", tags=["records"])
     def cycle_image(cycle_id: str, n: int) -> Response:
