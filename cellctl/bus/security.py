@@ -383,7 +383,7 @@ def init_deployment(
     os.chmod(out / CLIENTS_DIR, 0o700)
     written.append(_write(out / BUS_YAML, bus_yaml(out, cell_id, endpoint, tls), 0o644))
     # The OPC UA gateway's server certificate, for Basic256Sha256 Sign&Encrypt (docs/opcua.md).
-    from cellctl.gateway.opcua.certs import OPCUA_DIR, write_server_certificate
+    from cellctl.bus.opcua_cert import OPCUA_DIR, write_server_certificate
 
     written += write_server_certificate(out / OPCUA_DIR, host, days)
     return written

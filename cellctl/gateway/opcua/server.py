@@ -33,6 +33,7 @@ from pydantic import ValidationError
 
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as
+from cellctl.bus.opcua_cert import APPLICATION_URI
 from cellctl.bus.security import PASSWORDS_FILE, PRINCIPALS
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, ConfigError, ProtocolError, WorkerTimeout, WorkerUnavailable
@@ -47,9 +48,6 @@ __all__ = ["APPLICATION_URI", "OpcuaGateway", "read_users"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
-
-APPLICATION_URI = "urn:cellctl:gateway:opcua"
-"""The server's ApplicationUri; ``cellctl secure init`` puts it in the certificate's subjectAltName."""
 
 S = ua.StatusCodes
 _WRITE = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)

@@ -12,6 +12,9 @@ from pathlib import Path
 
 __all__ = ["OPCUA_DIR", "write_server_certificate"]
 
+APPLICATION_URI = "urn:cellctl:gateway:opcua"
+"""The OPC UA gateway's application URI: the certificate carries it and the server announces it."""
+
 OPCUA_DIR = "opcua"
 """Folder of a ``cellctl secure init`` deployment that holds ``server.pem`` and ``server.key``."""
 
@@ -27,7 +30,6 @@ def write_server_certificate(folder: Path, host: str, days: int = 825) -> list[P
     from cryptography.hazmat.primitives import serialization
     from cryptography.x509.oid import ExtendedKeyUsageOID
 
-    from cellctl.gateway.opcua.server import APPLICATION_URI
 
     folder.mkdir(parents=True, exist_ok=True)
     os.chmod(folder, 0o700)
