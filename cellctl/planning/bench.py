@@ -136,16 +136,8 @@ def _median_worst(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
-    """``cellctl bench whole-bin``: the three catalog bins and a foreign mesh, ≥ 10 seeds each, p_SP 10.
-
-    Per bin: per seed the plan's figures, and median / worst over the seeds. ``--n`` = seeds
-    (default 10), ``--seed`` = the first seed. Planning time is wall time on this machine and
-    this process's CPU seconds (what a machine shared with other work does not inflate).
-    """
-    import os
-    import platform
-
+def _whole_task(task: tuple[str, int, str, tuple[str, ...], Any]) -> tuple[str, int, dict[str, Any]]:
+    """One (bin, seed) whole plan in a worker process (a fresh interpreter per bench run)."""
     from cellctl.geometry.camera import CameraModel
     from cellctl.geometry.catalog import load_catalog
     from cellctl.planning.mesh import load_catalog_mesh
@@ -153,12 +145,40 @@ def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
     from cellctl.planning.robot import default_robot_model
     from cellctl.planning.whole import WholeParams, plan_whole
 
+    name, seed, config, overrides, _ = task
+    opts = BenchOptions(n=None, seed=seed, config=config, overrides=overrides, out=None)
+    cfg = opts.load_config()
+    if name == "foreign_long":
+        mesh, bt = foreign_mesh(), None
+    else:
+        mesh = load_catalog_mesh(cfg.path(cfg.catalog), name)
+        bt = load_catalog(cfg.path(cfg.catalog)).get(name)
+    print(f"bench whole-bin: {name} seed {seed}", file=sys.stderr)
+    plan_params = PlanParams(seed_pct=cfg.planner.seed_pct, seed=seed, camera=CameraModel.from_config(cfg.camera))
+    params = WholeParams.from_config(cfg.planner.whole, plan_params, cfg.robot.speed_fraction)
+    return name, seed, _whole_row(plan_whole(mesh, params, default_robot_model(), bin_type=bt))
+
+
+def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
+    """``cellctl bench whole-bin``: the three catalog bins and a foreign mesh, ≥ 10 seeds each, p_SP 10.
+
+    Per bin: per seed the plan's figures, and median / worst over the seeds. ``--n`` = seeds
+    (default 10), ``--seed`` = the first seed. Plans run two at a time (one process per core,
+    spawned); planning time is reported as wall time and as the plan's CPU seconds — on a
+    machine shared with other work only the CPU figure is comparable. With ``--out`` the file
+    is rewritten after every finished plan (a cut run keeps what it measured).
+    """
+    import json
+    import multiprocessing as mp
+    import os
+    import platform
+
+    from cellctl.geometry.catalog import load_catalog
+
     cfg = opts.load_config()
     cat = load_catalog(cfg.path(cfg.catalog))
-    robot = default_robot_model()
     seeds = list(range(opts.seed, opts.seed + (opts.n or WHOLE_SEEDS)))
-    bins: list[tuple[str, Any, Any]] = [(n, load_catalog_mesh(cfg.path(cfg.catalog), n), cat.get(n)) for n in cat.names]
-    bins.append(("foreign_long", foreign_mesh(), None))
+    names = [*cat.names, "foreign_long"]
     out: dict[str, Any] = {
         "seed_pct": cfg.planner.seed_pct,
         "seeds": seeds,
@@ -166,20 +186,22 @@ def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
         "speed_fraction": cfg.robot.speed_fraction,
         "machine": {
             "cpus": os.cpu_count(),
+            "processes": 2,
             "load_avg_start": list(os.getloadavg()),
             "python": platform.python_version(),
         },
         "bins": {},
     }
-    for name, mesh, bt in bins:
-        rows = []
-        for seed in seeds:
-            print(f"bench whole-bin: {name} seed {seed}", file=sys.stderr)
-            plan_params = PlanParams(
-                seed_pct=cfg.planner.seed_pct, seed=seed, camera=CameraModel.from_config(cfg.camera)
-            )
-            params = WholeParams.from_config(cfg.planner.whole, plan_params, cfg.robot.speed_fraction)
-            rows.append(_whole_row(plan_whole(mesh, params, robot, bin_type=bt)))
-        out["bins"][name] = {"summary": _median_worst(rows), "runs": rows}
+    cfg_path = str(opts.config) if opts.config else None
+    tasks = [(n, s, cfg_path, tuple(opts.overrides), None) for n in names for s in seeds]
+    rows: dict[str, dict[int, dict[str, Any]]] = {n: {} for n in names}
+    with mp.get_context("spawn").Pool(2) as pool:
+        for name, seed, row in pool.imap_unordered(_whole_task, tasks):
+            rows[name][seed] = row
+            got = [rows[name][k] for k in sorted(rows[name])]
+            out["bins"][name] = {"summary": _median_worst(got), "runs": got}
+            if opts.out is not None:
+                out["machine"]["load_avg_now"] = list(os.getloadavg())
+                opts.out.write_text(json.dumps(out, indent=2) + "\n")
     out["machine"]["load_avg_end"] = list(os.getloadavg())
     return out

@@ -327,6 +327,8 @@ class Connected:
     unconnected: int
 
 
+END_PENALTY_S = 100.0  # makes the tour's home node its last (an interior visit pays it twice)
+NO_MOVE_S = 1.0e4  # a move the sim arm could not make: straight collides and no way via home
 COARSE_STEP_RAD = 0.02  # the pairwise matrix's check step (the single-station planner's)
 CHAIN_ROUNDS = 3  # straight-motion hops a viewpoint may be away from the start
 NEAREST = 3  # connected nodes a viewpoint tries to join (nearest in joint space)
@@ -484,17 +486,30 @@ def _timed_tour(
     n = len(nodes)
     hubs = [np.array(start_hub)] + [np.array([*chain_to_start(int(k), con.parent, Qall), q_home]) for k in sel]
     home_t = np.array([timing.motion_s(h) for h in hubs])
+    # "direct": one straight motion home, free at the sim arm's step. Only between direct nodes may
+    # a move go via home: that is the sim arm's own fallback (plan_path(a, home), plan_path(home, b)),
+    # which finds a straight motion there and no chain through other viewpoints
+    two = np.array([len(h) == 2 for h in hubs])
+    direct = np.zeros(n, dtype=bool)
+    if two.any():
+        idx = np.flatnonzero(two)
+        direct[idx] = world.motion_free(nodes[idx], np.repeat(q_home[None], len(idx), axis=0), fine_step)
     iu, ju = np.triu_indices(n, 1)
     free = world.motion_free(nodes[iu], nodes[ju], max_step) if len(iu) else np.zeros(0, dtype=bool)
-    Tm = np.zeros((n, n))
-    straight = np.zeros((n, n), dtype=bool)
+    # node n = home at the end of the tour (the arm tucks before the base drives): reached from a
+    # direct node only, with a penalty that an interior visit pays twice, so it ends the tour
+    Tm = np.zeros((n + 1, n + 1))
+    Tm[:n, n] = Tm[n, :n] = np.where(direct, home_t + END_PENALTY_S, NO_MOVE_S)
+    straight = np.zeros((n + 1, n + 1), dtype=bool)
     for k, (i, j) in enumerate(zip(iu, ju, strict=True)):
         if free[k]:
             Tm[i, j] = Tm[j, i] = timing.motion_s(np.array([nodes[i], nodes[j]]))
             straight[i, j] = straight[j, i] = True
         else:
-            Tm[i, j] = Tm[j, i] = float(home_t[i] + home_t[j])
-    order = np.asarray(two_opt(Tm, ant_colony(Tm, rng)) if n > 2 else np.arange(n), dtype=np.int64)
+            Tm[i, j] = Tm[j, i] = float(home_t[i] + home_t[j]) if direct[i] and direct[j] else NO_MOVE_S
+    full = np.asarray(two_opt(Tm, ant_colony(Tm, rng)), dtype=np.int64)
+    ends_home = int(full[-1]) == n
+    order = full[full != n]
     checked: set[tuple[int, int]] = set()
     for _round in range(4):
         edges = [
@@ -511,10 +526,12 @@ def _timed_tour(
             checked.add((min(a, b), max(a, b)))
             if not good:
                 straight[a, b] = straight[b, a] = False
-                Tm[a, b] = Tm[b, a] = float(home_t[a] + home_t[b])
+                Tm[a, b] = Tm[b, a] = float(home_t[a] + home_t[b]) if direct[a] and direct[b] else NO_MOVE_S
         if ok.all():
             break
-        order = np.asarray(two_opt(Tm, order), dtype=np.int64)
+        full = np.asarray(two_opt(Tm, np.r_[order, n]), dtype=np.int64)
+        ends_home = int(full[-1]) == n
+        order = full[full != n]
     paths: list[NDArray[np.float64]] = []
     secs: list[float] = []
     Dr = np.zeros((n, n))
@@ -524,14 +541,12 @@ def _timed_tour(
         paths.append(path)
         secs.append(timing.motion_s(path))
         Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
-    # the ways via home the tour uses, at the sim arm's step too (the chains were joined at max_step)
-    via = [p for p in paths if len(p) > 2]
-    unverified = 0
-    if via:
-        A = np.vstack([p[:-1] for p in via])
-        B = np.vstack([p[1:] for p in via])
-        unverified = int((~world.motion_free(A, B, fine_step)).sum())
-    return order, Dr, paths, secs, int(free.sum()), unverified
+    # moves the sim arm could not make: via home from/to a node that is not direct, and the end
+    unverified = sum(
+        len(p) > 2 and not (direct[a] and direct[b]) for p, a, b in zip(paths, order[:-1], order[1:], strict=True)
+    )
+    unverified += 0 if ends_home and direct[int(order[-1])] else 1
+    return order, Dr, paths, secs, int(free.sum()), int(unverified)
 
 
 # --- the whole-bin pipeline ------------------------------------------------------------------
@@ -873,7 +888,7 @@ def plan_whole(
             cycle += mt + len(sel) * per_vp
             last = int(sel[order[-1] - 1])
             q_now = found.reached.q[last]
-            hub = [q_now, *chain_to_start(last, con.parent, con.reached.q), q_home]
+            hub = [*chain_to_start(last, con.parent, con.reached.q), q_home]
         cycle += timing.motion_s(np.array(hub))  # home before the base drives on
         stations.append(
             StationPlan(

@@ -125,7 +125,11 @@ def test_whole_plan_covers_both_surfaces_with_every_viewpoint_connected(whole, b
                 # every move the cycle makes is free at the sim arm's own step: no refusal at run time
                 for a, b in zip(path[:-1], path[1:], strict=True):
                     assert _segment_free(world, a, b), (st.rank, surf, vp.index)
+                # a move that is not straight goes via home only: the sim arm's own fallback route
+                assert len(vp.approach) == 0 or np.allclose(vp.approach, [home]), (st.rank, surf, vp.index)
                 prev = vp.q
+        # the arm tucks home before the base drives on: one straight motion from the last viewpoint
+        assert _segment_free(world, prev, home), st.rank
     assert whole.cycle_time_s > sum(s.viewpoints for s in whole.surfaces.values()) * 0.6
     assert whole.exact is not None and whole.exact.stations <= len(whole.stations)
 
