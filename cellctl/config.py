@@ -183,14 +183,14 @@ class NozzleConfig(_Model):
     """The washing nozzle (:class:`cellctl.washing.nozzle.NozzleModel`), a second tool beside the camera."""
 
     half_angle_deg: float = Field(default=12.0, gt=0, lt=60, description="spray cone half-angle")
-    working_distance_m: tuple[float, float] = Field(default=(0.12, 0.22), description="near, far stand-off (m)")
-    max_incidence_deg: float = Field(default=40.0, gt=0, lt=90, description="jet vs face normal, at most")
+    working_distance_m: tuple[float, float] = Field(default=(0.15, 0.5), description="near, far stand-off (m)")
+    max_incidence_deg: float = Field(default=60.0, gt=0, lt=90, description="jet vs face normal, at most")
     footprint_m: float = Field(default=0.05, gt=0, le=1, description="diameter of the spot one pass cleans")
     removal_per_pass: float = Field(default=0.8, gt=0, le=1, description="fraction of the powder one pass removes")
     clean_residual: float = Field(default=0.05, gt=0, lt=1, description="powder fraction that may stay")
     overlap: float = Field(default=0.3, ge=0, lt=0.9, description="raster line overlap, fraction of the footprint")
     mount_xyz_rpy: tuple[float, float, float, float, float, float] = Field(
-        default=(0.0, 0.0, 0.10, 0.0, 0.0, 0.0), description="nozzle tip in the flange frame: m, m, m, deg, deg, deg"
+        default=(0.0, 0.0, 0.25, 0.0, 0.0, 0.0), description="nozzle tip in the flange frame: m, m, m, deg, deg, deg"
     )
     lance_radius_m: float = Field(default=0.015, gt=0, lt=0.1)
 

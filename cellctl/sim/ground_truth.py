@@ -12,7 +12,7 @@ grains in a halo around each clump. A clump only covers faces of its own surface
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,7 +21,7 @@ from cellctl.geometry.catalog import BinMesh, BinType
 from cellctl.geometry.transforms import invert
 from cellctl.surface import EXTERNAL, INTERNAL
 
-__all__ = ["PowderField", "true_T_base_bin", "value_noise3"]
+__all__ = ["PowderField", "SprayPass", "true_T_base_bin", "value_noise3"]
 
 
 def value_noise3(p: NDArray[np.float64], seed: int) -> NDArray[np.float64]:
@@ -50,6 +50,25 @@ def value_noise3(p: NDArray[np.float64], seed: int) -> NDArray[np.float64]:
     return c0 + fz * (c1 - c0)
 
 
+@dataclass(frozen=True)
+class SprayPass:
+    """One pass of a washing jet over the bin (bin frame): where its spot ran on the surface.
+
+    Attributes:
+        spots: (K, 3) the jet's spot centres on the surface along the pass, in order, m.
+        axes: (K, 3) the jet's unit direction at each spot.
+        radius: footprint radius, m.
+        cos_incidence: cosine of the largest jet-to-normal angle that still cleans.
+        removal: fraction of the powder under the footprint the pass removes.
+    """
+
+    spots: NDArray[np.float64]
+    axes: NDArray[np.float64]
+    radius: float
+    cos_incidence: float
+    removal: float
+
+
 @dataclass
 class PowderField:
     """Powder clumps on a bin (bin frame) and the per-point powder opacity they give.
@@ -59,6 +78,8 @@ class PowderField:
         radii: (n,) clump radii (m).
         surface: (n,) surface tag of each clump.
         normals: (n, 3) surface normal at each centre.
+        washes: the spray passes run over the bin so far (:meth:`wash`); each leaves
+            ``1 − removal`` of the powder under its footprint.
     """
 
     centres: NDArray[np.float64]
@@ -66,6 +87,43 @@ class PowderField:
     surface: NDArray[np.uint8]
     normals: NDArray[np.float64]
     seed: int
+    washes: list[SprayPass] = field(default_factory=list)
+
+    def wash(self, spray: SprayPass) -> None:
+        """Run one spray pass: from now on the powder under its footprint is reduced by its removal."""
+        self.washes.append(spray)
+
+    def remaining(self, pts: NDArray[np.float64], normals: NDArray[np.float64] | None) -> NDArray[np.float64]:
+        """(M,) fraction of the powder left at surface points after the passes run so far.
+
+        A point is under a pass when it lies within the footprint radius of the spot's path
+        (the path sampled every radius/4) and its face meets the jet within the incidence
+        limit (so the other side of a wall is not washed through it).
+        """
+        out = np.ones(len(pts))
+        if not self.washes or len(pts) == 0:
+            return out
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(pts)
+        for sp in self.washes:
+            S, A = np.asarray(sp.spots, np.float64), np.asarray(sp.axes, np.float64)
+            if len(S) > 1:  # densify the spot path so the footprint is continuous along it
+                seg = np.linalg.norm(np.diff(S, axis=0), axis=1)
+                n = np.maximum(1, np.ceil(seg / (sp.radius / 4)).astype(int))
+                f = [np.arange(k) / k for k in n]
+                S = np.concatenate([S[i] + (S[i + 1] - S[i]) * f[i][:, None] for i in range(len(n))] + [S[-1:]])
+                A = np.concatenate([np.repeat(A[i : i + 1], n[i], 0) for i in range(len(n))] + [A[-1:]])
+            hits = tree.query_ball_point(S, r=sp.radius)
+            owner = np.concatenate([np.full(len(h), j) for j, h in enumerate(hits)]).astype(np.int64)
+            idx = np.concatenate([np.asarray(h, np.int64) for h in hits])
+            if len(idx) == 0:
+                continue
+            if normals is not None:
+                ok = -np.einsum("ij,ij->i", normals[idx], A[owner]) >= sp.cos_incidence
+                idx = idx[ok]
+            out[np.unique(idx)] *= 1.0 - sp.removal
+        return out
 
     @classmethod
     def sample(cls, mesh: BinMesh, amount: float, seed: int) -> PowderField:
@@ -129,10 +187,12 @@ class PowderField:
             core = np.clip((edge - d) / 0.006, 0, 1)
             halo = ((d < 1.6 * r) & (grain[:, None] > 0.80 + 0.15 * np.clip(d / r - 1, 0, 1))).astype(float)
             out[sel] = np.where(valid, np.maximum(core, 0.85 * halo), 0.0).max(axis=1)
+        if self.washes:
+            out *= self.remaining(pts, normals)
         return out
 
     def dirty_faces(self, mesh: BinMesh, threshold: float = 0.5) -> NDArray[np.bool_]:
-        """Faces (F,) whose centroid or a vertex has powder opacity above ``threshold``."""
+        """Faces (F,) whose centroid or a vertex has powder opacity above ``threshold`` (after the washes)."""
         tri = mesh.vertices[mesh.faces]
         pts = np.concatenate([tri.mean(axis=1), tri[:, 0], tri[:, 1], tri[:, 2]])
         tags = np.tile(mesh.surface, 4)

@@ -10,8 +10,9 @@ square pyramid that circumscribes the spray cone (so the visibility stage keeps 
 so IK, the camera-body filter and the collision checks place the nozzle, not the camera.
 :meth:`NozzleModel.sprayed` then cuts the pyramid back to the cone and the footprint.
 
-Mounting: a **second tool** on the flange, not a tool change. The nozzle is a short lance on
-the flange axis (``mount_xyz_rpy``, default 10 cm out of the tool plate, jet along the
+Mounting: a **second tool** on the flange, not a tool change. The nozzle is a lance on
+the flange axis (``mount_xyz_rpy``, default 25 cm out of the tool plate, long enough to reach into
+the bin from its opening, jet along the
 flange's +Z, parallel to the camera's optical axis); the camera stays mounted. So
 inspect → wash → re-inspect needs no tool change, and the camera body is collision-checked
 while washing as while scanning. The lance itself is checked by :meth:`lance_free`.
@@ -60,13 +61,13 @@ class NozzleModel:
     """
 
     half_angle_deg: float = 12.0
-    working_distance_m: tuple[float, float] = (0.12, 0.22)
-    max_incidence_deg: float = 40.0
+    working_distance_m: tuple[float, float] = (0.15, 0.5)
+    max_incidence_deg: float = 60.0
     footprint_m: float = 0.05
     removal_per_pass: float = 0.8
     clean_residual: float = 0.05
     overlap: float = 0.3
-    mount_xyz_rpy: tuple[float, float, float, float, float, float] = (0.0, 0.0, 0.10, 0.0, 0.0, 0.0)
+    mount_xyz_rpy: tuple[float, float, float, float, float, float] = (0.0, 0.0, 0.25, 0.0, 0.0, 0.0)
     lance_radius_m: float = 0.015
 
     def __post_init__(self) -> None:
@@ -137,10 +138,11 @@ class NozzleModel:
 
     @property
     def distances(self) -> tuple[float, ...]:
-        """Stand-offs the planner tries, in preference order: where the cone first spans the footprint, then farther."""
+        """Stand-offs the planner tries, in preference order: where the cone first spans the
+        footprint (nearest: the least overspray), then a third and two thirds of the way to far."""
         near, far = self.working_distance_m
         d0 = min(max(near, self.footprint_m / 2 / math.tan(math.radians(self.half_angle_deg))), far)
-        return tuple(sorted({round(d0, 4), round(min(far, d0 + 0.5 * (far - d0)), 4)}))
+        return tuple(dict.fromkeys(round(d0 + f * (far - d0), 4) for f in (0.0, 1 / 3, 2 / 3)))
 
     @property
     def line_spacing_m(self) -> float:
@@ -240,4 +242,5 @@ class NozzleModel:
 
 
 DEFAULT_NOZZLE = NozzleModel()
-"""12° round jet, 12–22 cm stand-off, 5 cm footprint, 80 % removal per pass (2 passes to ≤ 5 %)."""
+"""12° round jet on a 25 cm lance, 15–50 cm stand-off, 5 cm footprint, ≤ 60° incidence, 80 % removal per pass
+(2 passes to ≤ 5 %)."""

@@ -44,7 +44,7 @@ def test_sprayed_is_the_cone_cut_to_footprint_and_incidence() -> None:
     T = np.eye(4)
     r = n.footprint_m / 2
     pts = np.array([[0, 0, 0.15], [0.9 * r, 0, 0.15], [1.1 * r, 0, 0.15], [0, 0, 0.05], [0, 0, 0.15]])
-    nrm = np.array([[0, 0, -1.0]] * 4 + [[math.sin(math.radians(60)), 0, -math.cos(math.radians(60))]])
+    nrm = np.array([[0, 0, -1.0]] * 4 + [[math.sin(math.radians(70)), 0, -math.cos(math.radians(70))]])
     assert n.sprayed(T, pts, nrm).tolist() == [True, True, False, False, False]
 
 
@@ -57,4 +57,4 @@ def test_frustum_camera_circumscribes_the_cone_and_robot_tool_is_the_nozzle() ->
     q = np.array([[0.3, -1.2, 1.1, -1.4, -1.5, 0.2]])
     T_base_flange = default_robot_model().fk_frames(q)[0, 6]
     assert np.allclose(robot.fk_cam(q)[0], T_base_flange @ n.T_flange_nozzle())
-    assert np.allclose(robot.fk_cam(q)[0, :3, 3], T_base_flange[:3, 3] + 0.10 * T_base_flange[:3, 2])
+    assert np.allclose(robot.fk_cam(q)[0, :3, 3], T_base_flange[:3, 3] + n.mount_xyz_rpy[2] * T_base_flange[:3, 2])

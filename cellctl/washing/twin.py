@@ -1,0 +1,53 @@
+"""Washing in the twin: a wash plan's sweeps as spray passes over the sim's powder.
+
+Each sweep is run ``passes`` times, back and forth. The jet's spot along a sweep is where the
+jet from each nozzle pose first hits the bin (a ray cast, so a jet blocked by a wall washes the
+wall, not the face behind it) within the working distance; the powder model
+(:class:`cellctl.sim.ground_truth.PowderField`) then keeps ``1 − removal`` of the powder under
+the footprint per pass, so a re-inspection of the twin sees what is left.
+
+Sim-only: imports the ground truth.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cellctl.geometry.catalog import BinMesh
+from cellctl.sim.ground_truth import PowderField, SprayPass
+from cellctl.washing.nozzle import NozzleModel
+from cellctl.washing.plan import WashPlan
+
+__all__ = ["spray_passes", "wash_in_twin"]
+
+
+def spray_passes(plan: WashPlan, mesh: BinMesh, nozzle: NozzleModel) -> list[SprayPass]:
+    """The plan's sweeps, in order, as spray passes (each sweep ``passes`` times, back and forth)."""
+    from cellctl.planning.raycast import RayCaster
+
+    rays = RayCaster(mesh.vertices, mesh.faces)
+    near, far = nozzle.working_distance_m
+    out: list[SprayPass] = []
+    for sw in plan.sweeps:
+        tips, axes = sw.T_bin_noz[:, :3, 3], sw.T_bin_noz[:, :3, 2]
+        _, dist = rays.first_hit(tips, axes)
+        ok = (dist >= near * 0.999) & (dist <= far * 1.001)
+        if not ok.any():
+            continue
+        spots, ax, d = tips[ok] + dist[ok, None] * axes[ok], axes[ok], dist[ok]
+        radius = float(np.min(nozzle.spot_radius(d)))
+        cos_inc = math.cos(math.radians(nozzle.max_incidence_deg))
+        for k in range(sw.passes):
+            s, a = (spots, ax) if k % 2 == 0 else (spots[::-1], ax[::-1])
+            out.append(SprayPass(s.copy(), a.copy(), radius, cos_inc, nozzle.removal_per_pass))
+    return out
+
+
+def wash_in_twin(field: PowderField, plan: WashPlan, mesh: BinMesh, nozzle: NozzleModel) -> int:
+    """Run the plan's passes over the twin's powder; returns the number of passes run."""
+    passes = spray_passes(plan, mesh, nozzle)
+    for sp in passes:
+        field.wash(sp)
+    return len(passes)

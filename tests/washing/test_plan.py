@@ -1,0 +1,100 @@
+"""Wash planning on the case-study bin: what is planned, what is refused, and that the twin ends clean."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cellctl.config import load_config
+from cellctl.errors import PlanningError
+from cellctl.geometry.catalog import load_catalog, read_bin_mesh
+from cellctl.planning.robot import default_robot_model
+from cellctl.sim.ground_truth import PowderField
+from cellctl.sim.scene import nominal_T_bin_base
+from cellctl.surface import EXTERNAL
+from cellctl.washing.nozzle import NozzleModel
+from cellctl.washing.plan import MAX_SWEEP_STEP_RAD, WashParams, plan_wash
+from cellctl.washing.twin import wash_in_twin
+
+
+@pytest.fixture(scope="module")
+def bin_case():  # noqa: ANN201
+    cfg = load_config()
+    cat = load_catalog(cfg.path(cfg.catalog), cfg.root)
+    bt = cat.get("case_study")
+    mesh = read_bin_mesh(cat.mesh_path("case_study"))
+    return mesh, nominal_T_bin_base(bt, mesh)
+
+
+def _spot(mesh, centre, normal, radius=0.04) -> PowderField:  # noqa: ANN001
+    return PowderField(
+        np.array([centre], float), np.array([radius]), np.array([EXTERNAL], np.uint8), np.array([normal], float), 7
+    )
+
+
+def test_no_dirt_map_is_a_reason_and_no_motion(bin_case) -> None:  # noqa: ANN001
+    mesh, T = bin_case
+    plan = plan_wash(mesh, None, [T], NozzleModel(), default_robot_model())
+    assert not plan.moves and "no dirt map" in plan.reason
+    plan = plan_wash(mesh, {"seen_dirty": [], "seen_clean": [1, 2]}, [T], NozzleModel(), default_robot_model())
+    assert not plan.moves and "nothing to wash" in plan.reason
+
+
+def test_bad_dirt_map_and_no_station_are_errors(bin_case) -> None:  # noqa: ANN001
+    mesh, T = bin_case
+    with pytest.raises(PlanningError, match="seen_dirty id 99999"):
+        plan_wash(mesh, {"seen_dirty": [3, 99999]}, [T], NozzleModel(), default_robot_model())
+    with pytest.raises(PlanningError, match="at least one base pose"):
+        plan_wash(mesh, {"seen_dirty": [3]}, [], NozzleModel(), default_robot_model())
+
+
+def test_a_spot_on_the_board_side_is_swept_with_its_passes_and_the_twin_ends_clean(bin_case) -> None:  # noqa: ANN001
+    """A powder clump on the wall facing the station: every dirty face gets the required passes
+    by continuous sweeps, and running them in the twin leaves no dirty face."""
+    mesh, T = bin_case
+    nozzle = NozzleModel()
+    field = _spot(mesh, (0.2, -0.37, -0.15), (0.0, -1.0, 0.0))
+    dirty = field.dirty_faces(mesh)
+    assert dirty.sum() >= 3
+    plan = plan_wash(mesh, {"seen_dirty": np.flatnonzero(dirty).tolist()}, [T], nozzle, default_robot_model())
+    assert plan.reason is None and plan.moves and not plan.unwashable
+    assert np.all(plan.passes[dirty] >= nozzle.required_passes)
+    assert plan.targets[dirty].all() and plan.targets.sum() > dirty.sum()  # dilated by the margin
+    for sw in plan.sweeps:
+        assert np.abs(np.diff(sw.q, axis=0)).max(initial=0.0) <= MAX_SWEEP_STEP_RAD
+        jets = sw.T_bin_noz[:, :3, 2]
+        assert np.all(jets @ np.array([0.0, -1.0, 0.0]) < -0.5)  # spraying at the wall, not away from it
+    washed_area = float(mesh.areas[plan.washed].sum())
+    assert washed_area < 0.1 * float(mesh.areas.sum())  # a local wash, not the whole bin
+    wash_in_twin(field, plan, mesh, nozzle)
+    assert not field.dirty_faces(mesh).any()
+
+
+def test_dirt_out_of_reach_is_unwashable_with_the_reason(bin_case) -> None:  # noqa: ANN001
+    """Dirt on the far (+y) outside wall seen from the board-side station only: no motion, and
+    the region is reported unwashable with why."""
+    mesh, T = bin_case
+    field = _spot(mesh, (0.0, 0.37, -0.5), (0.0, 1.0, 0.0))
+    dirty = field.dirty_faces(mesh)
+    assert dirty.any()
+    plan = plan_wash(
+        mesh, {"seen_dirty": np.flatnonzero(dirty).tolist()}, [T], NozzleModel(), default_robot_model(), WashParams()
+    )
+    assert not plan.moves
+    assert plan.unwashable and "no nozzle pose reaches any dirty region" in plan.reason
+    assert any("out of reach" in u.reason or "arm configuration" in u.reason for u in plan.unwashable)
+    assert sum(u.area_m2 for u in plan.unwashable) == pytest.approx(float(mesh.areas[plan.targets].sum()))
+
+
+def test_targets_come_from_face_p_above_the_threshold_or_from_seen_dirty() -> None:
+    """A map with face_p: faces at or above the threshold (unseen ones never); without: seen_dirty."""
+    from cellctl.classify.heatmap import FaceMap
+    from cellctl.washing.targets import dirty_from_map
+
+    p = np.array([0.1, 0.6, 0.5, 0.9, 0.0])
+    seen = np.array([True, True, True, False, True])
+    fm = FaceMap(p=p, seen=seen, dirty=seen & (p >= 0.5), dirty_area_m2=0.0).as_json()
+    got, source = dirty_from_map(fm, 5, 0.55)
+    assert source == "face_p" and got.tolist() == [False, True, False, False, False]
+    got, source = dirty_from_map({"seen_dirty": [2, 4]}, 5, 0.55)
+    assert source == "seen_dirty" and got.tolist() == [False, False, True, False, True]
