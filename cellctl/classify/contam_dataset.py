@@ -11,7 +11,7 @@ pixels. Optics are drawn once per image and applied to its clean and dirty versi
 the label comes from the visible mask at the classifier's input size
 (:func:`~cellctl.classify.contamination.visible_mask`, then
 :func:`~cellctl.classify.sample.label_from_mask`); ambiguous draws are redrawn. The stored mask
-is the visible mask at full size (the detector's patch labels).
+is that visibility brought back to full size (the detector's patch labels).
 
 ``shifted=True`` is the held-out generator (:mod:`cellctl.classify.shifted`): its families,
 optics and lighting are never drawn for training.
@@ -218,5 +218,7 @@ def _draw(
     label = label_from_mask(seen, present=float((alpha >= VISIBLE_ALPHA).mean()))
     if label != "dirty":
         return None
-    vis = visible_mask(dirty_img, clean_img, alpha)
-    return dirty_img, vis, "dirty", {"family": "+".join(picks), "base": base_name, "params": params}
+    # the stored mask (the detector's patch labels) is the low-pass visibility, at full size
+    h, w = dirty_img.shape[:2]
+    vis = (cv2.resize(seen, (w, h), interpolation=cv2.INTER_NEAREST) > 0) & (alpha >= VISIBLE_ALPHA)
+    return dirty_img, vis.astype(np.float32), "dirty", {"family": "+".join(picks), "base": base_name, "params": params}

@@ -61,6 +61,8 @@ __all__ = [
 
 VISIBLE_ALPHA = 0.1
 """Opacity from which a contaminated pixel can count as visible (films are thin: 0.3–0.65)."""
+LOWPASS_SIGMA = 1.0
+"""Blur (px at the model input) before the contrast test of :func:`visible_mask` with ``at_px``."""
 MODEL_INPUT_PX = 128
 """Side of the square the classifiers see; labels judge visibility there (:func:`visible_mask`)."""
 
@@ -347,8 +349,12 @@ def visible_mask(
         def sq(x: np.ndarray) -> np.ndarray:
             return cv2.resize(x, (at_px, at_px), interpolation=cv2.INTER_AREA)
 
-        dirty, clean, alpha = sq(dirty), sq(clean), sq(alpha.astype(np.float32))
-    diff = np.abs(dirty.astype(np.int16) - clean.astype(np.int16)).max(axis=2)
+        # low-pass both: blurring brushed grain moves single pixels by more than the
+        # contrast limit while the image looks the same; what counts is a regional change
+        dirty = cv2.GaussianBlur(sq(dirty).astype(np.float32), (0, 0), LOWPASS_SIGMA)
+        clean = cv2.GaussianBlur(sq(clean).astype(np.float32), (0, 0), LOWPASS_SIGMA)
+        alpha = sq(alpha.astype(np.float32))
+    diff = np.abs(dirty.astype(np.float32) - clean.astype(np.float32)).max(axis=2)
     return ((alpha >= VISIBLE_ALPHA) & (diff >= MIN_CONTRAST)).astype(np.float32)
 
 

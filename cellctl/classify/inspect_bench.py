@@ -10,8 +10,9 @@ and one contamination kind (cycling ``clean``, ``one_spot``, ``many_spots``):
   amount U(0.3, 1)), clumps on both surfaces.
 
 The plan of each surface is made once (fast mode, p_SP 10 %, the sim's nominal parking pose).
-Every planned viewpoint is rendered by the twin at 320×180 (the detector squashes every frame
-to 128², so the full 1280×720 would cost 10× the render time for the same input) from the
+Every planned viewpoint is rendered by the twin at 256×144 (the size of the twin training
+renders; the detector squashes every frame to 128², so the full 1280×720 would cost ~25× the
+render time for the same input) from the
 planned pose jittered by ±1 cm / ±1° as a re-parked robot reaches it, with the cycle's
 lighting; the ID board is masked exactly as the scanning step does; the detector decides; an
 uncertain view is re-looked at from :func:`~cellctl.classify.heatmap.relook_pose` (up to
@@ -41,7 +42,7 @@ __all__ = ["KINDS", "bench_inspect"]
 
 KINDS = ("clean", "one_spot", "many_spots")
 BENCH_BIN = "case_study"
-RENDER_WIDTH = 320
+RENDER_WIDTH = 256
 
 
 def _one_spot(mesh: Any, seen_faces: np.ndarray, rng: np.random.Generator, seed: int) -> Any:
@@ -106,6 +107,7 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
     renderer = SimRenderer(catalog)
     T_world_bin = None
     lat: list[float] = []
+    figures: dict[str, list[str]] = {}
     tot = {k: 0.0 for k in ("tp", "fp", "fn")}
     bins: list[dict[str, Any]] = []
     t0 = time.perf_counter()
@@ -147,8 +149,10 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
             t = time.perf_counter()
             d = det.predict([img])[0]
             lat.append((time.perf_counter() - t) * 1000)
+            shots.append((float(d.heat.max()), img, d.heat))
             return d
 
+        shots: list[tuple[float, np.ndarray, np.ndarray]] = []
         views = []
         labels = []
         uncertain = 0
@@ -203,6 +207,8 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
                 "gt_faces_on_surface": int((gt_seen & on).sum()),
             }
         )
+        if opts.out is not None and kind == "many_spots" and surface not in figures:
+            figures[surface] = _figures(opts.out, surface, i, mesh, fm, gt_seen, shots)
         if (i + 1) % 10 == 0:
             print(f"bench inspect: {i + 1}/{n} cycles, {time.perf_counter() - t0:.0f} s", file=sys.stderr)
 
@@ -261,4 +267,34 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
             "loadavg_1m": round(load[0], 2),
             "torch_threads": 1,
         },
+        "figures": figures,
     }
+
+
+def _figures(out: Any, surface: str, cycle: int, mesh: Any, fm: Any, gt_seen: np.ndarray, shots: list) -> list[str]:
+    """Beside the JSON: the cycle's dirt map (fused probabilities), the truth, and its hottest view
+    with its heat map."""
+    from pathlib import Path
+
+    import cv2
+
+    from cellctl.classify.heatmap import heat_png
+    from cellctl.recording.dirt_map import draw_dirt_map
+
+    base = Path(out)
+    stem = base.with_suffix("").name
+    paths = []
+    dm = fm.as_json()
+    p = draw_dirt_map(mesh, dm, base.with_name(f"{stem}_dirtmap_{surface}.png"), title=f"cycle {cycle} {surface}")
+    paths.append(p.name)
+    truth = {"seen_dirty": np.flatnonzero(gt_seen).tolist(), "seen_clean": []}
+    p = draw_dirt_map(mesh, truth, base.with_name(f"{stem}_truth_{surface}.png"), title=f"cycle {cycle} truth")
+    paths.append(p.name)
+    _, img, heat = max(shots, key=lambda x: x[0])
+    h, w = img.shape[:2]
+    hm = cv2.imdecode(np.frombuffer(heat_png(heat, w, h), np.uint8), cv2.IMREAD_COLOR)
+    pair = np.hstack([cv2.cvtColor(img, cv2.COLOR_RGB2BGR), hm])
+    q = base.with_name(f"{stem}_heat_{surface}.png")
+    cv2.imwrite(str(q), cv2.resize(pair, (pair.shape[1] * 2, pair.shape[0] * 2), interpolation=cv2.INTER_NEAREST))
+    paths.append(q.name)
+    return paths

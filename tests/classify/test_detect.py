@@ -216,3 +216,33 @@ def test_relook_pose_keeps_the_point_in_view_from_another_angle() -> None:
         assert np.allclose(R[:3, :3] @ R[:3, :3].T, np.eye(3), atol=1e-9)
     shifted = relook_pose(T, 0, offset_m=0.03, glance_deg=0.0, depth=0.5)
     assert np.linalg.norm(shifted[:3, 3] - T[:3, 3]) == pytest.approx(0.03)
+
+
+def test_worker_and_cli_answer_with_the_detector(contam: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A models folder with ``external.detect.pt``: the worker's reply carries the heat map and the
+    two part scores; ``cellctl classify --json`` keeps one object per file with ``label``."""
+    import json
+    import shutil
+
+    from cellctl.classify.fusion import train_detector
+    from cellctl.classify.heatmap import decode_heat
+    from cellctl.cli import main
+    from cellctl.messages import ClassifyRequest
+    from cellctl.workers.classifier import ClassifierService
+
+    models = tmp_path / "models"
+    train_detector(contam / "train", "external", models / "external.detect.pt", epochs=1, bank_size=32)
+    img = next((contam / "train" / "external" / "dirty").glob("*.png"))
+    svc = ClassifierService(models, variant="fp32", threads=1)
+    (reply,) = svc.classify([(ClassifyRequest(surface="external", format="png"), img.read_bytes())])
+    assert reply.model_id.startswith("external-detect-") and reply.p_supervised is not None
+    assert decode_heat(reply.heatmap, reply.heat_grid).shape == (16, 16)
+    (refused,) = svc.classify([(ClassifyRequest(surface="internal", format="png"), img.read_bytes())])
+    assert "no model for surface 'internal'" in str(refused)
+    shutil.copy(img, tmp_path / "a.png")
+    rc = main(["classify", str(tmp_path / "a.png"), "--surface", "external", "--json",
+               "--set", f"classifier.models_dir={models}"])
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    assert rc == 0 and len(lines) == 1
+    assert lines[0]["image"].endswith("a.png") and lines[0]["label"] in ("clean", "dirty")
+    assert {"p_dirty", "uncertain", "model_id", "p_supervised", "anomaly_z"} <= set(lines[0])
