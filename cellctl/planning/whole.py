@@ -805,7 +805,8 @@ def plan_whole(
         rng = np.random.default_rng([p0.seed, 17, SURFACES.index(surf)])
         ga = _worthwhile(greedy_area(C, a), C, a, bounds[surf], params.view_min_gain_pct)
         sa = simulated_annealing(C, a, ga, p0.sa_pct, rng, iterations=p0.sa_iterations)
-        chosen_cols = sa.selected
+        chosen_cols = _with_ancestors(sa.selected, owner, local, [e.con[surf].parent for e in chosen_ev])
+        counts[f"chain_added_{surf}"] = len(chosen_cols) - len(sa.selected)
         greedy_n[surf] = len(ga)
         picked[surf] = [np.sort(local[chosen_cols][owner[chosen_cols] == k]) for k in range(len(chosen_ev))]
         seen = visible_area(C, a, chosen_cols)
@@ -930,6 +931,25 @@ def plan_whole(
         times_s=times,
         reason=reason,
     )
+
+
+def _with_ancestors(
+    cols: NDArray[np.int64], owner: NDArray[np.int64], local: NDArray[np.int64], parents: list[NDArray[np.int64]]
+) -> NDArray[np.int64]:
+    """The selection plus every viewpoint on a selected one's chain home (same station).
+
+    A viewpoint joined to home through others is reached by the straight motions of its chain:
+    the cycle visits (and captures at) those viewpoints too, so each of its moves is one the sim
+    arm makes straight.
+    """
+    col_of = {(int(o), int(j)): c for c, (o, j) in enumerate(zip(owner, local, strict=True))}
+    out = {int(c) for c in cols}
+    for c in cols:
+        k, j = int(owner[c]), int(parents[int(owner[c])][int(local[c])])
+        while j >= 0:
+            out.add(col_of[(k, j)])
+            j = int(parents[k][j])
+    return np.array(sorted(out), dtype=np.int64)
 
 
 def _worthwhile(
