@@ -1,0 +1,50 @@
+"""``cellctl bench whole-bin``'s parts: the foreign mesh and the median/worst summary."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cellctl.cli.bench import BENCHES
+from cellctl.planning.bench import _median_worst, foreign_mesh
+
+
+def test_the_foreign_mesh_is_not_shaped_like_the_catalog_bins():
+    m = foreign_mesh()
+    lo, hi = m.vertices.min(axis=0), m.vertices.max(axis=0)
+    size = hi - lo
+    assert size[1] > 2 * size[0]  # long and narrow: the catalog bins are at most 1.5 : 1
+    assert m.internal.any() and (~m.internal).any()
+    assert abs(hi[2]) < 1e-9 and lo[2] < -0.8  # bin frame: origin at the top opening, +Z up
+    assert np.isclose(m.areas.sum(), m.areas[m.internal].sum() + m.areas[~m.internal].sum())
+
+
+def _row(seed, ext, cycle, planning):
+    return {
+        "seed": seed,
+        "stations": 3,
+        "viewpoints": 50 + seed,
+        "planning_s": planning,
+        "planning_cpu_s": planning / 2,
+        "cycle_time_s": cycle,
+        "dropped_unconnected": 0,
+        "unverified_moves": seed % 2,
+        "exact_cover": {"stations": 3, "viewpoints": 40, "proven": seed != 1},
+        "surfaces": {
+            "external": {"area_fraction": ext * 0.9, "bound_fraction": ext, "viewpoints": 30, "reason": None},
+            "internal": {"area_fraction": 0.0, "bound_fraction": 0.0, "viewpoints": 0, "reason": "no internal faces"},
+        },
+    }
+
+
+def test_summary_reports_the_median_and_the_worst_direction_of_each_figure():
+    rows = [_row(0, 0.95, 200.0, 20.0), _row(1, 0.90, 260.0, 35.0), _row(2, 0.93, 210.0, 25.0)]
+    s = _median_worst(rows)
+    assert s["external"]["bound_fraction"] == {"median": 0.93, "worst": 0.90}  # worst coverage = lowest
+    assert s["cycle_time_s"] == {"median": 210.0, "worst": 260.0}  # worst time = highest
+    assert s["planning_s"]["worst"] == 35.0 and s["unverified_moves"]["worst"] == 1
+    assert s["exact_cover_proven"] == 2
+    assert s["internal"] == {"reason": "no internal faces"}
+
+
+def test_bench_whole_bin_is_registered():
+    assert BENCHES["whole-bin"][0] == "cellctl.planning.bench:bench_whole_bin"
