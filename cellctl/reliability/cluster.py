@@ -654,11 +654,11 @@ def burst(cl: Cluster, per_cell: int, timeout: float = 900.0) -> dict[str, Any]:
 def bench_cluster(opts: BenchOptions) -> dict[str, Any]:
     """``cellctl bench cluster``: 3 cells, a 2-worker pool, a PLC host; cycles, jobs, faults, latencies.
 
-    ``--n`` is the replan requests per cell in each burst (default 2). Bounded: every wait has
+    ``--n`` is the replan requests per cell in each burst (default 3). Bounded: every wait has
     a timeout; the burst with 1 worker and with 2 runs on the same plant (a worker is stopped
     for the first), side by side.
     """
-    per_cell = opts.n or 2
+    per_cell = opts.n or 3
     tmp = Path(tempfile.mkdtemp(prefix="cellctl-cluster-"))
     o = ClusterOptions(
         cells=3,
@@ -677,10 +677,15 @@ def bench_cluster(opts: BenchOptions) -> dict[str, Any]:
         rtt = cl.agents["cell1"].call("ack_rtt", n=200, timeout=120)
         # burst with 2 workers, then with 1 (worker 1 stopped) on the same plant
         b2 = burst(cl, per_cell)
+        print(f"cluster: burst, 2 workers: {json.dumps(b2)}", file=sys.stderr)
         Plant.stop(cl.procs.pop("compute/planner1"))
         time.sleep(lease_s + 1)
         b1 = burst(cl, per_cell)
+        print(f"cluster: burst, 1 worker: {json.dumps(b1)}", file=sys.stderr)
         cl.start_worker(1)
+        deadline = time.monotonic() + 120
+        while len(cl.agents["cell1"].call("pool_stats")["workers"]) < 2 and time.monotonic() < deadline:
+            time.sleep(0.5)
         faults = []
         for case, cell in (
             ("link_down", "cell1"),
@@ -690,7 +695,11 @@ def bench_cluster(opts: BenchOptions) -> dict[str, Any]:
         ):
             print(f"cluster: fault {case} on {cell} …", file=sys.stderr)
             faults.append(link_fault(cl, case, cell, lease_s, other="cell3" if case == "link_down" else None))
-        more = {c: a.call("cycle", timeout=300)["outcome"] for c, a in cl.agents.items()}
+            print(f"cluster: {json.dumps(faults[-1])}", file=sys.stderr)
+        more = {}
+        for c, agent in cl.agents.items():  # one more cycle each: every cell still works
+            agent.call("to_idle", timeout=60)
+            more[c] = agent.call("cycle", timeout=300)["outcome"]
         stats = cl.agents["cell1"].call("pool_stats")
         records = records_check(cl)
         cells = []
@@ -715,7 +724,14 @@ def bench_cluster(opts: BenchOptions) -> dict[str, Any]:
             "lease_ms": o.lease_ms,
         },
         "cells": cells,
-        "plans_shared": {r["cell"]: {"first_cycle": r["outcome"], "plan_id": r.get("plan_id")} for r in first},
+        "plans_shared": {
+            r["cell"]: {
+                "first_cycle": r["outcome"],
+                "plan_id": r.get("plan_id"),
+                "job_plan_id": r.get("job", {}).get("plan_id"),
+            }
+            for r in first
+        },
         "jobs": {
             "submitted": stats["submitted"],
             "planned": stats["planned"],

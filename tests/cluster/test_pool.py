@@ -284,3 +284,31 @@ def test_plans_shared_across_cells_same_station_and_robot_only(tmp_path: Path) -
         assert not again.hit and "robot model" in again.reason
     finally:
         pool.close()
+
+
+@pytest.mark.slow
+def test_a_frozen_claimant_loses_its_lease_and_a_late_second_result_is_counted_not_recorded(pool2: Pool) -> None:
+    """SIGSTOP the claimant: re-claimed by the other within lease + 1 s; both finish: one job, planned_twice 1."""
+    pool2.wait_workers(2)
+    job = pool2.submit("cell1", 1.0)
+    pool2.wait_job("cell1", job, ("running",), 30)
+    frozen = pool2.record(job)["claimant"]
+    t = time.monotonic()
+    os.kill(_pid(frozen), signal.SIGSTOP)
+    try:
+        while time.monotonic() < t + LEASE_MS / 1000 + 6:
+            rec = pool2.record(job)
+            if rec["claimant"] not in (None, frozen):
+                break
+            time.sleep(0.05)
+        assert rec["claimant"] not in (None, frozen), rec
+        assert time.monotonic() - t <= LEASE_MS / 1000 + 1.5
+    finally:
+        os.kill(_pid(frozen), signal.SIGCONT)
+    assert pool2.wait_job("cell1", job, ("done", "failed"), 600).state == "done"
+    deadline = time.monotonic() + 600
+    while pool2.stats().planned_twice == 0 and time.monotonic() < deadline:
+        time.sleep(0.5)
+    st = pool2.stats()
+    assert (st.submitted, st.planned, st.planned_twice, st.requeued) == (1, 1, 1, 1)
+    assert sorted(pool2.record(job)["planned_by"]) == sorted(st.workers)
