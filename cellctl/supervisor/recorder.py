@@ -92,7 +92,10 @@ class CycleRecorder(Recorder):
         self.rel = str(rel)
         self.path = cfg.path(rel)
         index.begin(cycle_id, cfg.cell_id, str(self.path), now.isoformat(timespec="milliseconds"))
-        self._log = CycleLog(self.path, cycle_id, {"cell": cfg.cell_id, "mode": mode})
+        # What changes the requests a cycle makes beyond its replies is recorded, so that
+        # replay --verify re-runs the cycle as it ran (logs without it predate re-looks).
+        meta = {"cell": cfg.cell_id, "mode": mode, "relook_max_views": str(cfg.classifier.relook.max_views)}
+        self._log = CycleLog(self.path, cycle_id, meta)
 
     def write_json(self, topic: str, schema: str, obj: dict[str, Any] | bytes) -> None:
         self._log.write_json(topic, schema, obj)

@@ -303,3 +303,51 @@ def test_hold_with_a_classification_in_flight_resumes_and_completes(cfg, cell, p
     assert res.outcome == "completed", res.reason
     assert sorted(v.index for v in res.viewpoints) == list(range(4))
     assert all(v.label == "clean" for v in res.viewpoints)
+
+
+class _UncertainCell(FakeCell):
+    """Every classification uncertain: a cycle with re-looks on would image each viewpoint again."""
+
+    def _classify(self, req, image):  # noqa: ANN001, ANN202
+        return super()._classify(req, image).model_copy(update={"uncertain": True})
+
+
+def test_replay_verify_reruns_a_cycle_with_the_relooks_it_was_recorded_with(cfg, tmp_path) -> None:
+    """A log from before re-looks (or with them off) verifies under a config that has them on."""
+    from cellctl.config import load_config
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.recording.replay import read_cycle, verify
+    from tests.conftest import free_port
+
+    catalog = load_catalog(cfg.path(cfg.catalog))
+    cfg.classifier.relook.max_views = 0
+    cell = build_cell(cfg, identification=(fake_identify, catalog))
+    plc = Plc(cfg)
+    try:
+        with _UncertainCell(cfg) as fake:
+            plc.cmd("reset")
+            plc.wait_state("Idle")
+            plc.cmd("start")
+            plc.wait_state("Complete")
+            res = plc.results.get(timeout=5)
+            assert fake.calls.count("move") == 3  # no re-look moves were made
+    finally:
+        plc.close()
+        cell.close()
+    path = cfg.path(res.log)
+    assert read_cycle(path).metadata["cycle"]["relook_max_views"] == "0"
+    port = free_port()
+    ep = f'["tcp/127.0.0.1:{port}"]'
+    vcfg = load_config(
+        None,
+        [
+            f"bus.listen={ep}",
+            f"bus.connect={ep}",
+            f"recording.dir={tmp_path / 'v'}",
+            f"recording.index={tmp_path / 'v' / 'cells.db'}",
+            "robot.settle_s=0",
+        ],
+    )
+    assert vcfg.classifier.relook.max_views > 0
+    report = verify(path, vcfg, timeout_s=30, identification=(fake_identify, catalog))
+    assert report.ok, report.differences
