@@ -18,6 +18,7 @@ from cellctl.reliability.netns import PREFIX, _ip
 from tests.cluster.netns import cluster_of
 
 
+@pytest.mark.timeout(900)  # a sim cell and a real planning job on 2 shared cores
 def test_replan_job_crosses_the_router_hop(tmp_path: Path) -> None:
     with cluster_of(tmp_path, cells=1, workers=1) as cl:
         bring_up(cl)
@@ -41,6 +42,7 @@ def test_replan_job_crosses_the_router_hop(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(2400)
 def test_three_cells_pool_and_link_faults(tmp_path: Path) -> None:
     """3 cells (cell3 inspects another bin type), 2 workers; link cut, latency/loss, compute router restart."""
     kinds = ("case_study", "case_study", "tote")

@@ -198,6 +198,7 @@ def test_claims_are_leases_a_killed_claimant_requeues_then_fails_visibly(pool2: 
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1500)
 def test_each_job_planned_exactly_once_by_two_workers(pool2: Pool) -> None:
     """Three jobs from two cells, two workers: each planned once, both workers used, records agree."""
     pool2.wait_workers(2)
@@ -256,6 +257,7 @@ def test_unknown_cell_is_refused_by_name(pool2: Pool) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1500)
 def test_plans_shared_across_cells_same_station_and_robot_only(tmp_path: Path) -> None:
     """cell1's plan is found by cell2 at the same pose; not at another pose, not for another robot model."""
     from cellctl.planning.planfile import list_plans, plan_path, write_plan
@@ -287,6 +289,7 @@ def test_plans_shared_across_cells_same_station_and_robot_only(tmp_path: Path) -
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1500)
 def test_a_frozen_claimant_loses_its_lease_and_a_late_second_result_is_counted_not_recorded(pool2: Pool) -> None:
     """SIGSTOP the claimant: re-claimed by the other within lease + 1 s; both finish: one job, planned_twice 1."""
     pool2.wait_workers(2)
