@@ -512,16 +512,19 @@ def _station(
             cand.append((i, np.array(run)))
     counts["candidate_sweeps"] += len(cand)
     cover = [under[ws].any(axis=0) for _, ws in cand]
+    from scipy.sparse import csr_matrix
+
+    M = csr_matrix(np.array(cover, dtype=np.float64)) if cover else None
 
     # greedy multi-cover: each target face gets the passes it still needs
     left = need.copy()
     area = np.zeros(len(need))
     np.add.at(area, fpts.reshape(-1), np.repeat(mesh.areas / 4, 4))  # each point stands for a share of its faces
     chosen: Counter[int] = Counter()
-    while cover:
-        gains = [float(area[cv & (left > 0)].sum()) for cv in cover]
+    while M is not None:
+        gains = M @ (area * (left > 0))
         b = int(np.argmax(gains))
-        if gains[b] <= 0:
+        if gains[b] <= 1e-12:
             break
         chosen[b] += 1
         left[cover[b]] = np.maximum(0, left[cover[b]] - 1)
@@ -537,7 +540,12 @@ def _station(
     D = np.abs(exit_[:, None, :] - entry[None, :, :]).max(axis=2)
     D = np.minimum(D, D.T)
     np.fill_diagonal(D, 0.0)
-    order = two_opt(D, ant_colony(D, np.random.default_rng(p.seed))) if len(sel) > 1 else np.arange(len(sel) + 1)
+    if len(sel) > 1:  # long tours: fewer ants and rounds (the 2-opt repairs what they leave)
+        big = len(sel) > 40
+        rng = np.random.default_rng(p.seed)
+        order = two_opt(D, ant_colony(D, rng, n_ants=20 if big else None, iterations=40 if big else 150))
+    else:
+        order = np.arange(len(sel) + 1)
     out: list[tuple[Sweep, NDArray[np.int64], bool]] = []
     prev = q0
     for node in order[1:]:

@@ -62,22 +62,20 @@ def face_adjacency(mesh: BinMesh) -> list[NDArray[np.int64]]:
 
 
 def dilate(mesh: BinMesh, faces: NDArray[np.bool_], margin_m: float) -> NDArray[np.bool_]:
-    """``faces`` plus every face of the same surface, facing within 90° of one of them, that comes
-    within ``margin_m`` of one (centroids and corners compared, so a face sharing a corner with a
-    dirty face is always added: the powder does not stop at a triangle's edge)."""
+    """``faces`` plus every face of the same surface, facing within 90° of one of them, whose
+    centroid lies within ``margin_m`` of one of them (of its centroid or a corner: the powder
+    runs past a triangle's edge, not to the middle of its neighbour)."""
     out = faces.copy()
     if margin_m <= 0 or not faces.any():
         return out
     from scipy.spatial import cKDTree
 
     src = np.flatnonzero(faces)
-    tri = mesh.vertices[mesh.faces]
-    pts = np.concatenate([mesh.centroids[:, None], tri], axis=1)  # (F, 4, 3)
-    tree = cKDTree(pts[src].reshape(-1, 3))
+    tri = mesh.vertices[mesh.faces[src]]
+    tree = cKDTree(np.concatenate([mesh.centroids[src, None], tri], axis=1).reshape(-1, 3))
     owner = np.repeat(src, 4)
-    near = tree.query_ball_point(pts.reshape(-1, 3), r=margin_m)
-    for k, js in enumerate(near):
-        f = k // 4
+    near = tree.query_ball_point(mesh.centroids, r=margin_m)
+    for f, js in enumerate(near):
         if out[f] or not js:
             continue
         s = owner[np.asarray(js)]

@@ -59,7 +59,7 @@ def test_a_spot_on_the_board_side_is_swept_with_its_passes_and_the_twin_ends_cle
     plan = plan_wash(mesh, {"seen_dirty": np.flatnonzero(dirty).tolist()}, [T], nozzle, default_robot_model())
     assert plan.reason is None and plan.moves and not plan.unwashable
     assert np.all(plan.passes[dirty] >= nozzle.required_passes)
-    assert plan.targets[dirty].all() and plan.targets.sum() > dirty.sum()  # dilated by the margin
+    assert plan.targets[dirty].all()
     for sw in plan.sweeps:
         assert np.abs(np.diff(sw.q, axis=0)).max(initial=0.0) <= MAX_SWEEP_STEP_RAD
         jets = sw.T_bin_noz[:, :3, 2]
@@ -98,3 +98,17 @@ def test_targets_come_from_face_p_above_the_threshold_or_from_seen_dirty() -> No
     assert source == "face_p" and got.tolist() == [False, True, False, False, False]
     got, source = dirty_from_map({"seen_dirty": [2, 4]}, 5, 0.55)
     assert source == "seen_dirty" and got.tolist() == [False, False, True, False, True]
+
+
+def test_dilation_adds_nearby_faces_of_the_same_surface_only(bin_case) -> None:  # noqa: ANN001
+    from cellctl.washing.targets import dilate
+
+    mesh, _ = bin_case
+    field = _spot(mesh, (0.2, -0.37, -0.15), (0.0, -1.0, 0.0))
+    dirty = field.dirty_faces(mesh)
+    assert (dilate(mesh, dirty, 0.0) == dirty).all()
+    wide = dilate(mesh, dirty, 0.08)
+    assert wide.sum() > dirty.sum() and wide[dirty].all()
+    assert set(mesh.surface[wide].tolist()) == {EXTERNAL}
+    d = np.linalg.norm(mesh.centroids[wide & ~dirty] - np.array([0.2, -0.37, -0.15]), axis=1)
+    assert d.max() < 0.04 * 1.8 + 0.08 + 0.08  # clump reach + margin + a triangle
