@@ -74,8 +74,8 @@ def render_whole(plan: WholePlan, mesh: BinMesh, path: str | Path) -> list[Path]
                 ]
             )
             foot = (T @ sq.T)[:3].T
-            z_floor = float(mesh.vertices[:, 2].min())
-            ax.plot(foot[:, 0], foot[:, 1], np.full(len(foot), z_floor), "-", color=colour, lw=2, zorder=12)
+            # the footprint at the arm base's height, where the station's marker is (not at the floor)
+            ax.plot(foot[:, 0], foot[:, 1], np.full(len(foot), T[2, 3]), "-", color=colour, lw=2, zorder=12)
             b = T[:3, 3]
             ax.scatter(*b, color=colour, s=60, marker="s", zorder=13)
             ax.text(b[0], b[1], b[2] + 0.08, f"S{st.rank + 1}", color=colour, fontsize=11, weight="bold", zorder=14)
