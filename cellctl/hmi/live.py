@@ -18,9 +18,10 @@ from pathlib import Path
 from typing import Any
 
 from cellctl.bus import keys, topics
+from cellctl.errors import ClassifierError
 from cellctl.recording.replay import MCAP_MAGIC, RecordedMessage
 
-__all__ = ["LiveCycle", "McapTail"]
+__all__ = ["LiveCycle", "McapTail", "blend_heat"]
 
 _OP_CHANNEL, _OP_MESSAGE, _OP_SCHEMA = 0x04, 0x05, 0x03
 _MAX_READ = 64 << 20
@@ -29,6 +30,34 @@ _MAX_READ = 64 << 20
 def _string(buf: bytes, at: int) -> tuple[str, int]:
     (n,) = struct.unpack_from("<I", buf, at)
     return buf[at + 4 : at + 4 + n].decode("utf-8", "replace"), at + 4 + n
+
+
+def blend_heat(image: bytes | None, heat: bytes) -> bytes:
+    """A heat-map PNG (:func:`cellctl.classify.heatmap.heat_png`) blended over its view's image.
+
+    The detector's grid covers the whole (squashed) image, so stretched to the image's size each
+    patch lies over the pixels it scored. Without a readable image, the heat map alone.
+    """
+    import cv2
+    import numpy as np
+
+    colour = cv2.imdecode(np.frombuffer(heat, np.uint8), cv2.IMREAD_COLOR)
+    base = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_COLOR) if image else None
+    if base is None or colour is None:
+        return heat
+    h, w = base.shape[:2]
+    colour = cv2.resize(colour, (w, h), interpolation=cv2.INTER_NEAREST)
+    ok, buf = cv2.imencode(".png", cv2.addWeighted(base, 0.45, colour, 0.55, 0.0))
+    return buf.tobytes() if ok else heat
+
+
+def _image_bytes(raw: bytes) -> tuple[bytes, str] | None:
+    """A logged CompressedImage message's JSON → its bytes and format."""
+    try:
+        obj = json.loads(raw)
+        return base64.b64decode(obj["data"]), obj.get("format", "png")
+    except (ValueError, KeyError, TypeError):
+        return None
 
 
 class McapTail:
@@ -103,8 +132,13 @@ class LiveCycle:
     image_seq: int = 0
     result: dict[str, Any] | None = None
     messages: int = 0
+    heat: dict[str, Any] | None = None
     _last_image: bytes | None = None
+    _unposed: bytes | None = None  # the newest image until a camera pose says it was a scanning capture
     _decoded: tuple[bytes, str] | None = None
+    _scans: dict[int, bytes] = field(default_factory=dict)  # the last scanning images (raw log JSON) by view n
+    _heat_raw: tuple[int, str, int] | None = None  # (view n, heatmap, heat_grid) of the newest reply that has one
+    _heat_png: tuple[int, bytes] | None = None
 
     def fold(self, m: RecordedMessage) -> None:
         """Update the view with one log message (called by :class:`McapTail`)."""
@@ -112,11 +146,15 @@ class LiveCycle:
         self.messages += 1
         t = m.topic
         if t == topics.CAMERA_IMAGE:
-            self._last_image = m.data  # decoded lazily: only the newest image is shown
+            self._last_image = self._unposed = m.data  # decoded lazily: only the newest image is shown
             self.image_seq += 1
             return
         if t == topics.CAMERA_POSE:
-            self.captured += 1
+            self.captured += 1  # a scanning capture: its image is the one just before (identification has no pose)
+            if self._unposed is not None:
+                self._scans[self.captured], self._unposed = self._unposed, None
+                for n in [n for n in self._scans if n <= self.captured - 8]:
+                    del self._scans[n]  # a classification lags a few views behind at most
             return
         if t == topics.request(keys.robot_op(c, "move")) and self.n_viewpoints is not None:
             self.moves += 1
@@ -133,6 +171,12 @@ class LiveCycle:
             self.n_viewpoints = len(obj.get("viewpoints") or [])
         elif t == topics.reply(keys.classifier_classify(c)):
             if obj.get("type") == "cellctl/ClassifyReply":
+                n = len(self.verdicts) + 1
+                if obj.get("heatmap") and obj.get("heat_grid"):
+                    # the reply, not the /classifier/heatmap image: that one is logged only once the
+                    # scan is over (classifying), the reply as each view's verdict arrives
+                    self._heat_raw = (n, obj["heatmap"], int(obj["heat_grid"]))
+                    self.heat = {"view": n, "seq": n, "label": obj.get("label"), "p_dirty": obj.get("p_dirty")}
                 self.verdicts.append(
                     {
                         "n": len(self.verdicts) + 1,
@@ -153,13 +197,26 @@ class LiveCycle:
         """The newest image's bytes and format, decoded on first request (not on every poll: a
         base64 decode of each frame would hold the GIL the status requests need)."""
         if self._last_image is not None:
-            try:
-                obj = json.loads(self._last_image)
-                self._decoded = (base64.b64decode(obj["data"]), obj.get("format", "png"))
-            except (ValueError, KeyError, TypeError):
-                pass
+            self._decoded = _image_bytes(self._last_image) or self._decoded
             self._last_image = None
         return self._decoded
+
+    def heat_image(self) -> bytes | None:
+        """The newest heat map over its own view's image, as PNG (rendered once per heat map)."""
+        if self._heat_raw is None:
+            return None
+        n, heatmap, grid = self._heat_raw
+        if self._heat_png is None or self._heat_png[0] != n:
+            from cellctl.classify.heatmap import decode_heat, heat_png
+
+            raw = self._scans.get(n)
+            img = _image_bytes(raw) if raw is not None else None
+            try:
+                heat = heat_png(decode_heat(heatmap, grid))
+            except ClassifierError:
+                return None  # a malformed map in the log: the page shows none rather than failing
+            self._heat_png = (n, blend_heat(img[0] if img else None, heat))
+        return self._heat_png[1]
 
     def as_dict(self) -> dict[str, Any]:
         res = self.result or {}
@@ -174,7 +231,7 @@ class LiveCycle:
             "steps_seen": self.steps_seen,
             "verdicts": self.verdicts,
             "image_seq": self.image_seq or None,
-            "heat_map": None,  # the classifier contract (ClassifyReply v1) carries no heat map yet
+            "heat_map": self.heat,
             "outcome": res.get("outcome"),
             "verdict": res.get("verdict"),
             "coverage": res.get("coverage"),

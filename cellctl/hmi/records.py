@@ -7,6 +7,7 @@ logs are only read, and every file served must resolve to a path inside ``record
 
 from __future__ import annotations
 
+import base64
 import datetime as _dt
 import logging
 import re
@@ -62,6 +63,11 @@ def _iso(value: str, name: str, end: bool) -> str:
     except ValueError:
         raise ValueError(f"{name}={value!r} is not a date; expected YYYY-MM-DD or an ISO-8601 time") from None
     return t.astimezone(_dt.UTC).isoformat(timespec="milliseconds")
+
+
+def _scored(result: dict[str, Any] | None) -> list[dict[str, Any]]:
+    """The CycleResult's viewpoints that were captured (in the order of their scanning images)."""
+    return [v for v in (result or {}).get("viewpoints", []) if v.get("error") is None]
 
 
 class CycleRecords:
@@ -191,7 +197,7 @@ class CycleRecords:
         images: list[dict[str, Any]] = []
         c = self.cfg.cell_id
         pending_image: int | None = None
-        n_image = 0
+        n_image = n_heat = 0
         for m in rec.messages:
             if m.topic == topics.CAMERA_IMAGE:
                 pending_image = n_image
@@ -199,12 +205,17 @@ class CycleRecords:
             elif m.topic == topics.CAMERA_POSE and pending_image is not None:
                 images.append({"image": pending_image})  # a scanning capture (identification has no pose)
                 pending_image = None
+            elif m.topic == topics.HEATMAP:
+                n_heat += 1
             elif m.topic == keys.result(c):
                 result = m.json()
-        views = [v for v in (result or {}).get("viewpoints", []) if v.get("error") is None]
-        for img, v in zip(images, views, strict=False):
+        # classifying records one heat map (topics.HEATMAP) per view with a heat_grid, in viewpoint order;
+        # reporting drops the maps themselves from the CycleResult once they are fused per face
+        heat_of = [v for v in _scored(result) if v.get("heat_grid")]
+        heat_n = {id(v): k for k, v in enumerate(heat_of[:n_heat])}
+        for img, v in zip(images, _scored(result), strict=False):
             img.update({"index": v.get("index"), "label": v.get("label"), "p_dirty": v.get("p_dirty"),
-                        "uncertain": v.get("uncertain", False)})  # fmt: skip
+                        "uncertain": v.get("uncertain", False), "heatmap": heat_n.get(id(v))})  # fmt: skip
         out = {"row": self._row_dict(row), "result": result, "images": images, "log": True,
                "truncated": rec.truncated}  # fmt: skip
         with self._lock:
@@ -231,14 +242,27 @@ class CycleRecords:
 
     def image(self, cycle_id: str, n: int) -> tuple[bytes, str]:
         """The ``n``-th image of the cycle's log (0-based, identification images included)."""
-        import base64
-
         rec = self._read(self.log_file(cycle_id))
         imgs = rec.on(topics.CAMERA_IMAGE)
         if not 0 <= n < len(imgs):
             raise NotFound(f"cycle {cycle_id!r} has {len(imgs)} images; image {n} does not exist")
         obj = imgs[n].json()
         return base64.b64decode(obj["data"]), obj.get("format", "png")
+
+    def heat_image(self, cycle_id: str, n: int) -> bytes:
+        """The heat map of the view whose image is the ``n``-th of the log, over that image (PNG).
+
+        Raises:
+            NotFound: no such image, or its view has no heat map in the log.
+        """
+        from cellctl.hmi.live import blend_heat
+
+        d = self.detail(cycle_id)
+        k = next((img.get("heatmap") for img in d["images"] if img["image"] == n), None)
+        if k is None:
+            raise NotFound(f"image {n} of cycle {cycle_id!r} is not a classified view with a heat map")
+        heat = self._read(self.log_file(cycle_id)).on(topics.HEATMAP)[k]
+        return blend_heat(self.image(cycle_id, n)[0], base64.b64decode(heat.json()["data"]))
 
     def dirt_map_png(self, cycle_id: str) -> bytes:
         """The cycle's dirt map drawn on its bin mesh, as PNG bytes (rendered once, the last 32 kept

@@ -150,6 +150,10 @@ class LiveWatcher:
         with self._lock:
             return self.live.image() if self.live is not None else None
 
+    def heat_image(self) -> bytes | None:
+        with self._lock:
+            return self.live.heat_image() if self.live is not None else None
+
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5)
@@ -410,6 +414,14 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
             raise HttpError(404, "no image captured in this cycle yet")
         return Response(img[0], media_type=f"image/{img[1]}", headers={"Cache-Control": "no-store"})
 
+    @app.get("/api/live/heatmap", tags=["cell"])
+    def live_heatmap() -> Response:
+        """The newest classified view's heat map over its image (PNG); rendered in the thread pool."""
+        png = hmi.watcher.heat_image()
+        if png is None:
+            raise HttpError(404, "no heat map classified in this cycle yet")
+        return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})
+
     @app.get("/api/events", tags=["events"])
     async def events(limit: int = 200) -> dict[str, Any]:
         return {"events": hmi.link.events(max(1, min(limit, hc.events_kept)))}
@@ -516,6 +528,12 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
     def cycle_image(cycle_id: str, n: int) -> Response:
         data, fmt = hmi.records.image(cycle_id, n)
         return Response(data, media_type=f"image/{fmt}", headers={"Cache-Control": "max-age=3600"})
+
+    @app.get("/api/cycles/{cycle_id}/heatmaps/{n}", tags=["records"])
+    def cycle_heatmap(cycle_id: str, n: int) -> Response:
+        """The heat map of the view whose image is ``/images/{n}``, over that image (PNG)."""
+        png = hmi.records.heat_image(cycle_id, n)
+        return Response(png, media_type="image/png", headers={"Cache-Control": "max-age=3600"})
 
     @app.get("/api/audit", tags=["records"])
     def audit() -> dict[str, Any]:

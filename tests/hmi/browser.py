@@ -98,6 +98,18 @@ return (async () => {
     return d.execute_script(js, path, body, csrf)
 
 
+def wait_for_heat_maps(d: Any, css: str, timeout: float = 20.0) -> None:
+    """Wait (for a screenshot) until the images ``css`` selects have loaded; a cell whose
+    classifier sends no heat map has none to wait for, so running out of time is not an error."""
+    js = (
+        f"return [...document.querySelectorAll('{css}')]"
+        ".every((i) => i.classList.contains('hidden') || (i.complete && i.naturalWidth > 0));"
+    )
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not d.execute_script(js):
+        time.sleep(0.2)
+
+
 def run_cycle_in_browser(
     d: Any, url: str, user: str, password: str, shots: Path | None = None, cycle_timeout: float = 60.0
 ) -> tuple[str, list[str]]:
@@ -131,6 +143,7 @@ def run_cycle_in_browser(
         wait_until(lambda: d.execute_script(rows) >= 4, cycle_timeout, "the scan under way (4 verdicts)")
         wait_until(lambda: natural_width(d, "lv-img") > 0, 30,
                    "a live image")  # fmt: skip
+        wait_for_heat_maps(d, "#lv-heatimg")
         shot("live_scanning")
     wait_until(lambda: "Complete" in text(d, "lv-outcome"), cycle_timeout, "Cycle live reaching Complete")
     cycle_id = text(d, "lv-cycle")
@@ -146,6 +159,8 @@ def run_cycle_in_browser(
     wait_until(lambda: d.find_elements(By.CSS_SELECTOR, "#dt-views figure img"), 15, "the per-view images")
     views = d.execute_script("return [...document.querySelectorAll('#dt-views figure')].map((f) => f.className);")
     d.execute_script("document.getElementById('detail').scrollIntoView()")
+    if shots is not None:
+        wait_for_heat_maps(d, "#dt-views img")
     shot("history")
     d.get(f"{url}/events")
     wait_until(lambda: d.find_elements(By.CSS_SELECTOR, "#events tr"), 15, "the event list")

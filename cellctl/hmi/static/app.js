@@ -207,7 +207,7 @@ async function sendCommand(body) {
 
 // --- live ------------------------------------------------------------------------------------------
 
-let liveImageSeq = null;
+let liveImageSeq = null, liveHeatSeq = null;
 function renderLive(d) {
   const lv = d.live, st = d.status;
   const box = $("stations");
@@ -236,7 +236,17 @@ function renderLive(d) {
     img.src = `/api/live/image?seq=${lv.image_seq}`;
     img.classList.remove("hidden"); $("lv-noimg").classList.add("hidden");
   }
-  $("lv-heat").textContent = lv.heat_map ? "Heat map shown over the image." : "Heat map: the classifier sends none.";
+  setText("lv-imgcap", lv.captured ? `newest capture (view ${lv.captured})` : "newest capture");
+  const hm = lv.heat_map;
+  const heatKey = hm ? `${lv.cycle_id}:${hm.seq}` : null;
+  if (heatKey !== liveHeatSeq) {
+    liveHeatSeq = heatKey;
+    const himg = $("lv-heatimg");
+    if (hm) himg.src = `/api/live/heatmap?cycle=${encodeURIComponent(lv.cycle_id)}&seq=${hm.seq}`;
+    himg.classList.toggle("hidden", !hm); $("lv-noheat").classList.toggle("hidden", !!hm);
+  }
+  $("lv-heat").textContent = hm ? `heat map of view ${hm.view} over its image: ${hm.label || "—"}${hm.p_dirty != null ? ` p=${hm.p_dirty.toFixed(2)}` : ""} (black clean → yellow dirty)`
+    : "Heat map: none yet.";
   $("lv-views").replaceChildren(...lv.verdicts.map((v) => el("tr", {}, el("td", {}, v.n),
     el("td", { class: v.label === "dirty" ? "verdict-dirty" : "" }, v.label || `error: ${v.error || "?"}`),
     el("td", {}, v.p_dirty == null ? "—" : v.p_dirty.toFixed(3)))));
@@ -306,6 +316,7 @@ async function openCycle(id) {
   } else { $("dt-nodirt").textContent = "no dirt map"; }
   $("dt-views").replaceChildren(...d.images.map((v) => el("figure", { class: "thumb" + (v.label === "dirty" ? " dirty" : "") },
     el("img", { src: `/api/cycles/${encodeURIComponent(id)}/images/${v.image}`, alt: `view ${v.index}`, loading: "lazy" }),
+    ...(v.heatmap != null ? [el("img", { src: `/api/cycles/${encodeURIComponent(id)}/heatmaps/${v.image}`, alt: `heat map of view ${v.index}`, loading: "lazy" })] : []),
     el("figcaption", {}, `view ${v.index ?? "?"}: ${v.label || "—"}${v.p_dirty != null ? ` p=${v.p_dirty.toFixed(2)}` : ""}`))));
   if (!d.images.length) $("dt-views").append(el("p", { class: "muted" }, "no scanning images in this cycle"));
 }
