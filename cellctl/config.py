@@ -132,7 +132,7 @@ class UrFaultPolicy(_Model):
     """What the UR backend treats as a fault (reported, token withdrawn, motion stopped)."""
 
     reduced_mode: StrictBool = Field(default=True, description="reduced (safety-scaled) mode is a fault")
-    data_stale_ms: float = Field(default=60.0, gt=0, le=1000, description="no fresh RTDE data this long: a fault")
+    data_stale_ms: float = Field(default=90.0, gt=0, le=5000, description="no fresh RTDE data this long: a fault")
     monitor_hz: float = Field(default=100.0, ge=20, le=500, description="safety/joint poll rate of the worker")
     watchdog_hz: float = Field(default=10.0, ge=1, le=500, description="controller stops the program below this")
 
@@ -221,7 +221,7 @@ class VerdictConfig(_Model):
     )
     face_threshold: float = Field(default=0.5, gt=0, lt=1, description="a face is dirty at this fused probability")
     min_dirty_area_cm2: float = Field(default=0.0, ge=0, description="faces rule: dirty only above this dirty area")
-    face_prior: float = Field(default=0.02, gt=0, lt=1, description="prior dirt probability of a face")
+    face_prior: float = Field(default=0.1, gt=0, lt=1, description="prior dirt probability of a face")
 
 
 class RelookConfig(_Model):

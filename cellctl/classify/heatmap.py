@@ -143,7 +143,7 @@ class FaceFusion:
     """
 
     n_faces: int
-    prior: float = 0.02
+    prior: float = 0.1
     llr: NDArray[np.float64] = field(init=False)
     views: NDArray[np.int32] = field(init=False)
 
@@ -259,7 +259,7 @@ def face_probabilities(dirt_map: dict[str, Any], n_faces: int) -> NDArray[np.flo
 
 
 def fuse_views(
-    views: list[ViewEvidence], mesh: Any, intrinsics: Any, *, prior: float = 0.02, face_threshold: float = 0.5
+    views: list[ViewEvidence], mesh: Any, intrinsics: Any, *, prior: float = 0.1, face_threshold: float = 0.5
 ) -> FaceMap:
     """All views of a cycle → per-face dirt probability (:class:`FaceFusion`) and dirty faces."""
     fusion = FaceFusion(mesh.n_faces, prior)
