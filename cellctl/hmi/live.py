@@ -136,9 +136,10 @@ class LiveCycle:
     _last_image: bytes | None = None
     _unposed: bytes | None = None  # the newest image until a camera pose says it was a scanning capture
     _decoded: tuple[bytes, str] | None = None
-    _scans: dict[int, bytes] = field(default_factory=dict)  # the last scanning images (raw log JSON) by view n
+    _scans: dict[int, bytes] = field(default_factory=dict)  # the last classified images (raw log JSON) by verdict n
     _heat_raw: tuple[int, str, int] | None = None  # (view n, heatmap, heat_grid) of the newest reply that has one
     _heat_png: tuple[int, bytes] | None = None
+    _classify_requests: int = 0
 
     def fold(self, m: RecordedMessage) -> None:
         """Update the view with one log message (called by :class:`McapTail`)."""
@@ -155,6 +156,12 @@ class LiveCycle:
                 self._scans[self.captured], self._unposed = self._unposed, None
                 for n in [n for n in self._scans if n <= self.captured - 8]:
                     del self._scans[n]  # a classification lags a few views behind at most
+            return
+        if t == topics.request(keys.classifier_classify(c)):
+            self._classify_requests += 1
+            if self._classify_requests > self.captured and self._unposed is not None:
+                # a re-look (classifying): its image has no pose and goes to the classifier at once
+                self._scans[self._classify_requests], self._unposed = self._unposed, None
             return
         if t == topics.request(keys.robot_op(c, "move")) and self.n_viewpoints is not None:
             self.moves += 1

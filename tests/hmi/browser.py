@@ -162,6 +162,10 @@ def run_cycle_in_browser(
     if shots is not None:
         wait_for_heat_maps(d, "#dt-views img")
     shot("history")
+    d.execute_script("document.getElementById('dt-views').previousElementSibling.scrollIntoView()")
+    if shots is not None:
+        wait_for_heat_maps(d, "#dt-views img")
+    shot("history_views")
     d.get(f"{url}/events")
     wait_until(lambda: d.find_elements(By.CSS_SELECTOR, "#events tr"), 15, "the event list")
     shot("events")

@@ -17,7 +17,8 @@ GRID = 4
 
 @dataclass
 class _HeatCell(FakeCell):
-    """View 0 is dirty in its top-left patch, view 1 comes without a heat map, view 2 is clean."""
+    """View 0 is dirty in its top-left patch, view 1 comes without a heat map, view 2 is clean but
+    uncertain, and its re-look (the 4th classification) is hot in the bottom-right patch."""
 
     def _classify(self, req: ClassifyRequest, image: bytes | None) -> ClassifyReply:
         self._guard("classify")
@@ -27,9 +28,12 @@ class _HeatCell(FakeCell):
         heat = np.zeros((GRID, GRID))
         if n == 0:
             heat[0, 0] = 1.0
+        if n == 3:
+            heat[-1, -1] = 1.0
         return ClassifyReply(
             label="dirty" if n == 0 else "clean",
-            p_dirty=0.9 if n == 0 else 0.1,
+            p_dirty=0.9 if n == 0 else 0.4,
+            uncertain=n == 2,
             model_id="fake-heat",
             heatmap=encode_heat(heat),
             heat_grid=GRID,
@@ -61,15 +65,15 @@ def test_heat_maps_show_live_and_in_the_record(cfg, cell, hmi, client: Client) -
         client.wait_state("Complete")
     cid = client.get("/api/cycles").json()["cycles"][0]["cycle_id"]
 
-    # Cycle live: the newest heat map (view 3), blended over that view's own image (the doubles' 64×48 grey)
+    # Cycle live: the newest heat map (the re-look's, verdict #4), blended over the re-look's own
+    # image (the doubles' 64×48 grey), hot where the detector put it
     lv = client.get("/api/live").json()["live"]
-    assert lv["cycle_id"] == cid
-    hm = lv["heat_map"]
-    assert hm == {"view": 3, "seq": 3, "label": "clean", "p_dirty": 0.1}
+    assert lv["cycle_id"] == cid and len(lv["verdicts"]) == 4
+    assert lv["heat_map"] == {"view": 4, "seq": 4, "label": "clean", "p_dirty": 0.4}
     live = _png(client.get("/api/live/heatmap").body)
     assert live.shape == (48, 64, 3)
-    hot, cold = _hot_corner(live)
-    assert abs(hot - cold) < 1.0  # a clean heat map: no patch stands out
+    top_left, bottom_right = _hot_corner(live)
+    assert bottom_right > top_left + 60, (top_left, bottom_right)
     page = client.get("/live").body
     assert b'id="lv-heatimg"' in page
 
@@ -77,7 +81,12 @@ def test_heat_maps_show_live_and_in_the_record(cfg, cell, hmi, client: Client) -
     rec = client.get(f"/api/cycles/{cid}/record").json()
     # (the CycleResult keeps heat_grid; the maps themselves are the log's /classifier/heatmap images)
     res = client.get(f"/api/cycles/{cid}").json()
-    assert [v["heat_grid"] for v in res["viewpoints"]] == [GRID, None, GRID]
+    assert [(v["heat_grid"], v["relook_of"]) for v in res["viewpoints"]] == [
+        (GRID, None),
+        (None, None),
+        (GRID, None),
+        (GRID, 2),
+    ]
     assert [(i["label"], i["heatmap"]) for i in rec["images"]] == [("dirty", 0), ("clean", None), ("clean", 1)]
     dirty = _png(client.get(f"/api/cycles/{cid}/heatmaps/{rec['images'][0]['image']}").body)
     assert dirty.shape == (48, 64, 3)

@@ -236,7 +236,6 @@ function renderLive(d) {
     img.src = `/api/live/image?seq=${lv.image_seq}`;
     img.classList.remove("hidden"); $("lv-noimg").classList.add("hidden");
   }
-  setText("lv-imgcap", lv.captured ? `newest capture (view ${lv.captured})` : "newest capture");
   const hm = lv.heat_map;
   const heatKey = hm ? `${lv.cycle_id}:${hm.seq}` : null;
   if (heatKey !== liveHeatSeq) {
@@ -245,7 +244,7 @@ function renderLive(d) {
     if (hm) himg.src = `/api/live/heatmap?cycle=${encodeURIComponent(lv.cycle_id)}&seq=${hm.seq}`;
     himg.classList.toggle("hidden", !hm); $("lv-noheat").classList.toggle("hidden", !!hm);
   }
-  $("lv-heat").textContent = hm ? `heat map of view ${hm.view} over its image: ${hm.label || "—"}${hm.p_dirty != null ? ` p=${hm.p_dirty.toFixed(2)}` : ""} (black clean → yellow dirty)`
+  $("lv-heat").textContent = hm ? `heat map of verdict #${hm.view} over its image: ${hm.label || "—"}${hm.p_dirty != null ? ` p=${hm.p_dirty.toFixed(2)}` : ""} (black clean → yellow dirty)`
     : "Heat map: none yet.";
   $("lv-views").replaceChildren(...lv.verdicts.map((v) => el("tr", {}, el("td", {}, v.n),
     el("td", { class: v.label === "dirty" ? "verdict-dirty" : "" }, v.label || `error: ${v.error || "?"}`),
