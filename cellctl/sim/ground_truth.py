@@ -96,9 +96,9 @@ class PowderField:
     def remaining(self, pts: NDArray[np.float64], normals: NDArray[np.float64] | None) -> NDArray[np.float64]:
         """(M,) fraction of the powder left at surface points after the passes run so far.
 
-        A point is under a pass when it lies within the footprint radius of the spot's path
-        (the path sampled every radius/4) and its face meets the jet within the incidence
-        limit (so the other side of a wall is not washed through it).
+        A point is under a pass when it lies within the footprint radius of the jet's axis at
+        some sample of the spot's path (sampled every radius/4) and its face meets the jet within
+        the incidence limit (so the other side of a wall is not washed through it).
         """
         out = np.ones(len(pts))
         if not self.washes or len(pts) == 0:
@@ -114,15 +114,19 @@ class PowderField:
                 f = [np.arange(k) / k for k in n]
                 S = np.concatenate([S[i] + (S[i + 1] - S[i]) * f[i][:, None] for i in range(len(n))] + [S[-1:]])
                 A = np.concatenate([np.repeat(A[i : i + 1], n[i], 0) for i in range(len(n))] + [A[-1:]])
-            hits = tree.query_ball_point(S, r=sp.radius)
+            # the jet is a cylinder of the footprint's radius around its axis: on a face it meets
+            # obliquely the footprint stretches by 1/cos(incidence), so search that far from the spot
+            hits = tree.query_ball_point(S, r=sp.radius / max(sp.cos_incidence, 0.2))
             owner = np.concatenate([np.full(len(h), j) for j, h in enumerate(hits)]).astype(np.int64)
             idx = np.concatenate([np.asarray(h, np.int64) for h in hits])
             if len(idx) == 0:
                 continue
+            v = pts[idx] - S[owner]
+            along = np.einsum("ij,ij->i", v, A[owner])
+            ok = np.linalg.norm(v - along[:, None] * A[owner], axis=1) <= sp.radius
             if normals is not None:
-                ok = -np.einsum("ij,ij->i", normals[idx], A[owner]) >= sp.cos_incidence
-                idx = idx[ok]
-            out[np.unique(idx)] *= 1.0 - sp.removal
+                ok &= -np.einsum("ij,ij->i", normals[idx], A[owner]) >= sp.cos_incidence
+            out[np.unique(idx[ok])] *= 1.0 - sp.removal
         return out
 
     @classmethod

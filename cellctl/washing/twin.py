@@ -36,7 +36,10 @@ def spray_passes(plan: WashPlan, mesh: BinMesh, nozzle: NozzleModel) -> list[Spr
         ok = (dist >= near * 0.999) & (dist <= far * 1.001)
         if not ok.any():
             continue
-        spots, ax, d = tips[ok] + dist[ok, None] * axes[ok], axes[ok], dist[ok]
+        # a pose whose jet axis passes just beyond an edge still washes the edge with the rest of
+        # its cylinder: its spot sample sits at the sweep's typical stand-off
+        d = np.where(ok, dist, float(np.median(dist[ok])))
+        spots, ax = tips + d[:, None] * axes, axes
         radius = float(np.min(nozzle.spot_radius(d)))
         cos_inc = math.cos(math.radians(nozzle.max_incidence_deg))
         for k in range(sw.passes):
