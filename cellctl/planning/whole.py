@@ -56,6 +56,7 @@ __all__ = [
     "WholePlan",
     "connect",
     "plan_whole",
+    "read_whole",
     "whole_path",
     "write_whole",
 ]
@@ -304,6 +305,84 @@ def write_whole(plan: WholePlan, plans_dir: Any, path: Any = None) -> Any:
             if p.viewpoints:  # an empty station share is skipped by the cycle, not looked up
                 write_plan(p, plan_path(plans_dir, p))
     return write_document(plan.to_json(), path if path is not None else whole_path(plans_dir, plan))
+
+
+def read_whole(path: Any, plans_dir: Any) -> WholePlan:
+    """A whole plan from its record and the station plans in the cache (for pictures and readers).
+
+    Raises:
+        PlanCacheError: the record or a station plan is damaged, missing or not a whole plan.
+    """
+    from pathlib import Path
+
+    from cellctl.errors import PlanCacheError
+    from cellctl.geometry.transforms import transform_from_xyz_rpy
+    from cellctl.planning.planfile import read_document, read_plan
+
+    d = read_document(path)
+    if d.get("format") != WHOLE_FORMAT:
+        raise PlanCacheError(f"{path} is not a whole-bin plan (format {d.get('format')!r}, expected {WHOLE_FORMAT!r})")
+    t = d["timing_model"]
+    params = WholeParams(
+        plan=PlanParams(seed=int(d["seed"]), seed_pct=float(d["seed_pct"])),
+        timing=TimingModel(settle_s=t["settle_s"], capture_s=t["capture_s"], speed_fraction=t["speed_fraction"]),
+    )
+    stations = []
+    for st in d["stations"]:
+        plans = {
+            surf: read_plan(Path(plans_dir) / d["bin_type"] / surf / f"{pid}.json")
+            for surf, pid in st["plans"].items()
+            if st["viewpoints"].get(surf)
+        }
+        ident = st["identify"]
+        stations.append(
+            StationPlan(
+                rank=st["rank"],
+                candidate=st["candidate"],
+                angle_deg=st["angle_deg"],
+                T_bin_base=np.array(st["T_bin_base"]),
+                identify_T_bin_cam=None if ident is None else np.array(ident["T_bin_cam"]),
+                identify_q=None if ident is None else np.array(ident["q"]),
+                identify_reason=st["identify_reason"],
+                plans=plans,
+                motion_s=st["motion_s"],
+                cycle_s=st["cycle_s"],
+            )
+        )
+    z = float(stations[0].T_bin_base[2, 3]) if stations else 0.0
+    cands = tuple(
+        Candidate(
+            index=c["candidate"],
+            angle_deg=c["angle_deg"],
+            T_bin_base=transform_from_xyz_rpy([*c["xy_m"], z], [0.0, 0.0, np.radians(c["angle_deg"]) + np.pi]),
+            reason=c["reason"],
+            ring_xy=np.array(c["xy_m"]),
+        )
+        for c in d["candidates"]
+    )
+    surfaces = {
+        k: SurfaceSummary(v["area_m2"], v["bound_m2"], v["seen_m2"], v["viewpoints"], v["reachable_m2"], v["reason"])
+        for k, v in d["surfaces"].items()
+    }
+    ex = d["exact_cover"]
+    return WholePlan(
+        plan_id=d["plan_id"],
+        created=d["created"],
+        bin_type=d["bin_type"],
+        mesh_sha256=d["mesh_sha256"],
+        robot_model_id=d["robot_model_id"],
+        params=params,
+        stations=tuple(stations),
+        candidates=cands,
+        surfaces=surfaces,
+        counts=d["counts"],
+        exact=None if ex is None else StationCover(ex["stations"], ex["viewpoints"], ex["proven"], ex["seconds"]),
+        station_scores=d["station_scores"],
+        base_moves_s=d["base_moves_s"],
+        cycle_time_s=d["cycle_time_s"],
+        times_s=d["times_s"],
+        reason=d["reason"],
+    )
 
 
 # --- connection --------------------------------------------------------------------------

@@ -227,3 +227,14 @@ def test_plan_whole_cli_on_any_mesh_prints_the_issue_json(tmp_path, capsys):
     assert len(list((tmp_path / "plans").glob("*/external/*.json"))) == len(j["stations"])
     assert main(["plan", "--mesh", str(mesh_file), "--whole", "--base", "0 -1 0 90"]) == 2
     assert "drop --base" in capsys.readouterr().err
+
+
+def test_whole_record_and_station_plans_read_back_the_same(whole, tmp_path):
+    from cellctl.planning.whole import read_whole, write_whole
+
+    path = write_whole(whole, tmp_path)
+    back = read_whole(path, tmp_path)
+    assert back.to_json() == json.loads(json.dumps(whole.to_json()))
+    for a, b in zip(whole.stations, back.stations, strict=True):
+        for surf, p in b.plans.items():
+            assert p.to_json() == a.plans[surf].to_json()
