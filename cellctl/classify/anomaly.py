@@ -4,9 +4,10 @@ Patch features come from the frozen ImageNet EfficientNet-Lite0 the project ship
 (:func:`cellctl.classify.nets.lite0_imagenet_path`), tapped at three depths and brought to one
 grid (:class:`PatchFeatures`): blocks 0–1 (24 ch, stride 4, average-pooled ×2), blocks 2–4
 (40 ch, stride 8) and blocks 5–10 (112 ch, stride 16, upsampled ×2) — 176 channels on a 16×16
-grid at 128 px input (after grey-world colour normalisation), each smoothed over its 3×3 neighbourhood (PatchCore's local
-aggregation) and standardised with the clean training patches' channel statistics. The deeper
-blocks 11–15 are never run: the decision needs mid-level texture, not object classes.
+grid at 128 px input (after grey-world colour normalisation), each smoothed over its 3×3
+neighbourhood (PatchCore's local aggregation) and standardised with the clean training
+patches' channel statistics. The deeper blocks 11–15 are never run: the decision needs
+mid-level texture, not object classes.
 
 :class:`MemoryBank` keeps a greedy k-centre coreset of the clean training patches of one
 surface (PatchCore, Roth et al. 2022; anomalib's ``KCenterGreedy`` is the reference) and scores

@@ -135,7 +135,9 @@ def _film(h: int, w: int, rng: np.random.Generator) -> Layer:
     strength = float(rng.uniform(0.3, 0.65))
     alpha = region * strength * (0.8 + 0.2 * fbm((h, w), rng, 2, 8))
     tint = np.array([0.85, 0.86, 0.88], np.float32) * rng.uniform(0.85, 1.1, 3).astype(np.float32)
-    return Layer(alpha.astype(np.float32), _const(h, w, np.clip(tint, 0, 1)), "film", "film", {"cover": round(cover, 3)})
+    return Layer(
+        alpha.astype(np.float32), _const(h, w, np.clip(tint, 0, 1)), "film", "film", {"cover": round(cover, 3)}
+    )
 
 
 def _streak(h: int, w: int, rng: np.random.Generator) -> Layer:
@@ -346,6 +348,7 @@ def visible_mask(
             "visible" to it, and labelling it dirty would only teach noise. None = as given.
     """
     if at_px is not None:
+
         def sq(x: np.ndarray) -> np.ndarray:
             return cv2.resize(x, (at_px, at_px), interpolation=cv2.INTER_AREA)
 

@@ -133,7 +133,12 @@ class Detector:
         sl, sb = self.platt_sup
         p_sup = _sig(sl * s.double().numpy().reshape(len(z), -1).max(1) + sb)
         amax = a.double().numpy().reshape(len(z), -1).max(1)
-        return {"heat": _sig(z).astype(np.float32), "p": p, "p_sup": p_sup, "anom_z": (amax - self.anom_ref[0]) / self.anom_ref[1]}
+        return {
+            "heat": _sig(z).astype(np.float32),
+            "p": p,
+            "p_sup": p_sup,
+            "anom_z": (amax - self.anom_ref[0]) / self.anom_ref[1],
+        }
 
     def tensor(self, images: list[NDArray[np.uint8]]) -> torch.Tensor:
         return torch.from_numpy(np.stack([prepare(im, INPUT_SIZE) for im in images]))
@@ -199,7 +204,12 @@ class Detector:
             if card.get("sha256") not in (None, sha):
                 raise ClassifierError(f"model card {str(cp)!r} belongs to other weights than {p.name}")
         try:
-            det = Detector(features if features is not None else fast_features(), blob, f"{blob['surface']}-detect-{sha[:12]}", card)
+            det = Detector(
+                features if features is not None else fast_features(),
+                blob,
+                f"{blob['surface']}-detect-{sha[:12]}",
+                card,
+            )
         except (KeyError, RuntimeError, TypeError) as err:
             raise ClassifierError(f"{str(p)!r} is not a usable detector file: {err}") from err
         return det
@@ -290,7 +300,9 @@ def _fit_logistic(x: np.ndarray, y: np.ndarray, weight: np.ndarray | None = None
     return w.detach().numpy()
 
 
-def _train_head(f: torch.Tensor, y_patch: np.ndarray, w_patch: np.ndarray, mean, std, seed: int, epochs: int) -> nn.Module:
+def _train_head(
+    f: torch.Tensor, y_patch: np.ndarray, w_patch: np.ndarray, mean, std, seed: int, epochs: int
+) -> nn.Module:
     torch.manual_seed(seed)
     head = _head()
     opt = torch.optim.AdamW(head.parameters(), lr=2e-3, weight_decay=1e-4)

@@ -168,7 +168,9 @@ class FaceFusion:
         return self.views > 0
 
 
-def relook_pose(T_cam: NDArray[np.float64], k: int, offset_m: float, glance_deg: float, depth: float) -> NDArray[np.float64]:
+def relook_pose(
+    T_cam: NDArray[np.float64], k: int, offset_m: float, glance_deg: float, depth: float
+) -> NDArray[np.float64]:
     """The ``k``-th re-look pose near camera pose ``T_cam`` (any frame; optical +Z forward).
 
     The camera swings by ``glance_deg`` about the point ``depth`` m ahead of it (about its own

@@ -70,8 +70,18 @@ def _dirty_faces(field: Any, mesh: Any, threshold: float = 0.5) -> np.ndarray:
     tests centroid and corners only, which misses a 1–2 cm spot inside a large triangle."""
     tri = mesh.vertices[mesh.faces]
     c = tri.mean(axis=1)
-    pts = [tri[:, 0], tri[:, 1], tri[:, 2], (tri[:, 0] + tri[:, 1]) / 2, (tri[:, 1] + tri[:, 2]) / 2,
-           (tri[:, 2] + tri[:, 0]) / 2, c, (c + tri[:, 0]) / 2, (c + tri[:, 1]) / 2, (c + tri[:, 2]) / 2]
+    pts = [
+        tri[:, 0],
+        tri[:, 1],
+        tri[:, 2],
+        (tri[:, 0] + tri[:, 1]) / 2,
+        (tri[:, 1] + tri[:, 2]) / 2,
+        (tri[:, 2] + tri[:, 0]) / 2,
+        c,
+        (c + tri[:, 0]) / 2,
+        (c + tri[:, 1]) / 2,
+        (c + tri[:, 2]) / 2,
+    ]
     k = len(pts)
     a = field.alpha(np.concatenate(pts), np.tile(mesh.surface, k), np.tile(mesh.normals, (k, 1))).reshape(k, -1)
     return (a > threshold).any(axis=0)
@@ -115,8 +125,9 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
     plans = {}
     for s in SURFACES:
         print(f"bench inspect: planning {s}", file=sys.stderr)
-        plan = make_plan(mesh, T_bin_base, PlanParams(surface=s, seed_pct=10, mode="fast", seed=opts.seed), robot,
-                         bin_type=BENCH_BIN)
+        plan = make_plan(
+            mesh, T_bin_base, PlanParams(surface=s, seed_pct=10, mode="fast", seed=opts.seed), robot, bin_type=BENCH_BIN
+        )
         plans[s] = plan
     renderer = SimRenderer(catalog)
     T_world_bin = None
@@ -150,7 +161,18 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
 
         T_world_bin = Scenario(bin_type=BENCH_BIN).T_world_bin(bt)
 
-        def look(T_bin_cam: np.ndarray, k: int) -> Any:
+        shots: list[tuple[float, np.ndarray, np.ndarray]] = []
+
+        def look(  # the cycle's scene bound as defaults: each cycle's closure uses its own
+            T_bin_cam: np.ndarray,
+            k: int,
+            field: Any = field,
+            rp: Any = rp,
+            pseed: int = pseed,
+            det: Any = det,
+            shots: list = shots,
+            T_world_bin: np.ndarray = T_world_bin,
+        ) -> Any:
             # the renderer's private entry point takes a PowderField directly: the one-spot
             # field is not one of its seeded scenarios
             out = renderer._render(
@@ -166,7 +188,6 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
             shots.append((float(d.heat.max()), img, d.heat))
             return d
 
-        shots: list[tuple[float, np.ndarray, np.ndarray]] = []
         views = []
         labels = []
         uncertain = 0
@@ -276,7 +297,9 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
             "bin": BENCH_BIN,
             "seed": opts.seed,
             "render_px": [intr.width, intr.height],
-            "plans": {s: {"viewpoints": len(p.viewpoints), "coverage": round(float(p.coverage), 4)} for s, p in plans.items()},
+            "plans": {
+                s: {"viewpoints": len(p.viewpoints), "coverage": round(float(p.coverage), 4)} for s, p in plans.items()
+            },
             "models": {s: d.model_id for s, d in dets.items()},
             "seconds": round(time.perf_counter() - t0, 1),
             "loadavg_1m": round(load[0], 2),

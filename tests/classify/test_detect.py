@@ -9,9 +9,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from cellctl.classify.contamination import FAMILIES, closeup_steel, composite, draw_family, optics, Optics, visible_mask
+from cellctl.classify.contamination import FAMILIES, Optics, closeup_steel, composite, draw_family, optics, visible_mask
 from cellctl.classify.heatmap import (
     FaceFusion,
+    ViewEvidence,
     decode_heat,
     encode_heat,
     face_probabilities,
@@ -19,7 +20,6 @@ from cellctl.classify.heatmap import (
     project_heat,
     relook_pose,
     verdict,
-    ViewEvidence,
 )
 from cellctl.classify.shifted import HELD_OUT_FAMILIES
 from cellctl.errors import ClassifierError
@@ -240,8 +240,17 @@ def test_worker_and_cli_answer_with_the_detector(contam: Path, tmp_path: Path, c
     (refused,) = svc.classify([(ClassifyRequest(surface="internal", format="png"), img.read_bytes())])
     assert "no model for surface 'internal'" in str(refused)
     shutil.copy(img, tmp_path / "a.png")
-    rc = main(["classify", str(tmp_path / "a.png"), "--surface", "external", "--json",
-               "--set", f"classifier.models_dir={models}"])
+    rc = main(
+        [
+            "classify",
+            str(tmp_path / "a.png"),
+            "--surface",
+            "external",
+            "--json",
+            "--set",
+            f"classifier.models_dir={models}",
+        ]
+    )
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
     assert rc == 0 and len(lines) == 1
     assert lines[0]["image"].endswith("a.png") and lines[0]["label"] in ("clean", "dirty")

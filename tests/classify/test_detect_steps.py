@@ -30,8 +30,14 @@ HOT[4:8, 4:8] = 0.9
 
 def _reply(label: str, p: float, uncertain: bool = False) -> ClassifyReply:
     return ClassifyReply(
-        label=label, p_dirty=p, uncertain=uncertain, model_id="external-detect-x", p_supervised=p, anomaly_z=1.0,
-        heatmap=encode_heat(HOT), heat_grid=16,
+        label=label,
+        p_dirty=p,
+        uncertain=uncertain,
+        model_id="external-detect-x",
+        p_supervised=p,
+        anomaly_z=1.0,
+        heatmap=encode_heat(HOT),
+        heat_grid=16,
     )
 
 
@@ -49,10 +55,18 @@ def cfg():  # noqa: ANN201
 
 
 def _ctx(cfg, max_views: int):  # noqa: ANN001, ANN202
-    cfg = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(
-        update={"relook": cfg.classifier.relook.model_copy(update={"max_views": max_views})})})
-    ctx = context(cfg, log=ListRecorder(),
-                  viewpoints=[ViewpointResult(index=0, camera_pose=CAM_POSE), ViewpointResult(index=1, camera_pose=CAM_POSE)])
+    cfg = cfg.model_copy(
+        update={
+            "classifier": cfg.classifier.model_copy(
+                update={"relook": cfg.classifier.relook.model_copy(update={"max_views": max_views})}
+            )
+        }
+    )
+    ctx = context(
+        cfg,
+        log=ListRecorder(),
+        viewpoints=[ViewpointResult(index=0, camera_pose=CAM_POSE), ViewpointResult(index=1, camera_pose=CAM_POSE)],
+    )
     ctx.classifications = {0: _done(_reply("clean", 0.05)), 1: _done(_reply("dirty", 0.55, uncertain=True))}
     return ctx
 
@@ -86,14 +100,18 @@ def test_relook_off_asks_the_robot_nothing(cfg) -> None:  # noqa: ANN001
 
 def test_view_evidence_uses_the_reached_pose_in_the_bin_frame() -> None:
     plan = PlanLookupReply(
-        hit=True, plan_id="p", mesh_faces=10,
+        hit=True,
+        plan_id="p",
+        mesh_faces=10,
         viewpoints=[PlannedViewpoint(index=0, camera_pose=CAM_POSE, joints=[0.0] * 6, faces=[1, 2])],
     )
     T_base_bin = np.eye(4)
     T_base_bin[:3, 3] = (0.3, 0.1, 0.0)
     reached = PoseMsg.from_matrix(CAM_POSE.matrix() @ np.diag([1.0, 1.0, 1.0, 1.0]))
     vs = [
-        ViewpointResult(index=0, camera_pose=reached, label="dirty", p_dirty=0.9, heatmap=encode_heat(HOT), heat_grid=16),
+        ViewpointResult(
+            index=0, camera_pose=reached, label="dirty", p_dirty=0.9, heatmap=encode_heat(HOT), heat_grid=16
+        ),
         ViewpointResult(index=0, label="clean", p_dirty=0.1),  # a whole-image reply: no heat map
         ViewpointResult(index=0, error="refused"),
     ]

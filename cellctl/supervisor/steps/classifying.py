@@ -136,7 +136,10 @@ class Classifying(Step):
             pending = [
                 v
                 for v in ctx.viewpoints
-                if v.uncertain and v.camera_pose is not None and v.error is None and v.p_dirty is not None
+                if v.uncertain
+                and v.camera_pose is not None
+                and v.error is None
+                and v.p_dirty is not None
                 # the latest view of its viewpoint decides whether to look again
                 and v is [w for w in ctx.viewpoints if w.index == v.index][-1]
             ]
@@ -151,11 +154,16 @@ class Classifying(Step):
             done += 1
             try:
                 moved, _ = run.call(
-                    "robot", "move", MoveRequest(camera_pose=PoseMsg.from_matrix(T), settle_s=ctx.cfg.robot.settle_s), MoveReply
+                    "robot",
+                    "move",
+                    MoveRequest(camera_pose=PoseMsg.from_matrix(T), settle_s=ctx.cfg.robot.settle_s),
+                    MoveReply,
                 )
             except WorkerFailed as err:
                 ctx.viewpoints.append(
-                    ViewpointResult(index=v.index, camera_pose=PoseMsg.from_matrix(T), error=str(err), relook_of=v.index)
+                    ViewpointResult(
+                        index=v.index, camera_pose=PoseMsg.from_matrix(T), error=str(err), relook_of=v.index
+                    )
                 )
                 continue
             cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)

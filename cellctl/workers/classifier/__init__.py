@@ -92,7 +92,9 @@ class ClassifierService:
                 if surface in self.detectors:
                     from cellctl.classify.heatmap import encode_heat
 
-                    for (i, _), d in zip(entries, self.detectors[surface].predict([im for _, im in entries]), strict=True):
+                    for (i, _), d in zip(
+                        entries, self.detectors[surface].predict([im for _, im in entries]), strict=True
+                    ):
                         out[i] = ClassifyReply(
                             label=d.label,
                             p_dirty=d.p_dirty,
