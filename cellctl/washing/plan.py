@@ -436,6 +436,17 @@ def _station(
     seed_faces = np.concatenate([lines[i].faces for i in live])
     nrm = np.concatenate([np.repeat(facets[lines[i].facet].normal[None], len(lines[i].points), 0) for i in live])
     line_of = np.concatenate([np.full(len(lines[i].points), i) for i in live])
+    # only waypoints whose spot can reach a point still short of passes (later stations get few)
+    from scipy.spatial import cKDTree
+
+    pos = np.zeros((len(need), 3))
+    pos[fpts[:, 0]] = mesh.centroids
+    pos[fpts[:, 1:].reshape(-1)] = mesh.vertices[mesh.faces].reshape(-1, 3)
+    d, _ = cKDTree(pos[need > 0]).query(pts, distance_upper_bound=nozzle.footprint_m)
+    useful = np.isfinite(d)
+    pts, seed_faces, nrm, line_of, wp_all = (x[useful] for x in (pts, seed_faces, nrm, line_of, wp_all))
+    if len(pts) == 0:
+        return []
     tool = nozzle.robot_with_nozzle(robot)
     world = PlanningWorld(mesh, tool, T_bin_base, margin=p.margin)
     vp = _nozzle_poses(mesh, pts, nrm, seed_faces, nozzle)
