@@ -134,7 +134,7 @@ class UrFaultPolicy(_Model):
     reduced_mode: StrictBool = Field(default=True, description="reduced (safety-scaled) mode is a fault")
     data_stale_ms: float = Field(default=90.0, gt=0, le=5000, description="no fresh RTDE data this long: a fault")
     monitor_hz: float = Field(default=100.0, ge=20, le=500, description="safety/joint poll rate of the worker")
-    watchdog_hz: float = Field(default=10.0, ge=1, le=500, description="controller stops the program below this")
+    watchdog_hz: float = Field(default=5.0, ge=1, le=500, description="controller stops the program below this")
 
 
 class UrConfig(_Model):

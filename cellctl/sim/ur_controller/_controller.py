@@ -285,6 +285,7 @@ class UrController:
             self._path_script = path
             self._halt(self.stop_decel)  # a new program replaces a running one
             self._script_running = True
+            self._watchdog_period = 0.0  # a program sets its own watchdog (rtde_set_watchdog)
             self._executing = False
             self.runtime_state = RuntimeState.PLAYING
             self._signal_async_finished()  # reset_async_progress
@@ -308,6 +309,7 @@ class UrController:
     def _end_script(self, why: str) -> None:
         if self._script_running:
             self.messages.append(f"program stopped: {why}")
+            log.warning("program stopped: %s", why)
         self._script_running = False
         self._sync_pending = False
         self.runtime_state = RuntimeState.STOPPED
@@ -416,9 +418,10 @@ class UrController:
         """Advance ``dt`` seconds of controller time (caller: the 500 Hz loop)."""
         with self.lock:
             if self._watchdog_period and self._script_running:
-                if time.monotonic() - self._last_input > self._watchdog_period:
+                gap = time.monotonic() - self._last_input
+                if gap > self._watchdog_period:
                     self._halt(self.stop_decel)
-                    self._end_script("RTDE input watchdog expired")
+                    self._end_script(f"RTDE input watchdog expired (no input for {1e3 * gap:.0f} ms)")
             self._advance(dt)
             self._script_step()
 
@@ -531,7 +534,7 @@ class UrController:
     def stop_program(self) -> str:
         with self.lock:
             if not self._script_running:
-                return "Failed to execute: stop"
+                return "Stopped"  # nothing to stop (ur-rtde's reuploadScript stops the script first, then this)
             self._halt(self.stop_decel)
             self._end_script("stopped from the dashboard")
             return "Stopped"

@@ -249,6 +249,12 @@ class UrRobot(PlannedRobot):
             self._monitor_stop.set()
             self._monitor.join(timeout=1.0)
         self._stopj()
+        with self.io:
+            if self._c is not None:
+                try:
+                    self._c.stopScript()  # a clean end, not a watchdog expiry
+                except RuntimeError:
+                    pass
         self._disconnect()
         super().close()
 
@@ -312,6 +318,7 @@ class UrRobot(PlannedRobot):
     def _watch(self) -> None:
         period = 1.0 / self.ur.faults.monitor_hz
         stale = self.ur.faults.data_stale_ms / 1e3
+        not_playing_since: float | None = None
         while not self._monitor_stop.wait(period):
             reason: str | None = None
             with self.io:
@@ -334,7 +341,13 @@ class UrRobot(PlannedRobot):
                     reason = f"no RTDE data for {1e3 * (now - self._data_t):.0f} ms (controller stalled or link lost)"
                 else:
                     reason = classify_fault(st["bits"], st["mode"], self.ur.faults.reduced_mode)
-                    if reason is None and self._moving and st["runtime"] != _PLAYING:
+                    # this connection's samples may still show the program restart moveJ(path) does:
+                    # only a stop that lasts beyond a few RTDE periods is one
+                    if not (self._moving and st["runtime"] != _PLAYING):
+                        not_playing_since = None
+                    elif not_playing_since is None:
+                        not_playing_since = now
+                    elif reason is None and now - not_playing_since > 0.05:
                         reason = "the control program stopped during a motion (RTDE watchdog or controller)"
             if reason is not None and self._fault is None:
                 self._latch(reason)
@@ -408,6 +421,8 @@ class UrRobot(PlannedRobot):
             if not self._c.isProgramRunning():
                 self._reupload()  # e.g. the watchdog stopped it while the worker was idle
             ok = self._c.moveJ(entries, True)
+            if ok:  # moveJ(path) restarted the program: its watchdog with it
+                self._c.setWatchdog(self.ur.faults.watchdog_hz)
         if not ok:
             raise RobotError(f"the UR controller refused the motion ({self._fault or 'program not ready'})")
         t0 = time.monotonic()
@@ -493,12 +508,21 @@ class UrRobot(PlannedRobot):
         if reconnect:
             self._disconnect()
             self._connect()  # raises naming what is wrong (mode, safety, link)
-        with self.io:
-            st = self._read_state()
+        deadline = time.monotonic() + 1.0  # the dashboard acts before the next RTDE sample shows it
+        while True:
+            with self.io:
+                st = self._read_state()
             still = classify_fault(st["bits"], st["mode"], self.ur.faults.reduced_mode)
-            if still is not None:
+            if still is None:
+                break
+            if time.monotonic() > deadline:
                 raise RobotError(f"cannot clear the fault: {still} is still active")
-            self._reupload()
+            time.sleep(0.02)
+        with self.io:
+            if self._c.isProgramRunning():
+                self._c.setWatchdog(self.ur.faults.watchdog_hz)
+            else:
+                self._reupload()
             self._data_t = time.monotonic()
         was, self._fault = self._fault, None
         self._stop.clear()
