@@ -42,3 +42,23 @@ def test_an_oblique_jet_washes_its_stretched_footprint_within_the_incidence_limi
     g = _field()
     g.wash(SprayPass(np.array([[0.0, 0, 0]]), a[None], 0.025, math.cos(math.radians(40)), 0.8))
     assert np.allclose(g.remaining(pts, nrm), 1.0)
+
+
+def test_the_bench_dirt_map_from_ground_truth_marks_the_twins_dirty_faces() -> None:
+    """bench wash plans from face_p = largest opacity at centroid/corners: at the 0.5 threshold
+    exactly the faces the twin calls dirty, before and after a wash."""
+    from cellctl.classify.heatmap import face_probabilities
+    from cellctl.config import load_config
+    from cellctl.geometry.catalog import load_catalog, read_bin_mesh
+    from cellctl.washing.bench import gt_dirt_map
+
+    cfg = load_config()
+    cat = load_catalog(cfg.path(cfg.catalog), cfg.root)
+    mesh = read_bin_mesh(cat.mesh_path("tote"))
+    f = PowderField.sample(mesh, 0.5, 11)
+    p = face_probabilities(gt_dirt_map(f, mesh), mesh.n_faces)
+    assert ((p > 0.5) == f.dirty_faces(mesh)).mean() > 0.995  # byte quantisation at the threshold
+    c = f.centres[0]
+    f.wash(SprayPass(c[None], -f.normals[:1], 0.1, 0.5, 1.0))
+    p = face_probabilities(gt_dirt_map(f, mesh), mesh.n_faces)
+    assert ((p > 0.5) == f.dirty_faces(mesh)).mean() > 0.995
