@@ -11,6 +11,7 @@ misbehaves.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as _dt
 import json
 import math
@@ -29,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=None, help="output folder (default logs/demo-<time>)")
     p.add_argument("--worker-timeout", type=float, default=240.0, help="seconds to wait for the workers to come up")
     p.add_argument("--cycle-timeout", type=float, default=600.0)
+    p.add_argument("--robot", choices=("sim", "ur"), default=None, help="ur: UR backend against `sim ur-controller`")
     add_config_arguments(p)
     p.set_defaults(func=run)
 
@@ -89,7 +91,8 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     out = Path(args.out) if args.out else Path("logs") / f"demo-{now:%Y%m%d-%H%M%S}"
     base_cfg = config_from_args(args)
     out = base_cfg.path(out)
-    overrides = [*args.overrides, *output_overrides(out)]
+    ur = ["robot.backend=ur", "robot.ur.twin=true"] if args.robot == "ur" else []
+    overrides = [*args.overrides, *ur, *output_overrides(out)]
     cfg = config_from_args(argparse.Namespace(config=args.config, overrides=overrides))
     c = cfg.cell_id
     _say(f"cellctl demo — cell {c!r} on {cfg.bus.listen}, outputs in {out}")
@@ -132,7 +135,14 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     signal.signal(signal.SIGTERM, _terminate)
     rows: list[Row] = []
     failures = 0
-    with build_cell(cfg, with_workers=True, config_file=args.config, overrides=overrides) as cell:
+    stack = contextlib.ExitStack()
+    if cfg.robot.backend == "ur" and cfg.robot.ur.twin:  # the UR backend drives the emulated controller
+        from cellctl.sim.ur_controller import EmulatorProcess
+
+        _say(f"starting the emulated UR10e controller on {cfg.robot.ur.host} …")
+        out.mkdir(parents=True, exist_ok=True)
+        stack.enter_context(EmulatorProcess(cfg.robot.ur.host, overrides, args.config, out / "ur-controller.log"))
+    with stack, build_cell(cfg, with_workers=True, config_file=args.config, overrides=overrides) as cell:
         plc = PlcClient(cfg, "demo", on_event=lambda ev: _say("   · " + ev.text))
         session = plc.session
         _say("starting workers (robot, camera, classifier, planner) …")

@@ -492,7 +492,7 @@ class UrControllerServers:
         else:
             raise ValueError(
                 f"unknown fault command {word!r}; expected one of protective_stop, estop, estop_release, safeguard, "
-                "safeguard_reset, reduced, reduced_off, drop, stall, power_off, mode, local, remote, inputs_in_use, slider, "
-                "reset, state"
+                "safeguard_reset, reduced, reduced_off, drop, stall, power_off, mode, local, remote, inputs_in_use, "
+                "slider, reset, state"
             )
         return f"ok {word}"
