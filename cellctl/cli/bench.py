@@ -53,6 +53,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "cellctl.gateway.opcua.bench:bench_opcua",
         "command -> StateCurrent through the OPC UA gateway beside raw Zenoh (--n rounds)",
     ),
+    "ur": (
+        "cellctl.workers.robot.bench:bench_ur",
+        "UR backend vs the emulated controller: protective stop → safe state, supervisor loss → stopped, tracking",
+    ),
     "wash": (
         "cellctl.washing.bench:bench_wash",
         "wash-and-verify rounds on seeded dirty twin bins: dirty area covered, rounds, saving (--cycles N)",
