@@ -25,6 +25,12 @@ def _stats(xs: list[float], digits: int = 1) -> dict[str, float | int]:
     return {"p50": round(float(np.median(a)), digits), "max": round(float(a.max()), digits), "n": int(len(a))}
 
 
+def _rest(emu) -> None:  # noqa: ANN001 - EmulatorProcess
+    deadline = time.monotonic() + 10
+    while emu.state()["moving"] and time.monotonic() < deadline:
+        time.sleep(0.005)
+
+
 def bench_ur(opts: BenchOptions) -> dict[str, object]:
     from cellctl.config import load_config
     from cellctl.errors import RobotError
@@ -66,8 +72,10 @@ def bench_ur(opts: BenchOptions) -> dict[str, object]:
                 t = threading.Thread(target=go, daemon=True)
                 t.start()
                 deadline = time.monotonic() + 10
-                while not robot.state().moving and time.monotonic() < deadline:
+                while not emu.state()["moving"] and time.monotonic() < deadline and not errs:
                     time.sleep(0.005)
+                if errs:
+                    raise errs[0]
                 time.sleep(0.2)
                 return t, errs
 
@@ -79,6 +87,7 @@ def bench_ur(opts: BenchOptions) -> dict[str, object]:
                 t.join(timeout=10)
                 if len(robot.fault_log) > k:
                     pstop.append(1e3 * (robot.fault_log[k][0] - t0))
+                _rest(emu)
                 robot.maintenance(RobotMaintenanceRequest(action="unlock_protective_stop", user="bench"))
                 robot.maintenance(RobotMaintenanceRequest(action="clear_fault", user="bench"))
             for _ in range(max(5, n // 2)):
