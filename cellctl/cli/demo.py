@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     base_cfg = config_from_args(args)
     out = base_cfg.path(out)
     # a Python emulator on a shared machine sends late packages now and then: the thresholds of cell_ur.yaml
-    ur = ["robot.backend=ur", "robot.ur.twin=true", "robot.ur.faults.data_stale_ms=300"]
+    ur = ["robot.backend=ur", "robot.ur.twin=true", "robot.ur.faults.data_stale_ms=1000"]
     ur = [*ur, "robot.ur.faults.watchdog_hz=2"] if args.robot == "ur" else []
     overrides = [*args.overrides, *ur, *output_overrides(out)]
     cfg = config_from_args(argparse.Namespace(config=args.config, overrides=overrides))
