@@ -57,6 +57,8 @@ __all__ = [
     "PoolStats",
     "PoolStatsRequest",
     "PoseMsg",
+    "RobotMaintenanceReply",
+    "RobotMaintenanceRequest",
     "RobotState",
     "RobotStateRequest",
     "SimScenarioRequest",
@@ -528,7 +530,29 @@ class RobotState(WireMessage):
     flange_pose: PoseMsg
     camera_pose: PoseMsg
     moving: bool = False
+    speed_slider: float | None = Field(default=None, description="ur: the pendant's speed slider (0–1)")
+    fault: str | None = Field(default=None, description="ur: the latched safety fault, until cleared")
     stamp: str = Field(default_factory=now_iso)
+
+
+class RobotMaintenanceRequest(WireMessage):
+    """An operator's explicit maintenance action on the real arm (op ``robot/maintenance``).
+
+    Never sent by the supervisor: unlocking a protective stop needs a person who inspected its cause.
+    """
+
+    type: Literal["cellctl/RobotMaintenanceRequest"] = "cellctl/RobotMaintenanceRequest"
+    v: Literal[1] = 1
+    action: Literal["unlock_protective_stop", "close_safety_popup", "power_on", "brake_release", "clear_fault"]
+    user: str = Field(min_length=1, description="who asked (logged)")
+
+
+class RobotMaintenanceReply(WireMessage):
+    type: Literal["cellctl/RobotMaintenanceReply"] = "cellctl/RobotMaintenanceReply"
+    v: Literal[1] = 1
+    action: str
+    detail: str = Field(description="the controller's answer")
+    fault: str | None = None
 
 
 class StopRequest(WireMessage):
@@ -812,6 +836,8 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
         MoveReply,
         RobotStateRequest,
         RobotState,
+        RobotMaintenanceRequest,
+        RobotMaintenanceReply,
         StopRequest,
         SimStateRequest,
         SimScenarioRequest,
