@@ -34,11 +34,10 @@ def spray_passes(plan: WashPlan, mesh: BinMesh, nozzle: NozzleModel) -> list[Spr
         tips, axes = sw.T_bin_noz[:, :3, 3], sw.T_bin_noz[:, :3, 2]
         _, dist = rays.first_hit(tips, axes)
         ok = (dist >= near * 0.999) & (dist <= far * 1.001)
-        if not ok.any():
-            continue
         # a pose whose jet axis passes just beyond an edge still washes the edge with the rest of
-        # its cylinder: its spot sample sits at the sweep's typical stand-off
-        d = np.where(ok, dist, float(np.median(dist[ok])))
+        # its cylinder: its spot sample sits at the sweep's typical stand-off (the preferred one
+        # when the whole sweep runs along an edge)
+        d = np.where(ok, dist, float(np.median(dist[ok])) if ok.any() else nozzle.distances[0])
         spots, ax = tips + d[:, None] * axes, axes
         radius = float(np.min(nozzle.spot_radius(d)))
         cos_inc = math.cos(math.radians(nozzle.max_incidence_deg))
