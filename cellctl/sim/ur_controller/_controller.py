@@ -286,7 +286,10 @@ class UrController:
             self._halt(self.stop_decel)  # a new program replaces a running one
             self._script_running = True
             self._watchdog_period = 0.0  # a program sets its own watchdog (rtde_set_watchdog)
-            self._executing = False
+            # A real controller needs ≥ 50 ms to start a program, so the command register always holds
+            # the client's clear (0) by then; this one starts at once, so a code still left from before
+            # (the stop-script that preceded the upload) is not run until the register went back to 0.
+            self._executing = self.in_int[self._off] != CMD_NO
             self.runtime_state = RuntimeState.PLAYING
             self._signal_async_finished()  # reset_async_progress
             self.out_int[self._off + 0] = 1  # signal_ready
