@@ -267,11 +267,12 @@ class UrController:
                 return
             if not self.remote_control:
                 self.messages.append("script refused: the robot is in local control mode")
+                log.warning("script refused: the robot is in local control mode")
                 return
             if self.robot_mode != RobotMode.RUNNING or self.safety_mode not in (SafetyMode.NORMAL, SafetyMode.REDUCED):
-                self.messages.append(
-                    f"program not started: robot mode {self.robot_mode.name}, safety mode {self.safety_mode.name}"
-                )
+                why = f"program not started: robot mode {self.robot_mode.name}, safety mode {self.safety_mode.name}"
+                self.messages.append(why)
+                log.warning(why)
                 return
             m = _INT_OFFSET.search(text)
             self._off = int(m.group(1)) if m else 0
@@ -294,6 +295,7 @@ class UrController:
             self._signal_async_finished()  # reset_async_progress
             self.out_int[self._off + 0] = 1  # signal_ready
             self.messages.append("RTDE Control Script Loaded")
+            log.info("program started (%d path entries)", len(path))
 
     def _write_async(self, value: int) -> None:
         """The script's async status register: op id (bits 24–30), write count (16–23), running
