@@ -225,10 +225,26 @@ def test_start_params_are_validated(cfg, cell, plc) -> None:
     assert cell.supervisor.state == "Idle"
 
 
-def test_replay_verify_passes_on_a_recorded_cycle_and_catches_a_change(cfg, cell, plc, tmp_path) -> None:
+def _verify_config(out, settle_s: float):  # noqa: ANN001, ANN202
+    """A replay supervisor's config: its own private bus and index under ``out``."""
     from cellctl.config import load_config
-    from cellctl.recording.replay import read_cycle, verify
     from tests.conftest import free_port
+
+    ep = f'["tcp/127.0.0.1:{free_port()}"]'
+    return load_config(
+        None,
+        [
+            f"bus.listen={ep}",
+            f"bus.connect={ep}",
+            f"recording.dir={out}",
+            f"recording.index={out / 'cells.db'}",
+            f"robot.settle_s={settle_s}",
+        ],
+    )
+
+
+def test_replay_verify_passes_on_a_recorded_cycle_and_catches_a_change(cfg, cell, plc, tmp_path) -> None:
+    from cellctl.recording.replay import read_cycle, verify
 
     cell.catalog_for_tests = cell.supervisor.catalog
     with FakeCell(cfg, dirty_viewpoints={2}):
@@ -239,32 +255,12 @@ def test_replay_verify_passes_on_a_recorded_cycle_and_catches_a_change(cfg, cell
         res = plc.results.get(timeout=5)
     path = cfg.path(res.log)
     assert not read_cycle(path).truncated
-    port = free_port()
-    ep = f'["tcp/127.0.0.1:{port}"]'
-    vcfg = load_config(
-        None,
-        [
-            f"bus.listen={ep}",
-            f"bus.connect={ep}",
-            f"recording.dir={tmp_path / 'v'}",
-            f"recording.index={tmp_path / 'v' / 'cells.db'}",
-            "robot.settle_s=0",
-        ],
-    )
+    vcfg = _verify_config(tmp_path / "v", settle_s=0)
     report = verify(path, vcfg, timeout_s=30, identification=(fake_identify, cell.catalog_for_tests))
     assert report.ok, report.differences
     assert report.states_replayed[:2] == ["Starting", "Execute.approaching"]
     # the same log checked by a supervisor with another settle time: the move requests differ
-    vcfg2 = load_config(
-        None,
-        [
-            f"bus.listen={ep}",
-            f"bus.connect={ep}",
-            f"recording.dir={tmp_path / 'w'}",
-            f"recording.index={tmp_path / 'w' / 'cells.db'}",
-            "robot.settle_s=0.5",
-        ],
-    )
+    vcfg2 = _verify_config(tmp_path / "w", settle_s=0.5)
     report = verify(path, vcfg2, timeout_s=30, identification=(fake_identify, cell.catalog_for_tests))
     assert not report.ok
     assert any("request on cell/cell1/robot/move differs" in d for d in report.differences)
@@ -314,10 +310,8 @@ class _UncertainCell(FakeCell):
 
 def test_replay_verify_reruns_a_cycle_with_the_relooks_it_was_recorded_with(cfg, tmp_path) -> None:
     """A log from before re-looks (or with them off) verifies under a config that has them on."""
-    from cellctl.config import load_config
     from cellctl.geometry.catalog import load_catalog
     from cellctl.recording.replay import read_cycle, verify
-    from tests.conftest import free_port
 
     catalog = load_catalog(cfg.path(cfg.catalog))
     cfg.classifier.relook.max_views = 0
@@ -336,18 +330,7 @@ def test_replay_verify_reruns_a_cycle_with_the_relooks_it_was_recorded_with(cfg,
         cell.close()
     path = cfg.path(res.log)
     assert read_cycle(path).metadata["cycle"]["relook_max_views"] == "0"
-    port = free_port()
-    ep = f'["tcp/127.0.0.1:{port}"]'
-    vcfg = load_config(
-        None,
-        [
-            f"bus.listen={ep}",
-            f"bus.connect={ep}",
-            f"recording.dir={tmp_path / 'v'}",
-            f"recording.index={tmp_path / 'v' / 'cells.db'}",
-            "robot.settle_s=0",
-        ],
-    )
+    vcfg = _verify_config(tmp_path / "v", settle_s=0)
     assert vcfg.classifier.relook.max_views > 0
     report = verify(path, vcfg, timeout_s=30, identification=(fake_identify, catalog))
     assert report.ok, report.differences
