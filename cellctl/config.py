@@ -272,8 +272,12 @@ class WholeBinConfig(_Model):
     candidates: int = Field(default=8, ge=1, le=36, description="station candidates around the bin")
     max_stations: int = Field(default=4, ge=1, le=36)
     park_distance_m: float = Field(default=0.75, gt=0, le=3, description="base origin beyond the bin's extent")
-    min_station_gain_pct: float = Field(default=2.0, ge=0, lt=100, description="% of a surface's bound a station must add")
-    view_min_gain_pct: float = Field(default=0.15, ge=0, lt=100, description="% of a surface's bound a viewpoint must add")
+    min_station_gain_pct: float = Field(
+        default=2.0, ge=0, lt=100, description="% of a surface's bound a station must add"
+    )
+    view_min_gain_pct: float = Field(
+        default=0.15, ge=0, lt=100, description="% of a surface's bound a viewpoint must add"
+    )
     allowed_deg: list[float] | None = Field(
         default=None, description="approach directions the base may use (deg, bin frame; -90 = board side); None: all"
     )

@@ -3,7 +3,8 @@
 For each variant (``fp32`` eager; ``fused`` = BN folded + frozen graph; ``int8`` = FX static
 int8, measured for reference, not shipped because it is slower on this backbone) of the
 external model, and side by side the combined ``detector`` (:mod:`cellctl.classify.fusion`,
-when ``external.detect.pt`` exists: the whole per-image decision with its heat map): batch-1 latency p50/p95 over ``--n`` single-image calls (preprocessing
+when ``external.detect.pt`` exists: the whole per-image decision with its heat map): batch-1
+latency p50/p95 over ``--n`` single-image calls (preprocessing
 included: decode-free RGB → resize → normalise → forward → softmax), images/s at batch 16,
 and accuracy on a fresh held-out set drawn from the same source as the training data
 (seed 10000 + ``--seed``, never used for training).

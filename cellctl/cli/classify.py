@@ -288,10 +288,9 @@ def run_detector_eval(args: argparse.Namespace) -> int:
 
 def run_classify(args: argparse.Namespace) -> int:
     from cellctl.classify.data import load_image
+    from cellctl.classify.fusion import Detector, detector_path
     from cellctl.classify.infer import SurfaceModel
     from cellctl.errors import CellError
-
-    from cellctl.classify.fusion import Detector, detector_path
 
     cfg = config_from_args(args)
     det_file = detector_path(cfg.path(cfg.classifier.models_dir), args.surface)
