@@ -65,11 +65,19 @@ __all__ = [
     "SimState",
     "SimStateRequest",
     "StartParams",
+    "StationInfo",
+    "StationResult",
     "Status",
     "StopRequest",
     "UnitMode",
     "UnitModeName",
     "ViewpointResult",
+    "WashReply",
+    "WashRequest",
+    "WashResult",
+    "WashRound",
+    "WashSweep",
+    "SprayPassMsg",
     "WireMessage",
     "now_iso",
 ]
@@ -264,7 +272,11 @@ class StartParams(WireMessage):
 
     type: Literal["cellctl/StartParams"] = "cellctl/StartParams"
     v: Literal[1] = 1
-    mode: Literal["evaluate", "collect"] = "evaluate"
+    mode: Literal["evaluate", "collect", "wash_and_verify"] = Field(
+        default="evaluate",
+        description="evaluate: inspect; collect: store labelled images; wash_and_verify: inspect, wash the dirty "
+        "regions, re-inspect them, up to wash.max_rounds rounds",
+    )
     label: Literal["clean", "dirty"] | None = Field(default=None, description="collect mode: the class of this bin")
     surface: Surface | None = Field(
         default=None, description="surface to inspect; default planner.surface of the config"
@@ -287,8 +299,8 @@ class StartParams(WireMessage):
         if unknown:
             raise ProtocolError(f"unknown start params {sorted(unknown)}; allowed: {sorted(START_PARAM_NAMES)}")
         mode = params.get("mode", "evaluate")
-        if mode not in ("evaluate", "collect"):
-            raise ProtocolError(f"start param mode={mode!r}; expected 'evaluate' or 'collect'")
+        if mode not in ("evaluate", "collect", "wash_and_verify"):
+            raise ProtocolError(f"start param mode={mode!r:.80}; expected 'evaluate', 'collect' or 'wash_and_verify'")
         label = params.get("label")
         if mode == "collect" and label not in ("clean", "dirty"):
             raise ProtocolError(f"start param label={label!r}; collect mode needs label 'clean' or 'dirty'")
@@ -430,6 +442,27 @@ class ViewpointResult(BaseModel):
     heatmap: str | None = Field(default=None, description="per-patch p_dirty, as in ClassifyReply")
     heat_grid: int | None = None
     relook_of: int | None = Field(default=None, description="index of the uncertain viewpoint this view re-looks at")
+    station: int | None = Field(default=None, description="whole-bin cycle: the station (plan rank) it was taken at")
+    surface: Surface | None = Field(default=None, description="whole-bin cycle: the surface it inspects")
+    wash_round: int | None = Field(default=None, description="wash_and_verify: the round this view re-inspects after")
+
+
+class StationResult(BaseModel):
+    """What a whole-bin cycle did at one station (CycleResult.stations, in visiting order)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    station: int = Field(ge=0, description="the station's rank in the whole-bin plan")
+    base_pose: PoseMsg | None = Field(default=None, description="planned base pose, bin frame (frame_id 'bin')")
+    bin_pose_source: Literal["measured", "carried_over"] | None = Field(
+        default=None, description="measured from the board here, or the planned station pose (board not visible)"
+    )
+    plan_ids: dict[str, str] = Field(default_factory=dict, description="surface -> plan used")
+    adjusted: dict[str, bool] = Field(default_factory=dict, description="surface -> viewpoints re-expressed")
+    viewpoints: dict[str, int] = Field(default_factory=dict, description="surface -> planned viewpoints")
+    refused: dict[str, int] = Field(default_factory=dict, description="surface -> viewpoints the arm refused")
+    coverage: dict[str, float | None] = Field(default_factory=dict, description="surface -> area fraction seen here")
+    reason: str | None = None
 
 
 class CycleResult(WireMessage):
@@ -449,7 +482,16 @@ class CycleResult(WireMessage):
     log: str | None = None
     timing: dict[str, Any] | None = Field(default=None, description="seconds per step and in worker requests")
     started: str | None = None
+    whole_plan_id: str | None = Field(default=None, description="whole-bin cycle: the whole-bin plan it followed")
+    coverage_by_surface: dict[str, float | None] | None = Field(
+        default=None, description="whole-bin cycle: area fraction of each surface seen, all stations"
+    )
+    stations: list[StationResult] | None = Field(default=None, description="whole-bin cycle: per station")
+    modelled_cycle_s: float | None = Field(
+        default=None, description="whole-bin cycle: the plan's modelled cycle time at the arm's real limits"
+    )
     finished: str = Field(default_factory=now_iso)
+    wash: WashResult | None = Field(default=None, description="mode wash_and_verify: the rounds and the wash verdict")
 
 
 # --- worker replies -------------------------------------------------------------------------
@@ -482,6 +524,13 @@ class ApproachRequest(WireMessage):
     v: Literal[1] = 1
     observation_index: int = Field(default=0, ge=0, description="which observation pose (retries use the next)")
     park: bool = Field(default=True, description="False: only move the arm to the observation pose")
+    base_pose: PoseMsg | None = Field(
+        default=None,
+        description="whole-bin station: where the base parks, in the bin frame (T_bin_base); None: the nominal park",
+    )
+    observe: bool = Field(
+        default=True, description="False: park only, the arm stays tucked (a station that cannot see the board)"
+    )
 
 
 class ApproachReply(WireMessage):
@@ -571,6 +620,7 @@ class SimStateRequest(WireMessage):
 
     type: Literal["cellctl/SimStateRequest"] = "cellctl/SimStateRequest"
     v: Literal[1] = 1
+    washes: bool = Field(default=False, description="also send the spray passes run so far (the camera renders them)")
 
 
 class SimScenarioRequest(WireMessage):
@@ -607,7 +657,102 @@ class SimState(WireMessage):
     parked: bool
     joints: list[float]
     moving: bool = False
+    wash_passes: int = Field(default=0, ge=0, description="spray passes run over the bin since the scenario was set")
+    washes: list[SprayPassMsg] | None = Field(
+        default=None, description="the spray passes themselves, only when the request asked (SimStateRequest.washes)"
+    )
     stamp: str = Field(default_factory=now_iso)
+
+
+class SprayPassMsg(BaseModel):
+    """One pass of the washing jet over the bin, in the **bin** frame (twin ground truth).
+
+    As :class:`cellctl.sim.ground_truth.SprayPass`: the spot's path on the surface and the
+    jet's direction at each spot.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    spots: list[tuple[FiniteFloat, FiniteFloat, FiniteFloat]] = Field(min_length=1, max_length=5000)
+    axes: list[tuple[FiniteFloat, FiniteFloat, FiniteFloat]] = Field(min_length=1, max_length=5000)
+    radius: FiniteFloat = Field(gt=0, le=1)
+    cos_incidence: FiniteFloat = Field(ge=0, le=1)
+    removal: FiniteFloat = Field(gt=0, le=1)
+
+    @model_validator(mode="after")
+    def _paired(self) -> SprayPassMsg:
+        if len(self.spots) != len(self.axes):
+            raise ValueError(f"a spray pass has {len(self.spots)} spots but {len(self.axes)} axes; expected one each")
+        return self
+
+
+# --- washing (robot op ``wash``) ---------------------------------------------------------------
+
+
+class WashSweep(BaseModel):
+    """One continuous tool path of the nozzle: joint waypoints followed in order, ``passes`` times
+    (back and forth)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    joints: list[Joints] = Field(min_length=1, max_length=2000)
+    passes: int = Field(default=1, ge=1, le=20)
+    region: int | None = Field(default=None, description="the dirty region it washes (for the logs)")
+
+
+class WashRequest(WireMessage):
+    """Run wash sweeps (op ``robot/wash``): each sweep's start is reached by a planned
+    collision-free motion, then its waypoints are followed as one continuous trajectory."""
+
+    type: Literal["cellctl/WashRequest"] = "cellctl/WashRequest"
+    v: Literal[1] = 1
+    sweeps: list[WashSweep] = Field(min_length=1, max_length=2000)
+    round: int = Field(default=1, ge=1, le=100, description="wash-and-verify round (for the logs)")
+
+
+class WashReply(WireMessage):
+    type: Literal["cellctl/WashReply"] = "cellctl/WashReply"
+    v: Literal[1] = 1
+    sweeps_run: int = Field(ge=0)
+    passes_run: int = Field(ge=0)
+    joints: Joints
+    path_length_rad: FiniteFloat = 0.0
+    duration_s: FiniteFloat = 0.0
+
+
+class WashRound(BaseModel):
+    """One wash-and-verify round as the CycleResult records it (areas in m²)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    round: int
+    dirty_faces_before: int
+    dirty_m2_before: float
+    sweeps_planned: int
+    sweeps_run: int
+    passes_run: int
+    washed_m2: float
+    covered_m2: float
+    unwashable: list[dict[str, Any]] = Field(default_factory=list)
+    reinspected_views: int = 0
+    dirty_faces_after: int | None = None
+    dirty_m2_after: float | None = None
+    plan_s: float = 0.0
+    plan_cpu_s: float = 0.0
+    pictures: list[str] = Field(default_factory=list, description="per-round pictures, relative to the log dir")
+    reason: str | None = None
+
+
+class WashResult(BaseModel):
+    """The wash-and-verify outcome: ``clean``/``dirty`` after the rounds, and what is left."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    verdict: Literal["clean", "dirty"] | None = None
+    reason: str | None = Field(default=None, description="why the bin ends dirty (unwashable, rounds exhausted)")
+    rounds: list[WashRound] = Field(default_factory=list)
+    remaining_faces: list[int] = Field(default_factory=list, description="faces still dirty at the end")
+    remaining_m2: float = 0.0
 
 
 # --- camera ---------------------------------------------------------------------------------
@@ -747,6 +892,22 @@ class PlanLookupRequest(WireMessage):
     all_reachable: bool = Field(
         default=False, description="data collection: every reachable viewpoint (paper §IV-B2), not only the tour"
     )
+    whole: bool = Field(default=False, description="whole-bin cycle: also answer the newest whole-bin plan's stations")
+
+
+class StationInfo(BaseModel):
+    """One station of a whole-bin plan, as the cycle needs it (PlanLookupReply.stations)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    station: int = Field(ge=0, description="rank: visiting order in the plan")
+    base_pose: PoseMsg = Field(description="T_bin_base: where the base parks, bin frame (frame_id 'bin')")
+    observation_index: int | None = Field(
+        default=None, ge=0, description="observation pose that sees the board from here; None: the board is not visible"
+    )
+    identify_reason: str | None = None
+    plans: dict[str, str] = Field(default_factory=dict, description="surface -> plan id (surfaces with viewpoints)")
+    viewpoints: dict[str, int] = Field(default_factory=dict)
 
 
 class PlanLookupReply(WireMessage):
@@ -761,6 +922,12 @@ class PlanLookupReply(WireMessage):
     translation_mm: FiniteFloat | None = None
     rotation_deg: FiniteFloat | None = None
     mesh_faces: int | None = Field(default=None, ge=0)
+    whole_plan_id: str | None = Field(default=None, max_length=256, description="request.whole: the whole-bin plan")
+    stations: list[StationInfo] = Field(default_factory=list, description="request.whole: its stations, in order")
+    station: int | None = Field(
+        default=None, description="request.whole: the station whose planned base pose is nearest the measured one"
+    )
+    cycle_time_s: FiniteFloat | None = Field(default=None, description="request.whole: the plan's modelled cycle")
 
 
 # --- planner pool (compute host; docs/deploy/README.md) -----------------------------------
@@ -842,6 +1009,8 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
         SimStateRequest,
         SimScenarioRequest,
         SimState,
+        WashRequest,
+        WashReply,
         CaptureRequest,
         CaptureReply,
         ClassifyRequest,

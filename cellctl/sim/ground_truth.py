@@ -192,7 +192,9 @@ class PowderField:
             halo = ((d < 1.6 * r) & (grain[:, None] > 0.80 + 0.15 * np.clip(d / r - 1, 0, 1))).astype(float)
             out[sel] = np.where(valid, np.maximum(core, 0.85 * halo), 0.0).max(axis=1)
         if self.washes:
-            out *= self.remaining(pts, normals)
+            # only where there is powder: a render's hits are mostly clean steel
+            has = np.flatnonzero(out > 0)
+            out[has] *= self.remaining(pts[has], None if normals is None else normals[has])
         return out
 
     def dirty_faces(self, mesh: BinMesh, threshold: float = 0.5) -> NDArray[np.bool_]:

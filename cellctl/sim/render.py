@@ -35,6 +35,7 @@ renders take ~40 ms, 1280×720 ~0.4 s (``cellctl bench sim``).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -46,7 +47,7 @@ from cellctl.geometry.camera import CameraModel
 from cellctl.geometry.catalog import Catalog
 from cellctl.geometry.transforms import invert
 from cellctl.messages import Intrinsics
-from cellctl.sim.ground_truth import PowderField, value_noise3
+from cellctl.sim.ground_truth import PowderField, SprayPass, value_noise3
 from cellctl.sim.scene import CABIN_HALF, CABIN_HEIGHT, Scenario
 from cellctl.surface import EXTERNAL, INTERNAL
 
@@ -249,6 +250,7 @@ class SimRenderer:
         params: RenderParams | None = None,
         seed: int = 0,
         cell: bool = True,
+        washes: Sequence[SprayPass] = (),
     ) -> RenderResult:
         """Render the scenario's world from a camera pose.
 
@@ -260,6 +262,7 @@ class SimRenderer:
             params: appearance.
             seed: sensor-noise seed.
             cell: draw floor and cabin walls.
+            washes: spray passes run over the bin so far (bin frame): the powder they removed is gone.
 
         Raises:
             ConfigError: unknown bin type.
@@ -269,6 +272,10 @@ class SimRenderer:
         T_world_base = scenario.base() if scenario.T_world_base is not None else None
         q = None if joints is None else np.asarray(joints, dtype=np.float64)
         powder = self.powder(scenario.bin_type, scenario.dirty, scenario.powder_amount, scenario.seed)
+        if washes:
+            from dataclasses import replace
+
+            powder = replace(powder, washes=list(washes))  # the cached field stays unwashed
         return self._render(
             scenario.bin_type,
             T_world_bin,

@@ -49,9 +49,14 @@ def make_camera(cfg: CellConfig, backend: str | None = None, session=None) -> Ca
         from cellctl.messages import SimState, SimStateRequest
         from cellctl.workers.camera._sim import SimCamera
 
-        def state() -> SimState:
+        def state(washes: bool = False) -> SimState:
             return request(
-                session, keys.sim_state(cfg.cell_id), SimStateRequest(), SimState, timeout=5.0, role="robot"
+                session,
+                keys.sim_state(cfg.cell_id),
+                SimStateRequest(washes=washes),
+                SimState,
+                timeout=5.0,
+                role="robot",
             )[0]
 
         return SimCamera(cfg, state)

@@ -5,6 +5,8 @@ Serves (``cell/<id>/robot/<op>``, request → reply):
 * ``approach``: :class:`~cellctl.messages.ApproachRequest` → :class:`~cellctl.messages.ApproachReply`
 * ``move``: :class:`~cellctl.messages.MoveRequest` → :class:`~cellctl.messages.MoveReply`
 * ``state``: :class:`~cellctl.messages.RobotStateRequest` → :class:`~cellctl.messages.RobotState`
+* ``wash``: :class:`~cellctl.messages.WashRequest` → :class:`~cellctl.messages.WashReply` (the nozzle's
+  sweeps as continuous trajectories; stopped like a move)
 * ``stop``: :class:`~cellctl.messages.StopRequest` → the same StopRequest (acknowledged)
 * ur only: ``maintenance``: :class:`~cellctl.messages.RobotMaintenanceRequest` →
   :class:`~cellctl.messages.RobotMaintenanceReply` (an operator's explicit action; never automatic)
@@ -49,6 +51,7 @@ from cellctl.messages import (
     SimScenarioRequest,
     SimStateRequest,
     StopRequest,
+    WashRequest,
 )
 from cellctl.workers.robot._port import Robot
 
@@ -117,13 +120,14 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
                 _fault(robot.fault)  # type: ignore[attr-defined]
         server.serve("approach", ApproachRequest, lambda r, _: robot.approach(r))
         server.serve("move", MoveRequest, lambda r, _: robot.move(r))
+        server.serve("wash", WashRequest, lambda r, _: robot.wash(r))
         server.serve("state", RobotStateRequest, lambda r, _: robot.state())
         server.serve("stop", StopRequest, _stop)
         if hasattr(robot, "maintenance"):
             server.serve("maintenance", RobotMaintenanceRequest, lambda r, _: robot.maintenance(r))  # type: ignore[attr-defined]
         if twin:
             server.serve("scenario", SimScenarioRequest, lambda r, _: robot.set_scenario(r))
-            server.serve("sim_state", SimStateRequest, lambda r, _: robot.sim_state(), key=keys.sim_state(cell))
+            server.serve("sim_state", SimStateRequest, lambda r, _: robot.sim_state(r.washes), key=keys.sim_state(cell))
         if getattr(robot, "fault", None) is None:
             server.announce()
         log.info("robot worker serving cell %s", cell)

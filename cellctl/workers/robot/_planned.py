@@ -33,11 +33,14 @@ from cellctl.messages import (
     RobotState,
     SimScenarioRequest,
     SimState,
+    SprayPassMsg,
+    WashReply,
+    WashRequest,
 )
 from cellctl.motion import UR10E, Trajectory, time_parametrize
 from cellctl.sim import scene
-from cellctl.sim.collision import CollisionWorld
-from cellctl.sim.motion import path_length, plan_path
+from cellctl.sim.collision import CollisionWorld, densify
+from cellctl.sim.motion import STEP_RAD, path_length, plan_path
 from cellctl.workers.robot._port import Robot
 
 __all__ = ["DRIVE_S", "FROZEN_GAP_S", "PlannedRobot"]
@@ -95,6 +98,8 @@ class PlannedRobot(Robot):
         self.last_path: NDArray[np.float64] | None = None
         """Waypoints (K, 6) of the last planned motion (for tests and logs)."""
         self.on_change = on_change
+        self._washes: list[SprayPassMsg] = []  # twin: spray passes run over this scenario's bin
+        self._wash_rays = None  # twin: ray caster of the bin mesh, built on the first wash
         self._world = self._make_world()
         # Stall watch: a thread that ticks every 0.1 s. After a freeze (SIGSTOP, swap, debugger)
         # either it runs first and sees its own gap (→ stop), or the motion thread runs first and
@@ -242,15 +247,19 @@ class PlannedRobot(Robot):
         try:
             bt = self.catalog.get(self._scenario.bin_type)
             mesh = self.catalog.load_mesh(self._scenario.bin_type)
+            # a whole-bin station parks where the plan says (bin frame); else the nominal park
+            T_bin_station = req.base_pose.matrix() if req.base_pose is not None else None
+            if T_bin_station is not None and req.base_pose is not None and req.base_pose.frame_id != "bin":
+                raise RobotError(f"base_pose.frame_id is {req.base_pose.frame_id!r}; expected 'bin' (T_bin_base)")
             if req.park:
-                self._park(bt, mesh)
+                self._park(bt, mesh, T_bin_station)
             elif not self._parked:
                 raise RobotError("cannot go to an observation pose before parking: send approach with park=true")
-            T_base_cam = invert(scene.nominal_T_bin_base(bt, mesh)) @ scene.observation_T_bin_cam(
-                bt, req.observation_index
-            )
-            self._go_camera(T_base_cam)
-            self._settle(None)
+            if req.observe:
+                T_bin_base = T_bin_station if T_bin_station is not None else scene.nominal_T_bin_base(bt, mesh)
+                T_base_cam = invert(T_bin_base) @ scene.observation_T_bin_cam(bt, req.observation_index)
+                self._go_camera(T_base_cam)
+                self._settle(None)
             q = self.joints
             return ApproachReply(
                 joints=q.tolist(),
@@ -261,7 +270,7 @@ class PlannedRobot(Robot):
         finally:
             self._busy.release()
 
-    def _park(self, bt, mesh) -> None:  # noqa: ANN001 - BinType, BinMesh
+    def _park(self, bt, mesh, T_bin_base: NDArray[np.float64] | None = None) -> None:  # noqa: ANN001 - BinType, BinMesh
         if np.abs(self.joints - scene.HOME_JOINTS).max() > 1e-6:
             self._go(scene.HOME_JOINTS)  # tuck the arm before the base drives
         self._park_attempt += 1
@@ -272,6 +281,7 @@ class PlannedRobot(Robot):
             self.cfg.sim.approach_error_m,
             self.cfg.sim.approach_error_deg,
             self._park_attempt,
+            T_bin_base,
         )
         self._wait(DRIVE_S / self.cfg.robot.speed_scale, "parking")
         self._scenario = self._scenario.with_base(T)
@@ -305,6 +315,78 @@ class PlannedRobot(Robot):
             )
         finally:
             self._busy.release()
+
+    def wash(self, req: WashRequest) -> WashReply:
+        """Run wash sweeps: a planned collision-free motion to each sweep's first waypoint, then
+        its waypoints as one continuous trajectory, ``passes`` times back and forth.
+
+        Every sweep is checked against this robot's collision world (densely, as a planned path
+        is) before any motion; a stop interrupts it like any motion. In the twin each completed
+        pass is also a spray pass over the bin's powder (:meth:`sim_state` ``washes``).
+        """
+        self._acquire("wash")
+        try:
+            paths = []
+            for i, sw in enumerate(req.sweeps):
+                path = np.asarray(sw.joints, np.float64)
+                hit = self._world.check(densify(path, STEP_RAD)) if len(path) > 1 else self._world.check(path)
+                if hit.any():
+                    q = densify(path, STEP_RAD)[int(np.argmax(hit))] if len(path) > 1 else path[0]
+                    raise RobotError(
+                        f"wash sweep {i} (of {len(req.sweeps)}, round {req.round}) is in collision at joints "
+                        f"{np.round(q, 4).tolist()}: {', '.join(self._world.explain(q))}; no motion"
+                    )
+                paths.append((path, sw.passes))
+            length = duration = 0.0
+            passes = 0
+            for path, k_passes in paths:
+                if float(np.abs(self.joints - path[0]).max()) > 1e-6:
+                    dl, dt = self._go(path[0])
+                    length, duration = length + dl, duration + dt
+                for k in range(k_passes):
+                    run = path if k % 2 == 0 else path[::-1]
+                    if len(run) > 1:
+                        self.last_path = run
+                        duration += self._execute(run)
+                        length += path_length(run)
+                    self._sprayed(run)
+                    passes += 1
+            return WashReply(
+                sweeps_run=len(paths),
+                passes_run=passes,
+                joints=self.joints.tolist(),
+                path_length_rad=length,
+                duration_s=duration,
+            )
+        finally:
+            self._busy.release()
+
+    def _sprayed(self, run: NDArray[np.float64]) -> None:
+        """Twin only: the pass just run, as a spray pass over the true bin (the jet goes where the arm went)."""
+        if not getattr(self, "publishes_twin", False):
+            return
+        from cellctl.planning.raycast import RayCaster
+        from cellctl.washing.nozzle import NozzleModel
+        from cellctl.washing.twin import spray_pass
+
+        sc = self._scenario
+        nozzle = NozzleModel.from_config(self.cfg.nozzle)
+        if self._wash_rays is None:
+            mesh = self.catalog.load_mesh(sc.bin_type)
+            self._wash_rays = RayCaster(mesh.vertices, mesh.faces)
+        T_bin_base = invert(sc.T_world_bin(self.catalog.get(sc.bin_type))) @ sc.base()
+        T_bin_noz = T_bin_base @ rm.fk_batch(run) @ nozzle.T_flange_nozzle()
+        sp = spray_pass(T_bin_noz, self._wash_rays, nozzle)
+        self._washes.append(
+            SprayPassMsg(
+                spots=[tuple(p) for p in np.round(sp.spots, 5).tolist()],
+                axes=[tuple(a) for a in np.round(sp.axes, 5).tolist()],
+                radius=sp.radius,
+                cos_incidence=sp.cos_incidence,
+                removal=sp.removal,
+            )
+        )
+        self._changed()
 
     def state(self) -> RobotState:
         q = self.joints
@@ -341,6 +423,7 @@ class PlannedRobot(Robot):
 
                 self._scenario = replace(self._scenario, **upd)
                 self._world = self._make_world()
+                self._washes, self._wash_rays = [], None  # a new bin (or new powder) is unwashed
             if req.repark:
                 self._park(self.catalog.get(self._scenario.bin_type), self.catalog.load_mesh(self._scenario.bin_type))
             self._changed()
@@ -348,7 +431,7 @@ class PlannedRobot(Robot):
         finally:
             self._busy.release()
 
-    def sim_state(self) -> SimState:
+    def sim_state(self, washes: bool = False) -> SimState:
         sc = self._scenario
         bt = self.catalog.get(sc.bin_type)
         return SimState(
@@ -363,4 +446,6 @@ class PlannedRobot(Robot):
             parked=self._parked,
             joints=self.joints.tolist(),
             moving=self._moving,
+            wash_passes=len(self._washes),
+            washes=list(self._washes) if washes else None,
         )

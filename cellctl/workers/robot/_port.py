@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import abc
 
-from cellctl.messages import ApproachReply, ApproachRequest, MoveReply, MoveRequest, RobotState
+from cellctl.messages import ApproachReply, ApproachRequest, MoveReply, MoveRequest, RobotState, WashReply, WashRequest
 
 __all__ = ["Robot"]
 
@@ -24,6 +24,15 @@ class Robot(abc.ABC):
     @abc.abstractmethod
     def move(self, req: MoveRequest) -> MoveReply:
         """Move to joints or to a camera pose along a collision-free path; blocks until settled."""
+
+    def wash(self, req: WashRequest) -> WashReply:
+        """Run the nozzle's wash sweeps (joint waypoints, continuous); blocks until done.
+
+        A backend without a nozzle refuses (RobotError).
+        """
+        from cellctl.errors import RobotError
+
+        raise RobotError(f"the {type(self).__name__} backend has no washing nozzle: cannot run the sweeps")
 
     @abc.abstractmethod
     def state(self) -> RobotState:
