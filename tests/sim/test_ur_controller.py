@@ -175,3 +175,57 @@ def test_rtde_negotiation_refuses_an_unknown_version_and_unknown_variables(healt
         assert kind == "U" and body[0] == 1 and len(body) == 1 + 8 + 48
         q = struct.unpack(">6d", body[9:])
         assert np.abs(np.array(q) - healthy.state()["q"]).max() < 1e-4
+
+
+def _program(*targets: list[float]) -> str:
+    """An rtde_control program as ur-rtde sends it for moveJ(path) (the parts the emulator reads)."""
+    lines = [f"        movej([{','.join(map(str, q))}],a=1.4,v=1.05,r=0)" for q in targets]
+    return (
+        "def rtde_control():\n    global reg_offset_int = 0\n    def exec_move_path():\n"
+        + "\n".join(lines)
+        + "\n    end\nend\n"
+    )
+
+
+def test_a_command_that_lands_with_the_clear_between_two_ticks_is_run() -> None:
+    """ur-rtde's moveJ(path): stop-script (255), clear (0), upload, then MOVE_PATH (45). Under load the
+    clear and the 45 reach the register between two controller ticks; the 45 must still run (it once
+    waited for a 0 it never saw, and ur-rtde waited for "done" forever)."""
+    from cellctl.sim.ur_controller import RuntimeState, UrController
+    from cellctl.sim.ur_controller._controller import CMD_MOVE_PATH, CMD_STOP_SCRIPT
+
+    ctl = UrController(scene.HOME_JOINTS.copy())
+    goal = (scene.HOME_JOINTS + 0.1).tolist()
+    with ctl.lock:
+        ctl.set_input("input_int_register_0", CMD_STOP_SCRIPT)  # the stop that preceded the upload
+    ctl.upload_script(_program(goal))
+    ctl.tick(0.002)
+    assert ctl.runtime_state == RuntimeState.PLAYING  # the stale stop code is not run
+    with ctl.lock:
+        ctl.set_input("input_int_register_1", 1)  # async
+        ctl.set_input("input_int_register_0", 0)
+        ctl.set_input("input_int_register_0", CMD_MOVE_PATH)
+    ctl.tick(0.002)
+    assert ctl.register("output_int_register_0") == 2  # done with the command
+    assert ctl.moving
+
+
+def test_a_stale_stop_code_left_from_the_program_before_is_not_run() -> None:
+    from cellctl.sim.ur_controller import RuntimeState, UrController
+    from cellctl.sim.ur_controller._controller import CMD_STOP_SCRIPT
+
+    ctl = UrController(scene.HOME_JOINTS.copy())
+    with ctl.lock:
+        ctl.set_input("input_int_register_0", CMD_STOP_SCRIPT)
+    ctl.upload_script(_program())
+    for _ in range(5):
+        ctl.tick(0.002)
+    assert ctl.runtime_state == RuntimeState.PLAYING
+    with ctl.lock:
+        ctl.set_input("input_int_register_0", 0)
+    ctl.tick(0.002)
+    assert ctl.register("output_int_register_0") == 1  # ready
+    with ctl.lock:
+        ctl.set_input("input_int_register_0", CMD_STOP_SCRIPT)  # a fresh stop is run
+    ctl.tick(0.002)
+    assert ctl.runtime_state == RuntimeState.STOPPED

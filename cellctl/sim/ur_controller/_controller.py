@@ -184,6 +184,8 @@ class UrController:
         self._async_op = 0
         self._script_running = False
         self._executing = False
+        self._stale_cmd: int | None = None
+        """The command code in the register when the program started (from the program before)."""
         self._off = 0
         self._path_script: list[tuple[NDArray[np.float64], float, float]] = []
         self._watchdog_period = 0.0
@@ -287,10 +289,14 @@ class UrController:
             self._halt(self.stop_decel)  # a new program replaces a running one
             self._script_running = True
             self._watchdog_period = 0.0  # a program sets its own watchdog (rtde_set_watchdog)
-            # A real controller needs ≥ 50 ms to start a program, so the command register always holds
-            # the client's clear (0) by then; this one starts at once, so a code still left from before
-            # (the stop-script that preceded the upload) is not run until the register went back to 0.
-            self._executing = self.in_int[self._off] != CMD_NO
+            # A real controller needs ≥ 50 ms to start a program, so the command register holds the
+            # client's clear (0) by then; this one starts at once, so the code still left from before
+            # (the stop-script that preceded the upload) is stale: not run while the register holds it.
+            # Any other value is the new program's own: the clear and the next command can land between
+            # two ticks (RTDE reader thread delayed under load), so waiting for a 0 would miss the
+            # command and leave ur-rtde waiting for "done" forever (the demo's hung moveJ(path)).
+            self._executing = False
+            self._stale_cmd = self.in_int[self._off] if self.in_int[self._off] != CMD_NO else None
             self.runtime_state = RuntimeState.PLAYING
             self._signal_async_finished()  # reset_async_progress
             self.out_int[self._off + 0] = 1  # signal_ready
@@ -406,6 +412,10 @@ class UrController:
             return
         o = self._off
         cmd = self.in_int[o]
+        if self._stale_cmd is not None:
+            if cmd == self._stale_cmd:
+                return
+            self._stale_cmd = None
         if cmd in _REALTIME:
             self._process(cmd)
             if self._script_running:
