@@ -11,6 +11,7 @@ __all__ = [
     "AliveSync",
     "CommandReceived",
     "DispatchEvent",
+    "EventReceived",
     "Fire",
     "PublishStatus",
     "Query",
@@ -57,6 +58,13 @@ class AliveChanged:
 
 
 @dataclass(frozen=True)
+class EventReceived:
+    """An Event on ``cell/<id>/events`` that may be a worker's fault report (``<role> fault: …``)."""
+
+    payload: bytes
+
+
+@dataclass(frozen=True)
 class AliveSync:
     """Live tokens per role as the router answered a liveliness query (the truth)."""
 
@@ -87,4 +95,14 @@ class Shutdown:
     """Close the open cycle and end the dispatcher."""
 
 
-DispatchEvent = CommandReceived | StepDone | AliveChanged | AliveSync | StatusQuery | PublishStatus | Fire | Shutdown
+DispatchEvent = (
+    CommandReceived
+    | StepDone
+    | AliveChanged
+    | EventReceived
+    | AliveSync
+    | StatusQuery
+    | PublishStatus
+    | Fire
+    | Shutdown
+)

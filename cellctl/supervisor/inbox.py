@@ -8,13 +8,14 @@ from typing import Any
 import zenoh
 
 from cellctl.bus import keys
-from cellctl.supervisor.events import AliveChanged, CommandReceived, DispatchEvent, StatusQuery
+from cellctl.supervisor.events import AliveChanged, CommandReceived, DispatchEvent, EventReceived, StatusQuery
 
 __all__ = ["declare_inbox", "undeclare_all"]
 
 
 def declare_inbox(session: Any, cell_id: str, put: Callable[[DispatchEvent], None]) -> list[Any]:
-    """Commands (put and query), status queries, worker liveliness, and the supervisor's own token.
+    """Commands (put and query), status queries, worker liveliness, workers' fault events, and the
+    supervisor's own token.
 
     The subscriber and queryables take Zenoh's default callback channel: each callback only
     enqueues, so the dispatcher's unbounded queue, not Zenoh, holds a burst.
@@ -29,8 +30,16 @@ def declare_inbox(session: Any, cell_id: str, put: Callable[[DispatchEvent], Non
             lambda sample: put(AliveChanged(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)),
             history=True,
         ),
+        # a worker's fault report (``robot fault: protective stop``) gives a lost token its reason;
+        # the byte test keeps the supervisor's own event stream off the dispatcher queue
+        s.declare_subscriber(keys.events(c), lambda sample: _fault_report(sample.payload.to_bytes(), put)),
         s.liveliness().declare_token(keys.alive(c, "supervisor")),
     ]
+
+
+def _fault_report(payload: bytes, put: Callable[[DispatchEvent], None]) -> None:
+    if b" fault: " in payload:
+        put(EventReceived(payload))
 
 
 def undeclare_all(decls: list[Any]) -> None:

@@ -21,9 +21,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from cellctl.bus import keys
-from cellctl.bus.codec import encode
+from cellctl.bus.codec import decode_as, encode
 from cellctl.config import CellConfig
-from cellctl.messages import Ack, CycleResult, Status, UnitMode
+from cellctl.errors import ProtocolError
+from cellctl.messages import Ack, CycleResult, Event, Status, UnitMode
 from cellctl.recording.index import CycleIndex
 from cellctl.supervisor import events
 from cellctl.supervisor.admin import AdminBook
@@ -49,6 +50,11 @@ __all__ = ["BEHAVIOURS", "Supervisor", "load_definitions"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
+
+FAULT_WINDOW_S = 2.0
+"""A worker's fault report and its token's loss belong together within this window (either order:
+the report is a put, the loss a liveliness undeclaration, and Zenoh orders neither against the other)."""
+
 
 class Supervisor:
     """The cell supervisor. Build it with :func:`cellctl.app.build_cell`.
@@ -86,6 +92,10 @@ class Supervisor:
         self._thread: threading.Thread | None = None
         self._stopped = threading.Event()
         self._decls: list[Any] = []
+        self._faults: dict[str, tuple[float, str]] = {}
+        """role -> (monotonic time, text) of its last fault report (``robot fault: …``)."""
+        self._lost: dict[str, tuple[float, str, str]] = {}
+        """role -> (monotonic time, reason, state) of its last token loss in a cycle with no report yet."""
 
     @property
     def state(self) -> str:
@@ -163,6 +173,8 @@ class Supervisor:
                 self._on_done(ev)
             case events.AliveChanged(key, present):
                 self._on_alive(key, present)
+            case events.EventReceived(payload):
+                self._on_fault_report(payload)
             case events.AliveSync(counts):
                 if self.roster.sync(counts):
                     self._publish_status()
@@ -263,6 +275,12 @@ class Supervisor:
             self.cycles.event("warning", f"{role} worker left (liveliness)")
             return
         reason = f"{role} worker lost (liveliness token gone) in {self.state}"
+        now = time.monotonic()
+        fault = self._faults.get(role)
+        if fault is not None and now - fault[0] <= FAULT_WINDOW_S:
+            reason = f"{fault[1]} ({role} worker unavailable in {self.state})"
+        else:
+            self._lost[role] = (now, reason, self.state)
         self.last_error = self.admin.stop_reason = reason
         self.cycles.event("error", reason)
         ctx = self.cycles.open_ctx
@@ -273,6 +291,31 @@ class Supervisor:
             return
         self.cycles.note(reason, failed=True)
         self.model.trigger("abort")
+
+    def _on_fault_report(self, payload: bytes) -> None:
+        """A worker's ``<role> fault: <text>`` Event: remembered for its token's loss, or, when the
+        loss came first, it replaces that loss's reason (cycle, last error, stop reason)."""
+        try:
+            ev = decode_as(Event, payload)
+        except ProtocolError:
+            return
+        role, sep, _ = ev.text.partition(" fault: ")
+        if ev.level != "error" or not sep or role not in keys.ROLES:
+            return
+        now = time.monotonic()
+        self._faults[role] = (now, ev.text)
+        lost = self._lost.pop(role, None)
+        if lost is None or now - lost[0] > FAULT_WINDOW_S:
+            return
+        old, new = lost[1], f"{ev.text} ({role} worker unavailable in {lost[2]})"
+        ctx = self.cycles.open_ctx
+        if ctx is not None and ctx.reason == old:
+            ctx.reason = new
+        if self.last_error == old:
+            self.last_error = new
+        if self.admin.stop_reason == old:
+            self.admin.stop_reason = new
+        self._publish_status()
 
     def _make_status(self) -> Status:
         ctx = self.cycles.ctx

@@ -108,8 +108,9 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
 
         def _fault(reason: str | None) -> None:  # monitor thread, not a Zenoh callback
             if reason is not None:
-                server.withdraw()  # the supervisor holds/aborts as for a lost worker
+                # the report first: the supervisor names it as the reason of the token's loss
                 pub_e.put(encode(Event(level="error", text=f"robot fault: {reason}")))
+                server.withdraw()  # the supervisor holds/aborts as for a lost worker
             else:
                 pub_e.put(encode(Event(level="warning", text="robot fault cleared by maintenance")))
                 server.announce()
