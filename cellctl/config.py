@@ -290,6 +290,12 @@ class WholeBinConfig(_Model):
     base_speed_m_s: float = Field(default=0.5, gt=0, le=3)
     base_turn_deg_s: float = Field(default=45.0, gt=0, le=360)
     park_s: float = Field(default=3.0, ge=0, le=60, description="docking time per station")
+    inner_candidates: int = Field(
+        default=4, ge=0, le=36, description="directions of the inner station ring (0: outer ring only)"
+    )
+    inner_park_distance_m: float = Field(
+        default=0.35, gt=0, le=3, description="inner ring: base origin beyond the bin's extent (reach into deep bins)"
+    )
 
 
 class PlannerConfig(_Model):

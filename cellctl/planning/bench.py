@@ -8,7 +8,7 @@ from typing import Any
 
 from cellctl.bench_options import BenchOptions
 
-__all__ = ["bench_plan", "bench_whole_bin", "foreign_mesh"]
+__all__ = ["FOREIGN", "bench_plan", "bench_whole_bin", "foreign_mesh"]
 
 BENCH_BIN = "case_study"
 BENCH_BASE = (0.0, -1.13, -0.33, 90.0)  # the sim's nominal parking pose (cellctl.sim.scene)
@@ -50,16 +50,48 @@ PROCESSES = 3  # plans at a time: the bench's wall-clock budget on a shared mach
 """Seeds per bin (``--n`` overrides): every figure is reported as median and worst over them."""
 
 
-def foreign_mesh() -> Any:
-    """A bin the catalog does not have: long and narrow (0.5 × 1.1 m), a bulge, an inset opening, two legs.
+FOREIGN = ("foreign_long", "foreign_basin")
+"""Generated meshes not designed like the catalog's (:func:`foreign_mesh`), benched beside it."""
 
+
+def foreign_mesh(name: str = "foreign_long") -> Any:
+    """A bin the catalog does not have (no board: identification comes from the cycle's first station).
+
+    ``foreign_long``: long and narrow (0.5 × 1.1 m), a bulge, an inset opening, two skids.
+    ``foreign_basin``: wide and low, round (0.84 m across, 0.7 m high), its body bulging below a
+    narrow neck (opening 0.44 m across) and tapering to a small bottom, on three legs.
     Other proportions and features than the three catalog bins, to check the planner is not
-    tuned to them; no board (identification comes from the cycle's first station).
+    tuned to them.
+
+    Raises:
+        PlanningError: an unknown name.
     """
+    from cellctl.errors import PlanningError
     from cellctl.geometry.bin_meshes import BinDesign, build_mesh
     from cellctl.planning.mesh import mesh_from_arrays
     from cellctl.surface import FACE_TAG
 
+    if name not in FOREIGN:
+        raise PlanningError(f"unknown generated mesh {name!r}; expected one of {list(FOREIGN)}")
+    if name == "foreign_basin":
+        d = BinDesign(
+            name="foreign_basin",
+            description="wide low round basin, bulging below a narrow neck, on three legs",
+            outline="circle",
+            half_x=0.42,
+            half_y=0.42,
+            sections=((0.0, 0.62, 0.62), (-0.12, 1.0, 1.0), (-0.3, 0.95, 0.95), (-0.45, 0.5, 0.5)),
+            hole=("circle", 0.22),
+            legs=((0.2, 0.0), (-0.1, 0.17), (-0.1, -0.17)),
+            leg_size=0.06,
+            leg_top_z=-0.45,
+            height=0.7,
+            n_perimeter=64,
+            row_spacing=0.07,
+            top_rings=3,
+        )
+        V, F, S = build_mesh(d)
+        return mesh_from_arrays(V, F, name=d.name, internal=S == FACE_TAG["internal"])
     d = BinDesign(
         name="foreign_long",
         description="long narrow bin with a bulge and an inset opening on two skids",
@@ -149,14 +181,16 @@ def _whole_task(task: tuple[str, int, str, tuple[str, ...], Any]) -> tuple[str, 
     name, seed, config, overrides, _ = task
     opts = BenchOptions(n=None, seed=seed, config=config, overrides=overrides, out=None)
     cfg = opts.load_config()
-    if name == "foreign_long":
-        mesh, bt = foreign_mesh(), None
+    if name in FOREIGN:
+        mesh, bt = foreign_mesh(name), None
     else:
         mesh = load_catalog_mesh(cfg.path(cfg.catalog), name)
         bt = load_catalog(cfg.path(cfg.catalog)).get(name)
     print(f"bench whole-bin: {name} seed {seed}", file=sys.stderr)
     plan_params = PlanParams(seed_pct=cfg.planner.seed_pct, seed=seed, camera=CameraModel.from_config(cfg.camera))
-    params = WholeParams.from_config(cfg.planner.whole, plan_params, cfg.robot.speed_fraction)
+    params = WholeParams.from_config(
+        cfg.planner.whole, plan_params, cfg.robot.speed_fraction, cfg.robot.accel_fraction
+    )
     return name, seed, _whole_row(plan_whole(mesh, params, default_robot_model(), bin_type=bt))
 
 
@@ -179,7 +213,7 @@ def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
     cfg = opts.load_config()
     cat = load_catalog(cfg.path(cfg.catalog))
     seeds = list(range(opts.seed, opts.seed + (opts.n or WHOLE_SEEDS)))
-    names = [*cat.names, "foreign_long"]
+    names = [*cat.names, *FOREIGN]
     out: dict[str, Any] = {
         "seed_pct": cfg.planner.seed_pct,
         "seeds": seeds,

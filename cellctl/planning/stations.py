@@ -60,6 +60,10 @@ class StationParams:
         wall_clearance_m: the mobile base box must stay this far from the walls and the bin.
         allowed_deg: approach directions allowed (deg in the bin frame, 0 = +x, -90 = the
             board side of the catalog bins), each with ±(180/candidates) deg; None: all.
+        inner_candidates: directions of a second, inner ring (0: none), the board side first.
+        inner_park_distance_m: the inner ring's base origin beyond the bin's extent: close
+            enough for the upper arm to reach over the rim and the forearm to dip into a deep
+            bin (from ``park_distance_m`` the elbow cannot get above the opening of a 0.6 m drum).
         base_speed_m_s, base_turn_deg_s, park_s: the mobile base's drive model between
             stations (straight segments around the ring, turn on the spot, docking time).
     """
@@ -75,6 +79,13 @@ class StationParams:
     base_speed_m_s: float = 0.5
     base_turn_deg_s: float = 45.0
     park_s: float = 3.0
+    inner_candidates: int = 0
+    inner_park_distance_m: float = 0.35
+
+    @property
+    def n_candidates(self) -> int:
+        """All candidates, both rings."""
+        return self.candidates + self.inner_candidates
 
     def check(self) -> None:
         """Raise PlanningError naming the first bad parameter."""
@@ -82,8 +93,15 @@ class StationParams:
             raise PlanningError(f"stations.candidates {self.candidates!r} must be in 1..36")
         if self.park_distance_m <= 0:
             raise PlanningError(f"stations.park_distance_m {self.park_distance_m!r} must be positive metres")
-        if not 1 <= self.max_stations <= self.candidates:
-            raise PlanningError(f"stations.max_stations {self.max_stations!r} must be in 1..{self.candidates}")
+        if not 0 <= self.inner_candidates <= 36:
+            raise PlanningError(f"stations.inner_candidates {self.inner_candidates!r} must be in 0..36")
+        if self.inner_candidates and not 0 < self.inner_park_distance_m < self.park_distance_m:
+            raise PlanningError(
+                f"stations.inner_park_distance_m {self.inner_park_distance_m!r} must be positive and below "
+                f"park_distance_m {self.park_distance_m!r} (the inner ring lies inside the outer one)"
+            )
+        if not 1 <= self.max_stations <= self.n_candidates:
+            raise PlanningError(f"stations.max_stations {self.max_stations!r} must be in 1..{self.n_candidates}")
         if not 0 <= self.min_gain_pct < 100:
             raise PlanningError(f"stations.min_gain_pct {self.min_gain_pct!r} must be in [0, 100)")
         if min(self.cabin_half_m) <= 0:
@@ -98,11 +116,13 @@ class Candidate:
     """A candidate station.
 
     Attributes:
-        index: rank around the bin (0 = the board side, then counter-clockwise).
+        index: rank around the bin (0 = the board side, then counter-clockwise); the inner
+            ring's candidates follow the outer ring's (``candidates`` … ``n_candidates - 1``).
         angle_deg: approach direction in the bin frame (deg, 0 = +x).
         T_bin_base: (4, 4) robot base pose in the bin frame.
         reason: why the base cannot park here; None when it can.
         ring_xy: (2,) the base origin in the bin frame (m), for drive times and pictures.
+        ring: 0 = the outer ring (``park_distance_m``), 1 = the inner one.
     """
 
     index: int
@@ -110,10 +130,11 @@ class Candidate:
     T_bin_base: NDArray[np.float64]
     reason: str | None
     ring_xy: NDArray[np.float64] = field(repr=False)
+    ring: int = 0
 
     @property
     def name(self) -> str:
-        return f"s{self.index}@{self.angle_deg:+.0f}deg"
+        return f"s{self.index}@{self.angle_deg:+.0f}deg" + ("/inner" if self.ring else "")
 
 
 def _support(points: NDArray[np.float64], u: NDArray[np.float64]) -> float:
@@ -176,29 +197,37 @@ def candidate_stations(mesh: BinMesh, bin_type: BinType | None, sp: StationParam
     T_cabin_bin = transform_from_xyz_rpy([cx, cy, 0.0], [0.0, 0.0, math.radians(cyaw)])
     half = np.asarray(sp.cabin_half_m, dtype=float)
     out: list[Candidate] = []
-    for k in range(sp.candidates):
-        ang = (a0 + 360.0 * k / sp.candidates + 180.0) % 360.0 - 180.0
-        u = np.array([math.cos(math.radians(ang)), math.sin(math.radians(ang))])
-        r = _support(foot, u) + sp.park_distance_m
-        xy = r * u
-        yaw = math.radians(ang) + math.pi  # the arm's +x axis faces the bin
-        T = transform_from_xyz_rpy([xy[0], xy[1], z_floor + rm.BASE_HEIGHT_M], [0.0, 0.0, yaw])
-        reason = None
-        if sp.allowed_deg is not None and not any(
-            abs((ang - a + 180.0) % 360.0 - 180.0) <= 180.0 / sp.candidates + 1e-9 for a in sp.allowed_deg
-        ):
-            reason = f"approach direction {ang:+.0f} deg is not among the allowed ones {list(sp.allowed_deg)} (config)"
-        elif not _box_clear_of(low if len(low) else foot, T, sp.wall_clearance_m):
-            reason = f"the mobile base at {np.round(xy, 2).tolist()} m would touch the bin"
-        else:
-            corners = (T_cabin_bin @ np.c_[_box_corners(T), np.zeros(4), np.ones(4)].T)[:2].T
-            over = np.abs(corners) - (half - sp.wall_clearance_m)
-            if (over > 0).any():
+    rings = [(0, sp.candidates, sp.park_distance_m)]
+    if sp.inner_candidates:
+        rings.append((1, sp.inner_candidates, sp.inner_park_distance_m))
+    for ring, n_dir, dist in rings:
+        for k in range(n_dir):
+            ang = (a0 + 360.0 * k / n_dir + 180.0) % 360.0 - 180.0
+            u = np.array([math.cos(math.radians(ang)), math.sin(math.radians(ang))])
+            r = _support(foot, u) + dist
+            xy = r * u
+            yaw = math.radians(ang) + math.pi  # the arm's +x axis faces the bin
+            T = transform_from_xyz_rpy([xy[0], xy[1], z_floor + rm.BASE_HEIGHT_M], [0.0, 0.0, yaw])
+            reason = None
+            if sp.allowed_deg is not None and not any(
+                abs((ang - a + 180.0) % 360.0 - 180.0) <= 180.0 / n_dir + 1e-9 for a in sp.allowed_deg
+            ):
                 reason = (
-                    f"the mobile base at {np.round(xy, 2).tolist()} m (bin frame) would hit the cabin wall "
-                    f"(cabin ±{half[0]:g} × ±{half[1]:g} m, {1000 * float(over.max()):.0f} mm beyond)"
+                    f"approach direction {ang:+.0f} deg is not among the allowed ones {list(sp.allowed_deg)} (config)"
                 )
-        out.append(Candidate(index=k, angle_deg=ang, T_bin_base=T, reason=reason, ring_xy=xy))
+            elif not _box_clear_of(low if len(low) else foot, T, sp.wall_clearance_m):
+                reason = f"the mobile base at {np.round(xy, 2).tolist()} m would touch the bin"
+            else:
+                corners = (T_cabin_bin @ np.c_[_box_corners(T), np.zeros(4), np.ones(4)].T)[:2].T
+                over = np.abs(corners) - (half - sp.wall_clearance_m)
+                if (over > 0).any():
+                    reason = (
+                        f"the mobile base at {np.round(xy, 2).tolist()} m (bin frame) would hit the cabin wall "
+                        f"(cabin ±{half[0]:g} × ±{half[1]:g} m, {1000 * float(over.max()):.0f} mm beyond)"
+                    )
+            out.append(
+                Candidate(index=len(out), angle_deg=ang, T_bin_base=T, reason=reason, ring_xy=xy, ring=ring)
+            )
     return out
 
 
@@ -313,20 +342,33 @@ def exact_station_cover(
 def base_move_s(cands: list[Candidate], a: int, b: int, sp: StationParams) -> float:
     """Modelled drive time from candidate ``a`` to ``b``: around the ring (the shorter way), turn, dock.
 
-    The base drives the straight segments between consecutive ring positions (never across the
-    bin), turns on the spot by the change of heading and docks (``park_s``).
+    The base drives the straight segments between consecutive outer-ring positions (never
+    across the bin), turns on the spot by the change of heading and docks (``park_s``). An
+    inner-ring candidate is reached straight out from (and left straight back to) the outer
+    ring position of the nearest direction: the drive between two close stations goes round
+    the outside, where the base is known to clear the bin.
     """
     if a == b:
         return 0.0
-    n = len(cands)
     by_index = {c.index: c for c in cands}
+    outer = sorted((c for c in cands if c.ring == 0), key=lambda c: c.index)
+    n = len(outer)
+
+    def dock(c: Candidate) -> tuple[int, float]:
+        """(position on the outer ring, straight distance to it)."""
+        if c.ring == 0:
+            return outer.index(c), 0.0
+        k = min(range(n), key=lambda i: abs((outer[i].angle_deg - c.angle_deg + 180.0) % 360.0 - 180.0))
+        return k, float(np.linalg.norm(outer[k].ring_xy - c.ring_xy))
+
+    (ka, da), (kb, db) = dock(by_index[a]), dock(by_index[b])
     best = math.inf
     for step in (1, -1):
-        length, k = 0.0, a
-        while k != b:
+        length, k = 0.0, ka
+        while k != kb:
             nxt = (k + step) % n
-            length += float(np.linalg.norm(by_index[nxt].ring_xy - by_index[k].ring_xy))
+            length += float(np.linalg.norm(outer[nxt].ring_xy - outer[k].ring_xy))
             k = nxt
         best = min(best, length)
     turn = abs((by_index[b].angle_deg - by_index[a].angle_deg + 180.0) % 360.0 - 180.0)
-    return best / sp.base_speed_m_s + turn / sp.base_turn_deg_s + sp.park_s
+    return (best + da + db) / sp.base_speed_m_s + turn / sp.base_turn_deg_s + sp.park_s

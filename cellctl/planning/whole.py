@@ -74,13 +74,15 @@ class TimingModel:
         settle_s: wait after each arrival before the capture. The issue's target uses 0.5 s
             (the paper's robot needed 1 s); the sim arm's own settle is ``robot.settle_s``.
         capture_s: one capture.
-        speed_fraction: fraction of the UR10e joint velocity limits (accelerations at their
-            nominal values, :data:`cellctl.motion.UR10E`).
+        speed_fraction: fraction of the UR10e joint velocity limits (``robot.speed_fraction``).
+        accel_fraction: fraction of the nominal joint accelerations
+            (:data:`cellctl.motion.UR10E`, ``robot.accel_fraction``): the arms move this way.
     """
 
     settle_s: float = 0.5
     capture_s: float = 0.1
     speed_fraction: float = 0.5
+    accel_fraction: float = 1.0
 
     def motion_s(self, path: NDArray[np.float64]) -> float:
         """Seconds to move along ``path`` (K, 6), rest to rest at each waypoint."""
@@ -88,7 +90,7 @@ class TimingModel:
 
         if len(path) < 2:
             return 0.0
-        return float(time_parametrize(path, UR10E, self.speed_fraction).duration)
+        return float(time_parametrize(path, UR10E, self.speed_fraction, self.accel_fraction).duration)
 
 
 @dataclass(frozen=True)
@@ -104,10 +106,13 @@ class WholeParams:
     """A viewpoint must add this % of its surface's upper bound to Greedy Area's set (0: all)."""
 
     @classmethod
-    def from_config(cls, whole: Any, plan: PlanParams, speed_fraction: float) -> WholeParams:
+    def from_config(
+        cls, whole: Any, plan: PlanParams, speed_fraction: float, accel_fraction: float = 1.0
+    ) -> WholeParams:
         """From the config's ``planner.whole`` section (:class:`cellctl.config.WholeBinConfig`).
 
-        ``speed_fraction`` is the arm's (``robot.speed_fraction``): the modelled cycle moves as the arm does.
+        ``speed_fraction`` and ``accel_fraction`` are the arm's (``robot.speed_fraction``,
+        ``robot.accel_fraction``): the modelled cycle moves as the arm does.
         """
         return cls(
             plan=plan,
@@ -122,8 +127,15 @@ class WholeParams:
                 base_speed_m_s=whole.base_speed_m_s,
                 base_turn_deg_s=whole.base_turn_deg_s,
                 park_s=whole.park_s,
+                inner_candidates=whole.inner_candidates,
+                inner_park_distance_m=whole.inner_park_distance_m,
             ),
-            timing=TimingModel(settle_s=whole.settle_s, capture_s=whole.capture_s, speed_fraction=speed_fraction),
+            timing=TimingModel(
+                settle_s=whole.settle_s,
+                capture_s=whole.capture_s,
+                speed_fraction=speed_fraction,
+                accel_fraction=accel_fraction,
+            ),
             view_min_gain_pct=whole.view_min_gain_pct,
         )
 
@@ -260,7 +272,13 @@ class WholePlan:
             "seed_pct": self.params.plan.seed_pct,
             "stations": [s.to_json() for s in self.stations],
             "candidates": [
-                {"candidate": c.index, "angle_deg": c.angle_deg, "xy_m": c.ring_xy.tolist(), "reason": c.reason}
+                {
+                    "candidate": c.index,
+                    "angle_deg": c.angle_deg,
+                    "xy_m": c.ring_xy.tolist(),
+                    "ring": c.ring,
+                    "reason": c.reason,
+                }
                 for c in self.candidates
             ],
             "surfaces": {k: v.to_json() for k, v in self.surfaces.items()},
@@ -275,7 +293,12 @@ class WholePlan:
                 "seconds": self.exact.seconds,
             },
             "station_scores": self.station_scores,
-            "timing_model": {"settle_s": t.settle_s, "capture_s": t.capture_s, "speed_fraction": t.speed_fraction},
+            "timing_model": {
+                "settle_s": t.settle_s,
+                "capture_s": t.capture_s,
+                "speed_fraction": t.speed_fraction,
+                "accel_fraction": t.accel_fraction,
+            },
             "base_moves_s": self.base_moves_s,
             "cycle_time_s": self.cycle_time_s,
             "times_s": self.times_s,
@@ -325,7 +348,12 @@ def read_whole(path: Any, plans_dir: Any) -> WholePlan:
     t = d["timing_model"]
     params = WholeParams(
         plan=PlanParams(seed=int(d["seed"]), seed_pct=float(d["seed_pct"])),
-        timing=TimingModel(settle_s=t["settle_s"], capture_s=t["capture_s"], speed_fraction=t["speed_fraction"]),
+        timing=TimingModel(
+            settle_s=t["settle_s"],
+            capture_s=t["capture_s"],
+            speed_fraction=t["speed_fraction"],
+            accel_fraction=t.get("accel_fraction", 1.0),
+        ),
     )
     stations = []
     for st in d["stations"]:
@@ -357,6 +385,7 @@ def read_whole(path: Any, plans_dir: Any) -> WholePlan:
             T_bin_base=transform_from_xyz_rpy([*c["xy_m"], z], [0.0, 0.0, np.radians(c["angle_deg"]) + np.pi]),
             reason=c["reason"],
             ring_xy=np.array(c["xy_m"]),
+            ring=int(c.get("ring", 0)),
         )
         for c in d["candidates"]
     )
@@ -491,9 +520,10 @@ def connect(
         if owners:
             Qc, rc = np.concatenate(Qs), np.concatenate(rs)
             own, vi = np.asarray(owners), np.asarray(vidx)
+            if shape is not None:  # only the plan's arm shape: check only those solutions
+                same = (branch_signature(Qc, robot) >> 1) == shape
+                Qc, rc, own, vi = Qc[same], rc[same], own[same], vi[same]
             free = world.robot_free(Qc)
-            if shape is not None:
-                free &= (branch_signature(Qc, robot) >> 1) == shape
             Qc, rc, own, vi = Qc[free], rc[free], own[free], vi[free]
             # at most 6 solutions per direction, in preference order (the candidates' order)
             keep = np.zeros(len(own), dtype=bool)
@@ -866,7 +896,7 @@ def plan_whole(
             f"no station sees the bin: none of the {len(usable)} usable stations reaches a viewpoint that "
             "properly sees a face (is the bin within the arm's reach of its stations?)"
         )
-    chosen_ev = _ring_order([evals[i] for i in chosen], params.stations.candidates)
+    chosen_ev = _ring_order([evals[i] for i in chosen])
     t = tick("choose_stations", t)
 
     # 4. viewpoint selection per surface over the chosen stations' pairs (Greedy Area + SA)
@@ -1063,17 +1093,19 @@ class _NoSAType:
 _NoSA: Any = _NoSAType()
 
 
-def _ring_order(evs: list[_StationEval], n: int) -> list[_StationEval]:
-    """Chosen stations around the ring, from one that sees the board, the shorter way round."""
+def _ring_order(evs: list[_StationEval]) -> list[_StationEval]:
+    """Chosen stations around the bin by direction, from one that sees the board, the shorter way round."""
     if len(evs) <= 1:
         return evs
     start = next((e for e in sorted(evs, key=lambda e: e.cand.index) if e.identify is not None), evs[0])
-    s0 = start.cand.index
+    a0 = start.cand.angle_deg
 
-    def span(direction: int) -> tuple[int, list[_StationEval]]:
-        ordered = sorted(evs, key=lambda e: ((e.cand.index - s0) * direction) % n)
-        last = ((ordered[-1].cand.index - s0) * direction) % n
-        return last, ordered
+    def span(direction: int) -> tuple[float, list[_StationEval]]:
+        def rel(e: _StationEval) -> float:
+            return round(((e.cand.angle_deg - a0) * direction) % 360.0, 6)
+
+        ordered = sorted(evs, key=lambda e: (rel(e), e is not start, e.cand.ring))
+        return rel(ordered[-1]), ordered
 
     a, b = span(1), span(-1)
     return a[1] if a[0] <= b[0] else b[1]

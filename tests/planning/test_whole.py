@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from cellctl.errors import PlanningError
 from cellctl.planning.plan import PlanParams
 from cellctl.planning.shapes import open_box_bin
 from cellctl.planning.stations import (
@@ -62,6 +63,45 @@ def test_base_move_goes_around_the_ring_not_through_the_bin(box):
     straight = float(np.linalg.norm(cands[2].ring_xy - cands[0].ring_xy)) / sp.base_speed_m_s
     assert across > beside > sp.park_s
     assert across > straight + 180.0 / sp.base_turn_deg_s  # around, and the turn of 180°
+
+
+def test_an_inner_ring_follows_the_outer_one_closer_and_drives_round_the_outside(box):
+    sp = StationParams(candidates=4, inner_candidates=2, inner_park_distance_m=0.35)
+    cands = candidate_stations(box, None, sp)
+    assert [c.index for c in cands] == list(range(6)) and [c.ring for c in cands] == [0, 0, 0, 0, 1, 1]
+    assert [round(c.angle_deg) for c in cands[4:]] == [-90, 90] and cands[4].name.endswith("/inner")
+    for c in cands[4:]:
+        u = c.ring_xy / np.linalg.norm(c.ring_xy)
+        assert float(np.linalg.norm(c.ring_xy)) == pytest.approx(float((box.vertices[:, :2] @ u).max()) + 0.35)
+        assert c.reason is None
+    # out to the outer ring of its direction, no turn
+    out = base_move_s(cands, 0, 4, sp)
+    assert out == pytest.approx(0.4 / sp.base_speed_m_s + sp.park_s)
+    # inner to the opposite inner: out, half the outer ring, in (never across the bin)
+    assert base_move_s(cands, 4, 5, sp) == pytest.approx(base_move_s(cands, 0, 2, sp) + 2 * 0.4 / sp.base_speed_m_s)
+
+
+def test_station_parameters_refuse_an_inner_ring_outside_the_outer_one():
+    with pytest.raises(PlanningError, match=r"inner_park_distance_m 0.9 must be positive and below park_distance_m"):
+        StationParams(inner_candidates=4, inner_park_distance_m=0.9).check()
+    with pytest.raises(PlanningError, match=r"max_stations 13 must be in 1..12"):
+        StationParams(inner_candidates=4, max_stations=13).check()
+
+
+def test_the_batched_parking_robustness_test_answers_as_one_at_a_time(box, robot, T_bin_base):
+    from cellctl.planning.reach import _first_accepted, robust_acceptor
+
+    accept = robust_acceptor(box, robot, T_bin_base, FAST)
+    rng = np.random.default_rng(0)
+    Q = robot.q_home + rng.normal(0.0, 0.6, (60, 6))
+    one = np.array([accept(0, q) for q in Q])
+    assert 0 < one.sum() < len(Q)  # both answers occur
+    assert (accept.many(Q) == one).all()
+    offers = {i: (Q[3 * i : 3 * i + 3], np.zeros(3)) for i in range(20)}
+    first = _first_accepted(offers, accept)
+    expect = {i: int(np.argmax(one[3 * i : 3 * i + 3])) for i in range(20) if one[3 * i : 3 * i + 3].any()}
+    assert first == expect
+    assert _first_accepted(offers, lambda i, q: accept(i, q)) == expect  # a plain callable: one by one
 
 
 # --- the cover --------------------------------------------------------------------------------

@@ -18,6 +18,23 @@ def test_the_foreign_mesh_is_not_shaped_like_the_catalog_bins():
     assert np.isclose(m.areas.sum(), m.areas[m.internal].sum() + m.areas[~m.internal].sum())
 
 
+def test_the_second_foreign_mesh_is_wide_low_and_narrow_necked():
+    import pytest
+
+    from cellctl.errors import PlanningError
+
+    m = foreign_mesh("foreign_basin")
+    lo, hi = m.vertices.min(axis=0), m.vertices.max(axis=0)
+    size = hi - lo
+    assert size[0] > size[2] and size[1] > size[2]  # wider than high: the catalog bins are higher than wide
+    top = m.vertices[np.abs(m.vertices[:, 2]) < 1e-9]
+    widest = float(np.linalg.norm(m.vertices[:, :2], axis=1).max())
+    assert float(np.linalg.norm(top[:, :2], axis=1).min()) < 0.6 * widest  # an opening narrower than the body
+    assert m.internal.any() and (~m.internal).any()
+    with pytest.raises(PlanningError, match="unknown generated mesh 'cube'"):
+        foreign_mesh("cube")
+
+
 def _row(seed, ext, cycle, planning):
     return {
         "seed": seed,
