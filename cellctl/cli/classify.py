@@ -103,7 +103,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     dt.add_argument("--data", required=True)
     dt.add_argument("--out", default=None, help="default: <classifier.models_dir>/<surface>.detect.pt")
     dt.add_argument("--seed", type=int, default=0)
-    dt.add_argument("--epochs", type=int, default=20)
+    dt.add_argument("--epochs", type=int, default=12)
     dt.add_argument("--bank-size", type=int, default=1024)
     dt.add_argument("--target-false-clean", type=float, default=0.01)
     add_config_arguments(dt)

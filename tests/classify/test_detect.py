@@ -125,6 +125,14 @@ def test_detector_trains_predicts_and_reloads(contam: Path, tmp_path: Path) -> N
     assert rep["n"] == 16 and set(rep["by_family"]) - {"none"} <= set(HELD_OUT_FAMILIES) | {
         f"{a}+{b}" for a in HELD_OUT_FAMILIES for b in HELD_OUT_FAMILIES
     }
+    import torch
+
+    blob = torch.load(out, weights_only=True)
+    assert blob["format"] == "cellctl-detector/2" and blob["backbone"]
+    old = {**blob, "format": "cellctl-detector/1"}
+    del old["backbone"]
+    torch.save(old, tmp_path / "old.detect.pt")
+    assert Detector.load(tmp_path / "old.detect.pt").predict([img])[0].heat.shape == (16, 16)
     with pytest.raises(ClassifierError, match="expected 'internal'|for 'external'"):
         Detector.load(out, surface="internal")
     card_path = out.with_suffix(".json")
@@ -145,6 +153,63 @@ def test_memory_bank_scores_a_foreign_patch_far_from_clean_ones() -> None:
     near = bank(q).max().item()
     q[0, :, 1, 1] += 10.0
     assert bank(q)[0, 1, 1].item() > 5 * max(near, 1e-3)
+
+
+def test_augmentation_moves_the_patch_labels_with_the_image() -> None:
+    import torch
+
+    from cellctl.classify.anomaly import GRID, INPUT_SIZE
+    from cellctl.classify.finetune import augment_batch
+
+    cell = INPUT_SIZE // GRID
+    x = torch.full((8, 3, INPUT_SIZE, INPUT_SIZE), 60, dtype=torch.uint8)
+    x[:, :, 2 * cell : 3 * cell, 11 * cell : 12 * cell] = 250  # one bright patch at row 2, column 11
+    m = torch.zeros(8, GRID, GRID)
+    m[:, 2, 11] = 1.0
+    xa, ma = augment_batch(x, m, torch.Generator().manual_seed(1))
+    assert xa.dtype == torch.float32 and 0.0 <= float(xa.min()) and float(xa.max()) <= 1.0
+    flipped = 0
+    for k in range(8):
+        bright = xa[k].mean(0).unfold(0, cell, cell).unfold(1, cell, cell).mean((-1, -2))
+        assert ma[k].sum() == 1 and bright.argmax() == ma[k].argmax()
+        flipped += int(ma[k].argmax() != 2 * GRID + 11)
+    assert flipped > 0  # some images were flipped, and their labels with them
+
+
+def test_fine_tuning_learns_to_find_a_spot_and_the_file_carries_its_backbone(tmp_path: Path) -> None:
+    """A few epochs on images where dirty = a small dark spot: the largest patch logit separates
+    the classes on held-back images; the ImageNet backbone weights moved."""
+    import torch
+
+    from cellctl.classify.anomaly import GRID, INPUT_SIZE, PatchFeatures
+    from cellctl.classify.evaluate import roc_auc
+    from cellctl.classify.finetune import finetune
+    from cellctl.classify.fusion import _head
+
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(0)
+    cell = INPUT_SIZE // GRID
+
+    def draw(n: int) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
+        x = np.clip(rng.normal(150, 12, (n, 3, INPUT_SIZE, INPUT_SIZE)), 0, 255).astype(np.uint8)
+        m = np.zeros((n, GRID, GRID), np.float32)
+        y = np.arange(n) % 2
+        for k in np.flatnonzero(y):
+            r, c = rng.integers(1, GRID - 1, 2)
+            x[k, :, r * cell : (r + 1) * cell, c * cell : (c + 1) * cell] = 40
+            m[k, r, c] = 1.0
+        return torch.from_numpy(x), m, y
+
+    xtr, mtr, ytr = draw(64)
+    feats, head = PatchFeatures(), _head()
+    before = {k: v.clone() for k, v in feats.state_dict().items()}
+    finetune(feats, head, xtr, mtr, ytr, epochs=3, seed=0)
+    moved = [k for k, v in feats.state_dict().items() if v.dtype.is_floating_point and not torch.equal(v, before[k])]
+    assert moved and not any("running" in k for k in moved)  # weights learn, batch-norm statistics stay
+    xte, _, yte = draw(32)
+    with torch.inference_mode():
+        z = head(feats(xte.float() / 255.0))[:, 0].flatten(1).max(1).values.numpy()
+    assert roc_auc(z, yte) > 0.9
 
 
 def test_heat_roundtrip_and_bad_input() -> None:
