@@ -269,6 +269,11 @@ class PoseTolerance(_Model):
 class WholeBinConfig(_Model):
     """Whole-bin plans (cellctl.planning.stations / whole): stations around the bin, cycle-time model."""
 
+    enabled: StrictBool = Field(
+        default=False,
+        description="the cycle visits every station of the newest whole-bin plan and scans both surfaces; "
+        "false: one station, one surface (planner.surface)",
+    )
     candidates: int = Field(default=8, ge=1, le=36, description="station candidates around the bin")
     max_stations: int = Field(default=4, ge=1, le=36)
     park_distance_m: float = Field(default=0.75, gt=0, le=3, description="base origin beyond the bin's extent")

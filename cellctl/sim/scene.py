@@ -98,9 +98,15 @@ def nominal_T_bin_base(bin_type: BinType, mesh: BinMesh) -> NDArray[np.float64]:
 
 
 def park(
-    scenario: Scenario, bin_type: BinType, mesh: BinMesh, error_m: float, error_deg: float, attempt: int = 0
+    scenario: Scenario,
+    bin_type: BinType,
+    mesh: BinMesh,
+    error_m: float,
+    error_deg: float,
+    attempt: int = 0,
+    T_bin_base: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
-    """True ``T_world_base`` after parking: nominal pose plus a seeded planar error."""
+    """True ``T_world_base`` after parking at ``T_bin_base`` (default: the nominal pose) plus a seeded planar error."""
     rng = np.random.default_rng([scenario.seed, attempt, 7919])
     r = error_m * np.sqrt(rng.uniform())
     a = rng.uniform(0, 2 * np.pi)
@@ -108,7 +114,8 @@ def park(
     err = transform_from_xyz_rpy([r * np.cos(a), r * np.sin(a), 0.0], [0.0, 0.0, dyaw])
     ox, oy, oyaw = scenario.park_offset_xy_yaw
     offset = transform_from_xyz_rpy([ox, oy, 0.0], [0.0, 0.0, oyaw])
-    return scenario.T_world_bin(bin_type) @ nominal_T_bin_base(bin_type, mesh) @ offset @ err
+    target = nominal_T_bin_base(bin_type, mesh) if T_bin_base is None else np.asarray(T_bin_base, dtype=float)
+    return scenario.T_world_bin(bin_type) @ target @ offset @ err
 
 
 def observation_T_bin_cam(bin_type: BinType, index: int) -> NDArray[np.float64]:

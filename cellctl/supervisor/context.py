@@ -28,10 +28,14 @@ from cellctl.messages import (
     Intrinsics,
     PlanLookupReply,
     StartParams,
+    StationInfo,
     ViewpointResult,
+    WashResult,
+    WashRound,
     WireMessage,
 )
 from cellctl.supervisor.recorder import Recorder
+from cellctl.surface import SURFACES
 
 if TYPE_CHECKING:  # the daemon imports neither at start: vision pulls OpenCV in
     from cellctl.geometry.catalog import Catalog
@@ -60,6 +64,8 @@ INITIAL_CONTEXT = (
     "next_viewpoint",
     "viewpoints",
     "classifications",
+    "station_index",
+    "surface_index",
 )
 """Blackboard fields every cycle starts with set; the rest start as ``None`` and are written by steps.
 
@@ -77,7 +83,7 @@ class CycleContext:
     cfg: CellConfig
     session: zenoh.Session | None
     log: Recorder
-    mode: Literal["evaluate", "collect"] = "evaluate"
+    mode: Literal["evaluate", "collect", "wash_and_verify"] = "evaluate"
     params: StartParams = field(default_factory=StartParams)
     started: str = ""
     log_rel: str | None = None
@@ -103,6 +109,34 @@ class CycleContext:
     reason: str | None = None
     saved_step: str | None = None
     finished: bool = False
+    # --- wash_and_verify (steps/washing.py, steps/verifying.py)
+    wash_plan: Any = None
+    """The round's :class:`cellctl.washing.plan.WashPlan` while it is washed and re-inspected (not on the wire)."""
+    wash_rounds: list[WashRound] = field(default_factory=list)
+    wash_run: dict[str, Any] = field(default_factory=dict)
+    """The running round's counts: sweeps and passes run, sweeps refused, its pictures so far."""
+    wash_next_sweep: int = 0
+    wash_next_view: int = 0
+    wash: WashResult | None = None
+    # --- whole-bin cycle (planner.whole.enabled): the station loop's place and what each station gave
+    station_index: int = 0
+    """Position in ``station_order`` of the station the cycle is at (Hold/Suspend resume here)."""
+    surface_index: int = 0
+    """Position in the current station's surfaces (:meth:`station_surfaces`)."""
+    stations: list[StationInfo] | None = None
+    """The whole-bin plan's stations, from the first lookup; None until then."""
+    station_order: list[int] = field(default_factory=list)
+    """Station ranks in visiting order (starting where the first park was identified)."""
+    whole_plan_id: str | None = None
+    modelled_cycle_s: float | None = None
+    plans: dict[tuple[int | None, str | None], PlanLookupReply] = field(default_factory=dict)
+    """(station, surface) → the plan scanned there; single-station cycles use key (None, None)."""
+    bin_poses: dict[int, np.ndarray] = field(default_factory=dict)
+    """station → T_base_bin used there (measured, or the planned station pose when carried over)."""
+    pose_source: dict[int, str] = field(default_factory=dict)
+    station_coverage: dict[tuple[int | None, str | None], float | None] = field(default_factory=dict)
+    coverage_by_surface: dict[str, float | None] | None = None
+    station_notes: dict[int, str] = field(default_factory=dict)
     step_seconds: dict[str, float] = field(default_factory=dict)
     rpc_seconds: dict[str, float] = field(default_factory=dict)
     rpc_count: int = 0
@@ -110,9 +144,30 @@ class CycleContext:
     _ended: threading.Event = field(default_factory=threading.Event)
 
     @property
+    def whole(self) -> bool:
+        """A whole-bin cycle: every station of the newest whole-bin plan, both surfaces."""
+        return self.cfg.planner.whole.enabled
+
+    @property
     def surface(self) -> str:
-        """The surface this cycle inspects: the Start param, else the config's default."""
+        """The surface inspected now: the current station's, in a whole-bin cycle (external before its
+        stations are known); else the Start param, else the config's default."""
+        if self.whole:
+            surfs = self.station_surfaces()
+            return surfs[self.surface_index] if self.surface_index < len(surfs) else SURFACES[0]
         return self.params.surface or self.cfg.planner.surface
+
+    def current_station(self) -> StationInfo | None:
+        """The station the whole-bin cycle is at, or None (single-station cycle, or stations not known yet)."""
+        if not self.stations or self.station_index >= len(self.station_order):
+            return None
+        rank = self.station_order[self.station_index]
+        return next(s for s in self.stations if s.station == rank)
+
+    def station_surfaces(self, st: StationInfo | None = None) -> list[str]:
+        """The surfaces a station has viewpoints for, in :data:`~cellctl.surface.SURFACES` order."""
+        st = st if st is not None else self.current_station()
+        return [s for s in SURFACES if st is not None and s in st.plans]
 
     @property
     def pool(self) -> ThreadPoolExecutor:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 from cellctl.bus import keys
 from cellctl.config import CellConfig
 from cellctl.hashing import file_sha256_or_none
-from cellctl.messages import BinInfo, CycleOutcome, CycleResult, PoseMsg, WireMessage
+from cellctl.messages import BinInfo, CycleOutcome, CycleResult, PoseMsg, StationResult, WireMessage
 from cellctl.recording.cycle_log import CycleLog
 from cellctl.recording.index import CycleIndex
 
@@ -128,6 +128,7 @@ def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: st
     """The CycleResult of a finished cycle from its blackboard (the verdict only when completed)."""
     outcome = ctx.outcome or default_outcome
     plan = ctx.plan
+    whole = ctx.whole and bool(ctx.station_order)
     return CycleResult(
         cycle_id=ctx.cycle_id,
         outcome=outcome,
@@ -135,8 +136,10 @@ def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: st
         bin=BinInfo(
             type=ctx.bin_type, pose=PoseMsg.from_matrix(ctx.T_base_bin) if ctx.T_base_bin is not None else None
         ),
-        plan_id=plan.plan_id if plan is not None else None,
-        plan_adjusted=plan.adjusted if plan is not None else None,
+        plan_id=ctx.whole_plan_id if whole else plan.plan_id if plan is not None else None,
+        plan_adjusted=(
+            any(p.adjusted for p in ctx.plans.values()) if whole and ctx.plans else plan.adjusted if plan else None
+        ),
         planner_job_id=ctx.planner_job_id,
         verdict=ctx.verdict if outcome == CycleOutcome.completed else None,
         viewpoints=ctx.viewpoints,
@@ -149,4 +152,38 @@ def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: st
             "rpc_count": ctx.rpc_count,
         },
         started=ctx.started,
+        wash=ctx.wash,
+        whole_plan_id=ctx.whole_plan_id if whole else None,
+        coverage_by_surface=ctx.coverage_by_surface if whole else None,
+        stations=station_results(ctx) if whole else None,
+        modelled_cycle_s=ctx.modelled_cycle_s if whole else None,
     )
+
+
+def station_results(ctx: CycleContext) -> list[StationResult]:
+    """What the whole-bin cycle did at each station of its visiting order (also those it never reached)."""
+    by_rank = {s.station: s for s in ctx.stations or []}
+    out = []
+    for pos, rank in enumerate(ctx.station_order):
+        st = by_rank[rank]
+        plans = {surf: p for (k, surf), p in ctx.plans.items() if k == rank and surf is not None}
+        views = [v for v in ctx.viewpoints if v.station == rank and v.relook_of is None]
+        reason = ctx.station_notes.get(rank)
+        if reason is None and pos > ctx.station_index:
+            reason = "not reached: the cycle ended before this station"
+        elif reason is None and pos == ctx.station_index and len(plans) < len(st.plans) and ctx.finished:
+            reason = "the cycle ended at this station" + (f": {ctx.reason}" if ctx.reason else "")
+        out.append(
+            StationResult(
+                station=rank,
+                base_pose=st.base_pose,
+                bin_pose_source=ctx.pose_source.get(rank),  # type: ignore[arg-type]
+                plan_ids={s: p.plan_id for s, p in plans.items() if p.plan_id},
+                adjusted={s: p.adjusted for s, p in plans.items()},
+                viewpoints={s: len(p.viewpoints) for s, p in plans.items()},
+                refused={s: sum(1 for v in views if v.surface == s and v.error is not None) for s in plans},
+                coverage={s: ctx.station_coverage.get((rank, s)) for s in plans},
+                reason=reason,
+            )
+        )
+    return out

@@ -56,7 +56,7 @@ def test_a_valid_start_is_accepted_with_typed_params() -> None:
             {"speed": 3},
             "unknown start params ['speed']; allowed: ['dataset', 'label', 'mode', 'perturb_m', 'seed', 'surface']",
         ),
-        ({"mode": "fast"}, "start param mode='fast'; expected 'evaluate' or 'collect'"),
+        ({"mode": "fast"}, "start param mode='fast'; expected 'evaluate', 'collect' or 'wash_and_verify'"),
         ({"mode": "collect"}, "start param label=None; collect mode needs label 'clean' or 'dirty'"),
         ({"surface": "top"}, "start param surface='top'; expected 'external' or 'internal'"),
         ({"perturb_m": 0.5}, "start param perturb_m=0.5; expected a number in [0, 0.1] m"),
@@ -378,7 +378,8 @@ def test_loader_refuses_a_read_written_on_only_one_path(tmp_path: Path) -> None:
         "initial: approaching\nstates:\n"
         "  approaching: {step: approaching, on: {succeeded: identifying, failed: {exit: abort}}}\n"
         "  identifying: {step: identifying, on: {succeeded: checking_cache, retry: approaching, failed: scanning}}\n"
-        "  checking_cache: {step: checking_cache, on: {hit: scanning, miss: {exit: complete}, failed: {exit: abort}}}\n"
+        "  checking_cache: {step: checking_cache, on: {hit: scanning, miss: {exit: complete}, move: {exit: abort},"
+        " failed: {exit: abort}}}\n"
         "  scanning: {step: scanning, on: {succeeded: {exit: complete}, failed: {exit: abort}}}\n"
     )
     with pytest.raises(ConfigError, match=r"states.scanning: step 'scanning' reads \['plan'\]"):

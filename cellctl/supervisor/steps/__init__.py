@@ -5,12 +5,14 @@ from cellctl.supervisor.steps.approaching import Approaching
 from cellctl.supervisor.steps.checking_cache import CheckingCache
 from cellctl.supervisor.steps.classifying import Classifying
 from cellctl.supervisor.steps.identifying import Identifying
+from cellctl.supervisor.steps.next_station import NextStation
 from cellctl.supervisor.steps.replanning import Replanning
 from cellctl.supervisor.steps.reporting import Reporting
 from cellctl.supervisor.steps.scanning import Scanning
 
 STEPS: dict[str, type[Step]] = {
-    s.NAME: s for s in (Approaching, Identifying, CheckingCache, Replanning, Scanning, Classifying, Reporting)
+    s.NAME: s
+    for s in (Approaching, Identifying, CheckingCache, Replanning, Scanning, Classifying, NextStation, Reporting)
 }
 """Step name → class; the cycle YAML may name only these."""
 

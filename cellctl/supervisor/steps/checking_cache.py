@@ -1,4 +1,11 @@
-"""checking_cache: ask the planner for a cached plan of this bin type within pose tolerance."""
+"""checking_cache: ask the planner for a cached plan of this bin type within pose tolerance.
+
+In a whole-bin cycle the lookup also answers the newest whole-bin plan's stations. The first
+lookup of a cycle fixes the station loop: it starts at the station the first park matched
+(its plan within tolerance) and goes round the plan's order; a first park that matches none
+(or the whole plan's first station lies elsewhere) drives to the plan's first station
+(outcome ``move``). A miss at a known station replans that station (replanning).
+"""
 
 from __future__ import annotations
 
@@ -10,12 +17,12 @@ from cellctl.supervisor.steps._base import Step
 
 class CheckingCache(Step):
     NAME = "checking_cache"
-    OUTCOMES = ("hit", "miss", "failed")
+    OUTCOMES = ("hit", "miss", "move", "failed")
     DESCRIPTION = "plan-cache lookup + tolerance check + viewpoint adjustment (in the planner worker)"
     READS = ("bin_type", "T_base_bin", "params", "mode")
-    WRITES = ("plan",)
+    WRITES = ("plan", "approach")
 
-    def execute(self, run: StepRun) -> str:
+    def _lookup(self, run: StepRun) -> PlanLookupReply:
         ctx = run.ctx
         req = PlanLookupRequest(
             bin_type=ctx.bin_type or "",
@@ -23,14 +30,54 @@ class CheckingCache(Step):
             surface=ctx.surface,
             # data collection visits every reachable viewpoint, not only the tour
             all_reachable=ctx.mode == "collect",
+            whole=ctx.whole,
         )
         reply, _ = run.call("planner", "lookup", req, PlanLookupReply, timeout=ctx.cfg.supervisor.timeouts.default)
+        return reply
+
+    def execute(self, run: StepRun) -> str:
+        ctx = run.ctx
+        asked = ctx.surface
+        reply = self._lookup(run)
+        if ctx.whole and ctx.stations is None and reply.stations:
+            ranks = [s.station for s in reply.stations]
+            ctx.stations = reply.stations
+            ctx.whole_plan_id = reply.whole_plan_id
+            ctx.modelled_cycle_s = reply.cycle_time_s
+            if not reply.hit or reply.station is None:
+                ctx.station_order, ctx.station_index, ctx.surface_index = ranks, 0, 0
+                st = ctx.current_station()
+                assert st is not None
+                ctx.approach = None  # park again, at the station
+                ctx.observation_index = st.observation_index or 0
+                ctx.identify_attempts = 0
+                run.event(
+                    "info",
+                    f"parked at no station of whole-bin plan {reply.whole_plan_id} ({reply.reason}); "
+                    f"driving to its station {st.station}",
+                )
+                return "move"
+            k = ranks.index(reply.station)
+            ctx.station_order, ctx.station_index, ctx.surface_index = ranks[k:] + ranks[:k], 0, 0
+            ctx.bin_poses[reply.station] = ctx.T_base_bin
+            ctx.pose_source[reply.station] = "measured"
+            run.event(
+                "info",
+                f"whole-bin plan {reply.whole_plan_id}: {len(ranks)} stations, starting at station {reply.station}",
+            )
+            if ctx.surface != asked:  # this station's first surface is not the one the first lookup asked for
+                reply = self._lookup(run)
         if not reply.hit:
-            run.event("info", f"no usable plan: {reply.reason}")
+            here = ctx.current_station()
+            where = f" at station {here.station} ({ctx.surface})" if here is not None else ""
+            run.event("info", f"no usable plan{where}: {reply.reason}")
             return "miss"
         if not reply.viewpoints:
             raise PlanCacheError(f"planner answered lookup with a hit on plan {reply.plan_id!r} but no viewpoints")
         ctx.plan = reply
+        st = ctx.current_station()
+        ctx.plans[(st.station if st is not None else None, ctx.surface if st is not None else None)] = reply
         note = " (viewpoints adjusted to the measured pose)" if reply.adjusted else ""
-        run.event("info", f"plan {reply.plan_id} with {len(reply.viewpoints)} viewpoints{note}")
+        where = f"station {st.station}, {ctx.surface}: " if st is not None else ""
+        run.event("info", f"{where}plan {reply.plan_id} with {len(reply.viewpoints)} viewpoints{note}")
         return "hit"

@@ -31,6 +31,12 @@ def _logit(p: float) -> float:
     return math.log(q / (1 - q))
 
 
+def view_key(v: ViewpointResult) -> tuple[int | None, str | None, int]:
+    """Which planned viewpoint a view is of: (station, surface, index); station and surface are None
+    in a single-station cycle (indices repeat across a whole-bin cycle's plans)."""
+    return (v.station, v.surface, v.index)
+
+
 def with_reply(v: ViewpointResult, reply) -> ViewpointResult:  # noqa: ANN001
     """The viewpoint result updated with a ClassifyReply's decision and scores."""
     return v.model_copy(
@@ -99,16 +105,16 @@ class Classifying(Step):
         return "succeeded"
 
     @staticmethod
-    def _view_labels(viewpoints: list[ViewpointResult]) -> dict[int, str]:
+    def _view_labels(viewpoints: list[ViewpointResult]) -> dict[tuple[int | None, str | None, int], str]:
         """Label per viewpoint index, a re-looked viewpoint's views fused (mean logit vs its threshold).
 
         The threshold is not on the wire; a view's own label and ``p_dirty`` bound it: fused
         views keep the label of the one whose logit is nearest the mean.
         """
-        groups: dict[int, list[ViewpointResult]] = {}
+        groups: dict[tuple[int | None, str | None, int], list[ViewpointResult]] = {}
         for v in viewpoints:
             if v.label is not None and v.p_dirty is not None:
-                groups.setdefault(v.index, []).append(v)
+                groups.setdefault(view_key(v), []).append(v)
         out = {}
         for idx, vs in groups.items():
             if len(vs) == 1:
@@ -130,8 +136,11 @@ class Classifying(Step):
         from cellctl.supervisor.steps.scanning import classify_image
 
         bin_type = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
+        st = ctx.current_station()
+        # a re-look moves the arm by a camera pose in this base frame: only this station's views, this surface
+        here = (st.station, ctx.surface) if st is not None else (None, None)
         done = 0
-        tried: dict[int, int] = {}
+        tried: dict[tuple[int | None, str | None, int], int] = {}
         while done < rc.max_views:
             pending = [
                 v
@@ -140,16 +149,17 @@ class Classifying(Step):
                 and v.camera_pose is not None
                 and v.error is None
                 and v.p_dirty is not None
+                and (v.station, v.surface) == here
                 # the latest view of its viewpoint decides whether to look again
-                and v is [w for w in ctx.viewpoints if w.index == v.index][-1]
+                and v is [w for w in ctx.viewpoints if view_key(w) == view_key(v)][-1]
             ]
             if not pending:
                 break
             v = min(pending, key=lambda w: abs(_logit(w.p_dirty) - _logit(0.5)))  # type: ignore[arg-type]
             run.checkpoint()
-            k = tried.get(v.index, 0)
-            tried[v.index] = k + 1
-            base = next(w for w in ctx.viewpoints if w.index == v.index and w.relook_of is None)
+            k = tried.get(view_key(v), 0)
+            tried[view_key(v)] = k + 1
+            base = next(w for w in ctx.viewpoints if view_key(w) == view_key(v) and w.relook_of is None)
             T = relook_pose(base.camera_pose.matrix(), k, rc.offset_m, rc.glance_deg, rc.depth_m)  # type: ignore[union-attr]
             done += 1
             try:
@@ -162,7 +172,12 @@ class Classifying(Step):
             except WorkerFailed as err:
                 ctx.viewpoints.append(
                     ViewpointResult(
-                        index=v.index, camera_pose=PoseMsg.from_matrix(T), error=str(err), relook_of=v.index
+                        index=v.index,
+                        camera_pose=PoseMsg.from_matrix(T),
+                        error=str(err),
+                        relook_of=v.index,
+                        station=v.station,
+                        surface=v.surface,
                     )
                 )
                 continue
@@ -175,6 +190,15 @@ class Classifying(Step):
             reply = classify_image(run, v.index, img, "png" if img is not data else cap.format, ctx.surface)
             record_heat(run, reply)
             ctx.viewpoints.append(
-                with_reply(ViewpointResult(index=v.index, camera_pose=moved.camera_pose, relook_of=v.index), reply)
+                with_reply(
+                    ViewpointResult(
+                        index=v.index,
+                        camera_pose=moved.camera_pose,
+                        relook_of=v.index,
+                        station=v.station,
+                        surface=v.surface,
+                    ),
+                    reply,
+                )
             )
         return done

@@ -9,9 +9,10 @@ import numpy as np
 from cellctl.bus import topics
 from cellctl.errors import CameraError, IdentificationError, WorkerFailed
 from cellctl.images import IMAGE_MAGIC, decode_image
-from cellctl.messages import ApproachReply, ApproachRequest, CaptureReply, CaptureRequest, EventLevel
+from cellctl.messages import ApproachReply, CaptureReply, CaptureRequest, EventLevel
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps.approaching import approach_request
 
 if TYPE_CHECKING:
     from cellctl.vision.identify import Identification
@@ -53,6 +54,9 @@ class Identifying(Step):
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
         assert ctx.approach is not None
+        st = ctx.current_station()
+        if st is not None and st.observation_index is None:
+            return self._carry_over(run, st)
         ctx.identify_attempts += 1
         try:
             ident = self._view(run, ctx.approach.camera_pose.matrix())
@@ -70,9 +74,7 @@ class Identifying(Step):
             # fused estimate uses the ones that worked.
             idx = ctx.observation_index + k
             try:
-                moved, _ = run.call(
-                    "robot", "approach", ApproachRequest(observation_index=idx, park=False), ApproachReply
-                )
+                moved, _ = run.call("robot", "approach", approach_request(run, idx, False), ApproachReply)
                 views.append(self._view(run, moved.camera_pose.matrix()))
             except (IdentificationError, WorkerFailed) as err:
                 run.event("warning", f"extra view from observation pose {idx} skipped: {err}")
@@ -90,6 +92,13 @@ class Identifying(Step):
             ctx.identification = ident
         if T_base_bin.shape != (4, 4) or not np.isfinite(T_base_bin).all():
             raise IdentificationError(f"identification of bin {bin_type!r} gave no finite 4x4 pose")
+        if st is not None and ctx.bin_type is not None and bin_type != ctx.bin_type:
+            raise IdentificationError(
+                f"station {st.station} identified bin {bin_type!r}, but this cycle inspects bin {ctx.bin_type!r}"
+            )
+        if st is not None:
+            ctx.bin_poses[st.station] = T_base_bin
+            ctx.pose_source[st.station] = "measured"
         ctx.bin_type = bin_type
         ctx.T_base_bin = T_base_bin
         from cellctl.recording import foxglove
@@ -97,4 +106,23 @@ class Identifying(Step):
         ctx.log.write_json(topics.BIN_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", T_base_bin))
         ctx.log.write_json(topics.TF, "foxglove.FrameTransform", foxglove.frame_transform("base", "bin", T_base_bin))
         run.event("info", f"identified bin {bin_type!r}{note}")
+        return "succeeded"
+
+    @staticmethod
+    def _carry_over(run: StepRun, st) -> str:  # noqa: ANN001 - StationInfo
+        """A station that cannot see the board: the bin pose is the planned station pose (decisions.md)."""
+        from cellctl.geometry.transforms import invert
+        from cellctl.recording import foxglove
+
+        ctx = run.ctx
+        if ctx.bin_type is None:
+            raise IdentificationError(
+                f"station {st.station} cannot see the board ({st.identify_reason}) and no earlier station "
+                "identified the bin"
+            )
+        ctx.T_base_bin = invert(st.base_pose.matrix())
+        ctx.bin_poses[st.station] = ctx.T_base_bin
+        ctx.pose_source[st.station] = "carried_over"
+        ctx.log.write_json(topics.BIN_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", ctx.T_base_bin))
+        run.event("info", f"station {st.station}: board not visible, bin pose carried over (planned station pose)")
         return "succeeded"

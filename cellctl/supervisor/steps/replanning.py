@@ -1,4 +1,9 @@
-"""replanning: abort-to-offline — submit a planning job; the next cycle finds the plan."""
+"""replanning: abort-to-offline — submit a planning job; the next cycle finds the plan.
+
+A whole-bin cycle without a whole-bin plan submits a whole-bin job (stations, both surfaces);
+a miss at a known station (the base parked beyond tolerance there) replans that station's
+surface at the measured pose, an ordinary plan the next lookup at that station finds.
+"""
 
 from __future__ import annotations
 
@@ -30,22 +35,31 @@ class Replanning(Step):
             seed=pc.seed,
             # the tour starts where the arm is now: at the observation pose it identified from
             q_start=list(ctx.approach.joints) if ctx.approach is not None else None,
+            whole=ctx.whole and ctx.stations is None,
         )
+        st = ctx.current_station()
         key = keys.planner_jobs(ctx.cfg.cell_id)
         reply, _ = run.call(
             "planner", "jobs", req, PlanJobReply, key=key, timeout=ctx.cfg.supervisor.timeouts.plan_submit
         )
         ctx.planner_job_id = reply.job_id
-        run.event("info", f"planning job {reply.job_id} submitted for bin {ctx.bin_type!r}")
+        what = "whole-bin " if req.whole else f"station {st.station} {ctx.surface} " if st is not None else ""
+        run.event("info", f"{what}planning job {reply.job_id} submitted for bin {ctx.bin_type!r}")
         if not ctx.cfg.supervisor.wait_for_plan:
             ctx.outcome = CycleOutcome.replan_required
-            ctx.reason = f"no plan within tolerance for bin {ctx.bin_type!r}; planning job {reply.job_id} submitted"
+            where = f" at station {st.station} ({ctx.surface})" if st is not None else ""
+            ctx.reason = (
+                f"no {'whole-bin plan' if req.whole else 'plan within tolerance'} for bin {ctx.bin_type!r}{where}; "
+                f"{what}planning job {reply.job_id} submitted"
+            )
             return "submitted"
         deadline = time.monotonic() + ctx.cfg.supervisor.timeouts.plan_wait
         while time.monotonic() < deadline:
             run.checkpoint()
             status, _ = run.call("planner", "jobs", PlanJobQuery(job_id=reply.job_id), PlanJobReply, key=key)
             if status.state == "done":
+                if req.whole:
+                    ctx.stations = None  # the next lookup reads the new plan's stations
                 return "plan_ready"
             if status.state == "failed":
                 raise PlanningError(f"planning job {reply.job_id} failed: {status.reason}")

@@ -6,9 +6,16 @@ the plan says the view sees, from the pose the camera actually reached, and all 
 (:func:`cellctl.classify.heatmap.fuse_views`). Views of a whole-image model paint all their
 faces with their ``p_dirty`` (the coarse map of before). The verdict rule is
 ``classifier.verdict`` (docs/classifier/inspect.md).
+
+A whole-bin cycle's views come from several plans (one per station and surface) and several
+base frames: each view's faces come from its own (station, surface) plan and its camera pose is
+taken into the bin frame through its own station's bin pose. Coverage is then the area of both
+surfaces seen, with ``coverage_by_surface`` and each station's share beside it.
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -16,20 +23,34 @@ from cellctl.bus import topics
 from cellctl.messages import CycleOutcome
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
-from cellctl.surface import FACE_TAG, Surface
+from cellctl.supervisor.steps.classifying import view_key
+from cellctl.surface import FACE_TAG, SURFACES, Surface
+
+PlanKey = tuple[int | None, str | None]
 
 
-def view_evidence(plan, viewpoints, T_base_bin) -> list:  # noqa: ANN001
-    """One :class:`~cellctl.classify.heatmap.ViewEvidence` per classified view (re-looks included)."""
+def _faces_by_view(plan, plans: Mapping[PlanKey, object] | None) -> dict:  # noqa: ANN001
+    """(station, surface, index) → face ids; a single-station cycle's plan is keyed (None, None)."""
+    plans = plans if plans else {(None, None): plan}
+    return {(st, surf, vp.index): vp.faces for (st, surf), p in plans.items() for vp in p.viewpoints}  # type: ignore[attr-defined]
+
+
+def view_evidence(plan, viewpoints, T_base_bin, plans=None, bin_poses=None) -> list:  # noqa: ANN001
+    """One :class:`~cellctl.classify.heatmap.ViewEvidence` per classified view (re-looks included).
+
+    ``plans`` ((station, surface) → plan) and ``bin_poses`` (station → T_base_bin) serve a whole-bin
+    cycle; without them every view is of ``plan``, taken with the bin at ``T_base_bin``.
+    """
     from cellctl.classify.heatmap import ViewEvidence, decode_heat
 
-    faces_by_index = {vp.index: np.asarray(vp.faces, np.int64) for vp in plan.viewpoints}
-    T_bin_base = np.linalg.inv(T_base_bin) if T_base_bin is not None else None
+    faces_by = {k: np.asarray(f, np.int64) for k, f in _faces_by_view(plan, plans).items()}
     out = []
     for v in viewpoints:
         if v.error is not None or v.label is None or v.p_dirty is None:
             continue
-        faces = faces_by_index.get(v.index, np.zeros(0, np.int64))
+        faces = faces_by.get(view_key(v), np.zeros(0, np.int64))
+        T = (bin_poses or {}).get(v.station, T_base_bin) if v.station is not None else T_base_bin
+        T_bin_base = np.linalg.inv(T) if T is not None else None
         heat = decode_heat(v.heatmap, v.heat_grid) if v.heatmap and v.heat_grid else None
         if heat is not None and (v.camera_pose is None or T_bin_base is None):
             heat = None  # no pose to project with: fall back to the view's own probability
@@ -38,20 +59,23 @@ def view_evidence(plan, viewpoints, T_base_bin) -> list:  # noqa: ANN001
     return out
 
 
-def dirt_map(plan, viewpoints, mesh=None, surface: Surface = "external") -> tuple[dict, float | None]:  # noqa: ANN001
+def dirt_map(
+    plan, viewpoints, mesh=None, surface: Surface | None = "external", plans=None
+) -> tuple[dict, float | None]:  # noqa: ANN001
     """The coarse map (no mesh, or no heat maps): each viewpoint's label on the faces it sees.
 
     A face seen dirty from any viewpoint is dirty; a face seen only clean is clean; a face no
     successful viewpoint saw is unseen. Coverage = area of the inspected surface's faces seen
-    / that surface's area when the mesh is known, else seen faces / mesh faces.
+    / that surface's area (``surface`` None: both surfaces) when the mesh is known, else seen
+    faces / mesh faces.
     """
-    faces_by_index = {vp.index: set(vp.faces) for vp in plan.viewpoints}
+    faces_by = {k: set(f) for k, f in _faces_by_view(plan, plans).items()}
     dirty: set[int] = set()
     seen: set[int] = set()
     for v in viewpoints:
         if v.error is not None or v.label is None:
             continue
-        f = faces_by_index.get(v.index, set())
+        f = faces_by.get(view_key(v), set())
         seen |= f
         if v.label == "dirty":
             dirty |= f
@@ -59,8 +83,7 @@ def dirt_map(plan, viewpoints, mesh=None, surface: Surface = "external") -> tupl
     coverage = len(seen) / total if total else None
     if mesh is not None:
         total = mesh.n_faces
-        idx = np.fromiter(seen, dtype=np.int64, count=len(seen))
-        coverage = _coverage(mesh, idx[(idx >= 0) & (idx < total)], surface)
+        coverage = _coverage(mesh, _ids(seen, total), surface)
     return {
         "faces_total": total,
         "seen_dirty": sorted(dirty),
@@ -69,10 +92,29 @@ def dirt_map(plan, viewpoints, mesh=None, surface: Surface = "external") -> tupl
     }, coverage
 
 
-def _coverage(mesh, seen_ids: np.ndarray, surface: Surface) -> float | None:  # noqa: ANN001
-    on_surface = mesh.surface == FACE_TAG[surface]
+def _ids(faces: set[int], total: int) -> np.ndarray:
+    idx = np.fromiter(faces, dtype=np.int64, count=len(faces))
+    return idx[(idx >= 0) & (idx < total)]
+
+
+def _coverage(mesh, seen_ids: np.ndarray, surface: Surface | None) -> float | None:  # noqa: ANN001
+    """Area fraction of ``surface``'s faces (None: every surface's) among ``seen_ids``."""
+    tags = [FACE_TAG[surface]] if surface is not None else [FACE_TAG[s] for s in SURFACES]
+    on_surface = np.isin(mesh.surface, tags)
     areas = mesh.areas
     return float(areas[seen_ids][on_surface[seen_ids]].sum() / areas[on_surface].sum()) if on_surface.any() else None
+
+
+def _whole_coverage(ctx, mesh, seen: np.ndarray) -> None:  # noqa: ANN001
+    """Per-surface coverage of the whole cycle (``seen``: face ids) and each (station, surface)'s own share."""
+    ctx.coverage_by_surface = {s: _coverage(mesh, seen, s) for s in SURFACES}
+    faces_by = {k: set(f) for k, f in _faces_by_view(ctx.plan, ctx.plans).items()}
+    for st, surf in ctx.plans:
+        mine: set[int] = set()
+        for v in ctx.viewpoints:
+            if (v.station, v.surface) == (st, surf) and v.error is None and v.label is not None:
+                mine |= faces_by.get(view_key(v), set())
+        ctx.station_coverage[(st, surf)] = _coverage(mesh, _ids(mine, mesh.n_faces), surf)
 
 
 class Reporting(Step):
@@ -86,20 +128,24 @@ class Reporting(Step):
         ctx = run.ctx
         mesh = ctx.catalog.load_mesh(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
         has_heat = any(v.heatmap for v in ctx.viewpoints)
+        whole = ctx.whole and bool(ctx.station_order)
+        plans = ctx.plans if whole else None
+        cover_surface = None if whole else ctx.surface
         if mesh is not None and has_heat and ctx.mode != "collect":
             from cellctl.classify.heatmap import fuse_views, verdict
             from cellctl.geometry.camera import CameraModel
 
             vc = ctx.cfg.classifier.verdict
             fm = fuse_views(
-                view_evidence(ctx.plan, ctx.viewpoints, ctx.T_base_bin),
+                view_evidence(ctx.plan, ctx.viewpoints, ctx.T_base_bin, plans, ctx.bin_poses),
                 mesh,
                 CameraModel.from_config(ctx.cfg.camera),
                 prior=vc.face_prior,
                 face_threshold=vc.face_threshold,
             )
             ctx.dirt_map = fm.as_json()
-            ctx.coverage = _coverage(mesh, np.flatnonzero(fm.seen), ctx.surface)
+            seen_ids = np.flatnonzero(fm.seen)
+            ctx.coverage = _coverage(mesh, seen_ids, cover_surface)  # type: ignore[arg-type]
             labels = [v.label for v in ctx.viewpoints if v.label is not None]
             if vc.rule == "faces":
                 before = ctx.verdict
@@ -113,7 +159,21 @@ class Reporting(Step):
             # the heat maps are in the MCAP (topics.HEATMAP); the CycleResult keeps face_p
             ctx.viewpoints = [v.model_copy(update={"heatmap": None}) for v in ctx.viewpoints]
         else:
-            ctx.dirt_map, ctx.coverage = dirt_map(ctx.plan, ctx.viewpoints, mesh, ctx.surface)
+            ctx.dirt_map, ctx.coverage = dirt_map(ctx.plan, ctx.viewpoints, mesh, cover_surface, plans)  # type: ignore[arg-type]
+            seen_ids = (
+                _ids(set(ctx.dirt_map["seen_dirty"]) | set(ctx.dirt_map["seen_clean"]), mesh.n_faces)
+                if mesh is not None
+                else None
+            )
+        if whole and mesh is not None and seen_ids is not None:
+            _whole_coverage(ctx, mesh, seen_ids)
+            ctx.dirt_map = {**ctx.dirt_map, "coverage_by_surface": ctx.coverage_by_surface}
+            run.event(
+                "info",
+                "whole bin: "
+                + ", ".join(f"{s} {c:.0%}" if c is not None else f"{s} -" for s, c in ctx.coverage_by_surface.items())
+                + f" seen from {len(ctx.station_order)} stations",
+            )
         if mesh is not None:
             self._scene(ctx, mesh)
         ctx.outcome = CycleOutcome.completed
@@ -121,7 +181,10 @@ class Reporting(Step):
 
     @staticmethod
     def _scene(ctx, mesh) -> None:  # noqa: ANN001
-        """The scan in 3D for Foxglove: bin coloured by the dirt map, one arrow per viewpoint."""
+        """The scan in 3D for Foxglove: bin coloured by the dirt map, one arrow per viewpoint.
+
+        A whole-bin cycle's views of other stations are drawn in the last station's base frame.
+        """
         from cellctl.recording import foxglove
         from cellctl.recording.dirt_map import COLOURS, face_colours
 
@@ -133,7 +196,11 @@ class Reporting(Step):
             colour = (
                 COLOURS["dirty"] if v.label == "dirty" else COLOURS["clean"] if v.label == "clean" else (0.2, 0.4, 1, 1)
             )
-            cams.append((v.camera_pose.matrix(), colour, f"{v.index}" + ("r" if v.relook_of is not None else "")))
+            T = v.camera_pose.matrix()
+            T_then = ctx.bin_poses.get(v.station) if v.station is not None else None
+            if T_then is not None and ctx.T_base_bin is not None:
+                T = ctx.T_base_bin @ np.linalg.inv(T_then) @ T
+            cams.append((T, colour, f"{v.index}" + ("r" if v.relook_of is not None else "")))
         ctx.log.write_json(
             topics.SCENE,
             "foxglove.SceneUpdate",

@@ -50,6 +50,9 @@ class Scanning(Step):
         bin_type = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
         # classifications run on past a Hold (the scanning activation is cancelled, the cycle is not)
         background = run.detached("classify_background")
+        st = ctx.current_station()
+        # whole-bin cycle: each view says where it was taken (viewpoint indices repeat across plans)
+        where = {"station": st.station, "surface": surface} if st is not None else {}
         for k in range(ctx.next_viewpoint, len(plan.viewpoints)):
             vp = plan.viewpoints[k]
             if perturb > 0:
@@ -65,7 +68,9 @@ class Scanning(Step):
             except WorkerFailed as err:
                 # One refused viewpoint (e.g. newly in collision after adjustment) costs coverage,
                 # not the cycle; hangs and missing workers still abort.
-                ctx.viewpoints.append(ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err)))
+                ctx.viewpoints.append(
+                    ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err), **where)
+                )
                 ctx.next_viewpoint = k + 1
                 continue
             cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
@@ -74,7 +79,7 @@ class Scanning(Step):
             ctx.log.write_json(
                 topics.CAMERA_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", moved.camera_pose.matrix())
             )
-            result = ViewpointResult(index=vp.index, camera_pose=moved.camera_pose)
+            result = ViewpointResult(index=vp.index, camera_pose=moved.camera_pose, **where)
             if collect:
                 from cellctl.classify.collect import store_image
 
@@ -89,9 +94,12 @@ class Scanning(Step):
                 )
             ctx.viewpoints.append(result)
             ctx.next_viewpoint = k + 1
-        if not any(v.error is None for v in ctx.viewpoints):
-            first = ctx.viewpoints[0].error if ctx.viewpoints else "the plan has none"
+        mine = [v for v in ctx.viewpoints if (v.station, v.surface) == (where.get("station"), where.get("surface"))]
+        if not any(v.error is None for v in mine):
+            first = mine[0].error if mine else "the plan has none"
+            at = f" at station {st.station} ({surface})" if st is not None else ""
             raise WorkerFailed(
-                f"robot reached none of the {len(plan.viewpoints)} planned viewpoints (first: {first})", role="robot"
+                f"robot reached none of the {len(plan.viewpoints)} planned viewpoints{at} (first: {first})",
+                role="robot",
             )
         return "succeeded"

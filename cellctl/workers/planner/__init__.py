@@ -29,6 +29,8 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, ConfigError, PlanningError
 from cellctl.messages import (
@@ -40,6 +42,7 @@ from cellctl.messages import (
     PlanLookupRequest,
     PlannedViewpoint,
     PoseMsg,
+    StationInfo,
 )
 
 __all__ = ["BACKENDS", "PlannerService", "run_worker"]
@@ -170,6 +173,12 @@ class PlannerService:
             # A broken cache costs a replan, not the cycle: answer a miss that says why.
             log.exception("plan cache lookup for %s/%s failed", req.bin_type, req.surface)
             return PlanLookupReply(hit=False, reason=f"plan cache lookup failed ({type(err).__name__}: {err}); replan")
+        whole: dict[str, Any] = {}
+        if req.whole:
+            whole = self._whole_stations(req.bin_type, mesh, req.bin_pose.matrix())
+            if not whole["stations"]:
+                # a whole-bin cycle without a whole-bin plan: replan the whole bin, not one station
+                return PlanLookupReply(hit=False, reason=whole["reason"], mesh_faces=int(len(mesh.faces)))
         return PlanLookupReply(
             hit=res.hit,
             reason=res.reason,
@@ -188,7 +197,84 @@ class PlannerService:
             translation_mm=res.translation_mm,
             rotation_deg=res.rotation_deg,
             mesh_faces=int(len(mesh.faces)),
+            whole_plan_id=whole.get("plan_id"),
+            stations=whole.get("stations", []),
+            station=whole.get("station"),
+            cycle_time_s=whole.get("cycle_time_s"),
         )
+
+    def _whole_stations(self, bin_type: str, mesh: Any, T_base_bin: Any) -> dict[str, Any]:
+        """The newest usable whole-bin record of ``bin_type``: its stations and the one nearest the measured pose.
+
+        Usable: made for this mesh and robot model, with every station plan present in the cache
+        (a record whose plans were deleted would send the cycle to stations it cannot scan).
+        """
+        from cellctl.geometry.catalog import load_catalog
+        from cellctl.geometry.transforms import invert, pose_error
+        from cellctl.planning.planfile import _safe, read_document
+        from cellctl.planning.whole import WHOLE_FORMAT
+        from cellctl.sim.scene import n_observation_poses, observation_T_bin_cam
+
+        folder = self.plans_dir / _safe(bin_type) / "whole"
+        rid = self.robot.model_id()
+        usable: list[dict[str, Any]] = []
+        why = f"no whole-bin plan for bin type {bin_type!r}"
+        for f in sorted(folder.glob("*.json")) if folder.is_dir() else []:
+            try:
+                d = read_document(f)
+            except CellError as err:
+                log.warning("plan cache: skipping whole-bin record %s", err)
+                continue
+            if d.get("format") != WHOLE_FORMAT or d.get("bin_type") != bin_type or not d.get("stations"):
+                continue
+            if d.get("mesh_sha256") != mesh.sha256 or d.get("robot_model_id") != rid:
+                why = f"whole-bin plan {d.get('plan_id')} was made for another mesh or robot model; replan"
+                continue
+            here = self.plans_dir / _safe(bin_type)
+            gone = [
+                pid
+                for st in d["stations"]
+                for surf, pid in st["plans"].items()
+                if st["viewpoints"].get(surf) and not (here / surf / f"{pid}.json").is_file()
+            ]
+            if gone:
+                why = f"whole-bin plan {d.get('plan_id')} misses station plan(s) {gone[:3]} in the cache; replan"
+                continue
+            usable.append(d)
+        if not usable:
+            return {"stations": [], "reason": why}
+        d = max(usable, key=lambda r: r.get("created", ""))
+        bt = load_catalog(self.cfg.path(self.cfg.catalog), verify_meshes=False).get(bin_type)
+        obs = [observation_T_bin_cam(bt, k) for k in range(n_observation_poses())]
+        stations: list[StationInfo] = []
+        errors: list[float] = []
+        tol = self.cfg.planner.tolerance
+        for st in d["stations"]:
+            T_bin_base = np.asarray(st["T_bin_base"], dtype=float)
+            ident = st.get("identify")
+            k_obs = None
+            if ident is not None:
+                T = np.asarray(ident["T_bin_cam"], dtype=float)
+                k_obs = min(range(len(obs)), key=lambda k: float(np.abs(obs[k] - T).max()))
+            surfaces = {s: pid for s, pid in st["plans"].items() if st["viewpoints"].get(s)}
+            stations.append(
+                StationInfo(
+                    station=int(st["rank"]),
+                    base_pose=PoseMsg.from_matrix(T_bin_base, "bin"),
+                    observation_index=k_obs,
+                    identify_reason=st.get("identify_reason"),
+                    plans=surfaces,
+                    viewpoints={s: int(st["viewpoints"][s]) for s in surfaces},
+                )
+            )
+            dt, dr = pose_error(invert(T_bin_base), T_base_bin)
+            errors.append(dt * 1000.0 / tol.translation_mm + float(np.degrees(dr)) / tol.rotation_deg)
+        return {
+            "plan_id": d["plan_id"],
+            "stations": stations,
+            "station": stations[int(np.argmin(errors))].station,
+            "cycle_time_s": d.get("cycle_time_s"),
+        }
 
     # --- the job thread -------------------------------------------------------------------
 

@@ -248,9 +248,11 @@ class PlannedRobot(Robot):
             bt = self.catalog.get(self._scenario.bin_type)
             mesh = self.catalog.load_mesh(self._scenario.bin_type)
             # a whole-bin station parks where the plan says (bin frame); else the nominal park
-            T_bin_station = req.base_pose.matrix() if req.base_pose is not None else None
-            if T_bin_station is not None and req.base_pose is not None and req.base_pose.frame_id != "bin":
-                raise RobotError(f"base_pose.frame_id is {req.base_pose.frame_id!r}; expected 'bin' (T_bin_base)")
+            T_bin_station = None
+            if req.base_pose is not None:
+                if req.base_pose.frame_id != "bin":
+                    raise RobotError(f"base_pose.frame_id is {req.base_pose.frame_id!r}; expected 'bin' (T_bin_base)")
+                T_bin_station = req.base_pose.matrix()
             if req.park:
                 self._park(bt, mesh, T_bin_station)
             elif not self._parked:
