@@ -138,12 +138,14 @@ class UrControllerServers:
                 s, _ = ls.accept()
             except OSError:
                 return
-            if time.monotonic() < self.refuse_until:
+            control = fn == self._serve_control  # the emulator's own port: never dropped (it injects the drop)
+            if not control and time.monotonic() < self.refuse_until:
                 s.close()
                 continue
             s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            with self._lk:
-                self._socks.add(s)
+            if not control:
+                with self._lk:
+                    self._socks.add(s)
             threading.Thread(target=self._run, args=(fn, s), daemon=True).start()
 
     def _run(self, fn: Callable[[socket.socket], None], s: socket.socket) -> None:

@@ -18,11 +18,17 @@ The controller's RTDE watchdog (``setWatchdog``) stops the program if this worke
 kicking it (a frozen worker, a dropped link), so a motion never outlives its worker.
 
 ur-rtde's interfaces are not thread-safe: every call goes through :attr:`UrRobot.io` (one lock).
+A call that *sends* on the control interface (``moveJ``, ``stopJ``, ``kickWatchdog``, …) can block
+for good once its link died (ur-rtde then reconnects inside the call), so those run on a call
+thread of their own and are waited for with a bound; one that overruns marks that interface
+*wedged*: it is abandoned (disconnected on a throw-away thread), never called again, and the
+operator's ``clear_fault`` connects fresh interfaces. Reads are cache reads and never block.
 """
 
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections import deque
@@ -103,6 +109,71 @@ def path_deviation(path: NDArray[np.float64], q: NDArray[np.float64]) -> float:
     return best
 
 
+class _Wedged(RuntimeError):
+    """A control call overran its bound: the interface is given up (a RuntimeError like ur-rtde's)."""
+
+
+class _CallThread:
+    """Runs one interface's sending calls in order on a daemon thread; each caller waits with a bound.
+
+    Daemon, not a ``ThreadPoolExecutor``: a call stuck in ur-rtde must not hold up the worker's exit.
+    """
+
+    def __init__(self, name: str) -> None:
+        self.wedged: str | None = None
+        self._q: queue.SimpleQueue[tuple[Callable[..., Any], tuple[Any, ...], threading.Event, list[Any]] | None]
+        self._q = queue.SimpleQueue()
+        threading.Thread(target=self._run, name=name, daemon=True).start()
+
+    def _run(self) -> None:
+        while (item := self._q.get()) is not None:
+            fn, args, done, box = item
+            try:
+                box.append((True, fn(*args)))
+            except Exception as err:  # handed to the caller
+                box.append((False, err))
+            done.set()
+
+    def call(self, timeout_s: float, fn: Callable[..., Any], *args: Any) -> Any:
+        if self.wedged is not None:
+            raise _Wedged(self.wedged)
+        done: threading.Event = threading.Event()
+        box: list[Any] = []
+        self._q.put((fn, args, done, box))
+        if not done.wait(timeout_s):
+            self.wedged = f"{getattr(fn, '__name__', 'call')} did not return within {timeout_s:g} s"
+            raise _Wedged(self.wedged)
+        ok, value = box[0]
+        if ok:
+            return value
+        raise value
+
+    def close(self) -> None:
+        self._q.put(None)
+
+
+_T_KICK = 0.5
+_T_CMD = 3.0
+_T_PATH = 10.0
+"""Bounds (s) of control calls: a watchdog kick, a stop/setting, a path (stop, upload, start, command)."""
+
+
+def _dispose(*handles: Any) -> None:
+    """Disconnect given-up interfaces on a throw-away thread (a wedged one may block in there)."""
+
+    def run() -> None:
+        for h in handles:
+            if h is not None:
+                try:
+                    h.disconnect()
+                except RuntimeError:
+                    pass
+
+    t = threading.Thread(target=run, name="ur-dispose", daemon=True)
+    t.start()
+    t.join(2.0)
+
+
 class UrRobot(PlannedRobot):
     """The ``ur`` backend of the robot role.
 
@@ -132,6 +203,7 @@ class UrRobot(PlannedRobot):
         self._c: Any = None
         self._r: Any = None
         self._d: Any = None
+        self._calls = _CallThread("ur-control-calls")
         self._fault: str | None = None
         self._q_meas: NDArray[np.float64] | None = None
         self._tcp: NDArray[np.float64] | None = None
@@ -220,7 +292,9 @@ class UrRobot(PlannedRobot):
             try:
                 self._r = rtde_receive.RTDEReceiveInterface(host, 125.0, _RTDE_VARIABLES)
                 self._c = rtde_control.RTDEControlInterface(host)
-                self._c.setWatchdog(self.ur.faults.watchdog_hz)
+                self._calls.close()
+                self._calls = _CallThread("ur-control-calls")
+                self._send(_T_CMD, self._c.setWatchdog, self.ur.faults.watchdog_hz)
             except RuntimeError as err:
                 if "already in use" in str(err) or "not found" in str(err).lower():
                     raise _Refused(f"the controller refused ur-rtde's RTDE recipe: {err}") from None
@@ -229,20 +303,30 @@ class UrRobot(PlannedRobot):
         log.info("connected to %s at %s (PolyScope %s)", name, host, version)
         self._check_tcp()
 
+    def _send(self, timeout_s: float, fn: Callable[..., Any], *args: Any) -> Any:
+        """A sending control call, bounded (caller holds :attr:`io`); an overrun gives the interface up.
+
+        Raises:
+            RuntimeError: ur-rtde's error, or :class:`_Wedged` (overrun, or given up before).
+        """
+        try:
+            return self._calls.call(timeout_s, fn, *args)
+        except _Wedged:
+            c, self._c = self._c, None
+            if c is not None:
+                log.error("UR control interface given up: %s", self._calls.wedged)
+                threading.Thread(target=_dispose, args=(c,), name="ur-dispose", daemon=True).start()
+            raise
+
+    def _linked(self) -> bool:
+        """The control interface is there, not given up, and its link is up (cache reads)."""
+        return self._c is not None and self._calls.wedged is None and bool(self._c.isConnected())
+
     def _disconnect(self) -> None:
         with self.io:
-            for h in (self._c, self._r):
-                if h is not None:
-                    try:
-                        h.disconnect()
-                    except RuntimeError:
-                        pass
-            if self._d is not None:
-                try:
-                    self._d.disconnect()
-                except RuntimeError:
-                    pass
-            self._c = self._r = self._d = None
+            handles, self._c, self._r, self._d = (self._c, self._r, self._d), None, None, None
+            self._calls.close()
+        _dispose(*handles)
 
     def close(self) -> None:
         if hasattr(self, "_monitor_stop"):
@@ -250,9 +334,9 @@ class UrRobot(PlannedRobot):
             self._monitor.join(timeout=1.0)
         self._stopj()
         with self.io:
-            if self._c is not None:
+            if self._linked():
                 try:
-                    self._c.stopScript()  # a clean end, not a watchdog expiry
+                    self._send(_T_CMD, self._c.stopScript)  # a clean end, not a watchdog expiry
                 except RuntimeError:
                     pass
         self._disconnect()
@@ -326,8 +410,11 @@ class UrRobot(PlannedRobot):
                     continue
                 try:
                     st = self._read_state()
-                    if self._c is not None and self._runtime == _PLAYING:
-                        self._c.kickWatchdog()
+                    if st["connected"] and self._runtime == _PLAYING and self._linked():
+                        self._send(_T_KICK, self._c.kickWatchdog)
+                except _Wedged as err:
+                    st = None
+                    reason = f"the UR control interface stopped answering ({err}): link to {self.ur.host} lost?"
                 except RuntimeError as err:
                     st = None
                     reason = f"lost RTDE connection to {self.ur.host}: {err}"
@@ -371,20 +458,21 @@ class UrRobot(PlannedRobot):
 
         ur-rtde's ``reuploadScript`` returns once the script is sent, before the program starts.
         """
-        if not self._c.reuploadScript():
+        if not self._send(_T_PATH, self._c.reuploadScript):
             raise RobotError(f"could not send the control program to {self.ur.host}")
         deadline = time.monotonic() + 3.0
         while not self._c.isProgramRunning():
             if time.monotonic() > deadline:
                 raise RobotError("the control program did not start within 3 s (robot mode, safety or local control?)")
             time.sleep(0.005)
-        self._c.setWatchdog(self.ur.faults.watchdog_hz)
+        self._send(_T_CMD, self._c.setWatchdog, self.ur.faults.watchdog_hz)
 
     def _stopj(self) -> None:
+        """stopJ, unless the link is down (then the controller's RTDE watchdog stops the arm)."""
         with self.io:
-            if self._c is not None:
+            if self._linked():
                 try:
-                    self._c.stopJ(self.ur.stop_decel, False)
+                    self._send(_T_CMD, self._c.stopJ, self.ur.stop_decel, False)
                 except RuntimeError as err:
                     log.warning("stopJ failed: %s", err)
 
@@ -402,7 +490,7 @@ class UrRobot(PlannedRobot):
                 f"cannot {what}: UR fault active ({self._fault}); an operator must clear it "
                 "(maintenance: unlock_protective_stop / power_on / brake_release, then clear_fault)"
             )
-        if self._c is None:
+        if not self._linked():
             raise RobotError(f"cannot {what}: not connected to the UR controller at {self.ur.host}")
 
     def _execute(self, path: NDArray[np.float64]) -> float:
@@ -417,12 +505,19 @@ class UrRobot(PlannedRobot):
             )
         if not entries:
             return 0.0
-        with self.io:
-            if not self._c.isProgramRunning():
-                self._reupload()  # e.g. the watchdog stopped it while the worker was idle
-            ok = self._c.moveJ(entries, True)
-            if ok:  # moveJ(path) restarted the program: its watchdog with it
-                self._c.setWatchdog(self.ur.faults.watchdog_hz)
+        try:
+            with self.io:
+                if not self._c.isProgramRunning():
+                    self._reupload()  # e.g. the watchdog stopped it while the worker was idle
+                ok = self._send(_T_PATH, self._c.moveJ, entries, True)
+                if ok:  # moveJ(path) restarted the program: its watchdog with it
+                    self._send(_T_CMD, self._c.setWatchdog, self.ur.faults.watchdog_hz)
+        except _Wedged as err:
+            if self._fault is None:
+                self._latch(f"the UR control interface stopped answering ({err})")
+            raise RobotError(f"motion not started: UR fault ({self._fault})") from None
+        except RuntimeError as err:
+            raise RobotError(f"the UR controller refused the motion: {err}") from None
         if not ok:
             raise RobotError(f"the UR controller refused the motion ({self._fault or 'program not ready'})")
         t0 = time.monotonic()
@@ -444,7 +539,10 @@ class UrRobot(PlannedRobot):
                         f"at {np.round(self.joints, 4).tolist()}"
                     )
                 with self.io:
-                    running = bool(self._c.getAsyncOperationProgressEx().isAsyncOperationRunning())
+                    c = self._c
+                    if c is None:  # given up by the monitor: the fault is latched, seen next round
+                        continue
+                    running = bool(c.getAsyncOperationProgressEx().isAsyncOperationRunning())
                 q = self.joints
                 self.tracking.append(path_deviation(path, q))
                 if not running:
@@ -497,17 +595,18 @@ class UrRobot(PlannedRobot):
         return RobotMaintenanceReply(action=req.action, detail=detail, fault=self._fault)
 
     def _clear_fault(self, req: RobotMaintenanceRequest) -> RobotMaintenanceReply:
-        reconnect = self._c is None or self._r is None
-        if not reconnect:
-            with self.io:
+        with self.io:
+            reconnect = not self._linked() or self._r is None
+            if not reconnect:
                 try:
                     st = self._read_state()
-                    reconnect = not st["connected"]
+                    reconnect = not st["connected"] or time.monotonic() - self._data_t > 0.5
                 except RuntimeError:
                     reconnect = True
-        if reconnect:
+        if reconnect:  # after a drop or a stall: fresh interfaces, never the old ones again
             self._disconnect()
             self._connect()  # raises naming what is wrong (mode, safety, link)
+            self._ts, self._data_t = -1.0, time.monotonic()
         deadline = time.monotonic() + 1.0  # the dashboard acts before the next RTDE sample shows it
         while True:
             with self.io:
@@ -519,10 +618,13 @@ class UrRobot(PlannedRobot):
                 raise RobotError(f"cannot clear the fault: {still} is still active")
             time.sleep(0.02)
         with self.io:
-            if self._c.isProgramRunning():
-                self._c.setWatchdog(self.ur.faults.watchdog_hz)
-            else:
-                self._reupload()
+            try:
+                if self._c.isProgramRunning():
+                    self._send(_T_CMD, self._c.setWatchdog, self.ur.faults.watchdog_hz)
+                else:
+                    self._reupload()
+            except RuntimeError as err:
+                raise RobotError(f"cannot clear the fault: the control program does not answer ({err})") from None
             self._data_t = time.monotonic()
         was, self._fault = self._fault, None
         self._stop.clear()
