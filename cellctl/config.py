@@ -95,6 +95,7 @@ class Timeouts(_Model):
     plan_submit: float = Field(default=5.0, gt=0)
     plan_wait: float = Field(default=600.0, gt=0)
     stop: float = Field(default=2.0, gt=0)
+    wash: float = Field(default=120.0, gt=0, description="one wash request: the transit to a sweep and its passes")
 
 
 class SupervisorConfig(_Model):
@@ -211,6 +212,9 @@ class WashConfig(_Model):
     threshold: float = Field(default=0.5, gt=0, lt=1, description="face dirt probability that is washed")
     margin_m: float = Field(default=0.02, ge=0, le=0.3, description="targets dilated by this much around dirt")
     max_rounds: int = Field(default=3, ge=1, le=20, description="wash → re-inspect rounds before 'dirty'")
+    splash_m: float = Field(
+        default=0.05, ge=0, le=0.5, description="re-inspect the washed faces' neighbours this far (the jet splashes)"
+    )
 
 
 class VerdictConfig(_Model):

@@ -733,7 +733,8 @@ class WashRound(BaseModel):
     passes_run: int
     washed_m2: float
     covered_m2: float
-    unwashable: list[dict[str, Any]] = Field(default_factory=list)
+    unwashable: list[dict[str, Any]] = Field(default_factory=list, description="target pieces no nozzle pose reaches")
+    sweeps_refused: list[dict[str, Any]] = Field(default_factory=list, description="sweeps the robot refused, why")
     reinspected_views: int = 0
     dirty_faces_after: int | None = None
     dirty_m2_after: float | None = None
@@ -753,6 +754,7 @@ class WashResult(BaseModel):
     rounds: list[WashRound] = Field(default_factory=list)
     remaining_faces: list[int] = Field(default_factory=list, description="faces still dirty at the end")
     remaining_m2: float = 0.0
+    unwashable: list[dict[str, Any]] = Field(default_factory=list, description="dirt no nozzle pose reaches, why")
 
 
 # --- camera ---------------------------------------------------------------------------------

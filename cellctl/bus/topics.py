@@ -56,6 +56,10 @@ EVENTS = "/events"
 """Supervisor events of the cycle (``foxglove.Log``)."""
 HEATMAP = "/classifier/heatmap"
 """Per-patch dirt probability of each classified view, colour-coded (``foxglove.CompressedImage``)."""
+WASH_PLAN = "/wash/plan"
+"""Each wash-and-verify round's wash plan: sweeps, targets, unwashable pieces, times (``cellctl.WashPlan``)."""
+WASH_ROUND = "/wash/round"
+"""Each wash-and-verify round's record after re-inspection (``cellctl.WashRound``)."""
 
 FIXED_TOPICS = (
     CAMERA_IMAGE,
@@ -67,6 +71,8 @@ FIXED_TOPICS = (
     SCENE,
     EVENTS,
     HEATMAP,
+    WASH_PLAN,
+    WASH_ROUND,
 )
 """Every topic whose name does not derive from a bus key."""
 

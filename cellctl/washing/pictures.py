@@ -26,7 +26,8 @@ def draw_wash_path(mesh: BinMesh, plan: WashPlan, spots: list[Any], out: Path, t
     stations used named by their direction in the title.
 
     Args:
-        spots: the plan's passes as :class:`cellctl.sim.ground_truth.SprayPass` (their ``spots``).
+        spots: the plan's passes (:func:`cellctl.washing.spots.plan_spots`, or the twin's
+            :class:`cellctl.sim.ground_truth.SprayPass`: their ``spots`` and ``axes``).
     """
     import matplotlib
 

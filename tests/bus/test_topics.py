@@ -17,6 +17,8 @@ def test_fixed_topic_names_are_pinned() -> None:
         "/scene",
         "/events",
         "/classifier/heatmap",
+        "/wash/plan",
+        "/wash/round",
     )
     assert len(set(topics.FIXED_TOPICS)) == len(topics.FIXED_TOPICS)
 

@@ -9,10 +9,24 @@ from cellctl.supervisor.steps.next_station import NextStation
 from cellctl.supervisor.steps.replanning import Replanning
 from cellctl.supervisor.steps.reporting import Reporting
 from cellctl.supervisor.steps.scanning import Scanning
+from cellctl.supervisor.steps.verifying import Verifying
+from cellctl.supervisor.steps.washing import WashCheck, Washing
 
 STEPS: dict[str, type[Step]] = {
     s.NAME: s
-    for s in (Approaching, Identifying, CheckingCache, Replanning, Scanning, Classifying, NextStation, Reporting)
+    for s in (
+        Approaching,
+        Identifying,
+        CheckingCache,
+        Replanning,
+        Scanning,
+        Classifying,
+        NextStation,
+        Reporting,
+        WashCheck,
+        Washing,
+        Verifying,
+    )
 }
 """Step name → class; the cycle YAML may name only these."""
 

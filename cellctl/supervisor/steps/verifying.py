@@ -1,0 +1,181 @@
+"""verifying: re-inspect what the round washed, and the neighbours the jet may have splashed.
+
+The faces to look at again are the round's targets and every face its jet sprayed, dilated by
+``wash.splash_m``; the inspection plan's viewpoints that see any of them are visited again in
+plan order (move → capture → classify, each a :class:`~cellctl.messages.ViewpointResult` with
+``wash_round``). Their evidence alone gives the faces they see a new state (the views before
+the wash saw powder that is gone); faces they do not see keep theirs. The merged map becomes
+the cycle's dirt map, the round is recorded (:data:`~cellctl.bus.topics.WASH_ROUND`, the
+CycleResult's ``wash.rounds``) and ``wash_check`` decides again.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cellctl.bus import topics
+from cellctl.errors import WorkerFailed
+from cellctl.messages import (
+    CaptureReply,
+    CaptureRequest,
+    MoveReply,
+    MoveRequest,
+    ViewpointResult,
+    WashResult,
+    WashRound,
+)
+from cellctl.supervisor.context import StepRun
+from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps.washing import picture_dir, unwashable_summary, wash_mesh
+
+__all__ = ["Verifying", "merge_dirt_maps"]
+
+
+def _face_state(dirt_map: dict[str, Any], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(p, seen, dirty) per face of a dirt map, the coarse kind (face id lists) as p = 1 dirty / 0 clean."""
+    from cellctl.classify.heatmap import face_probabilities
+
+    dirty = np.zeros(n, bool)
+    dirty[np.asarray(dirt_map.get("seen_dirty", []), np.int64)] = True
+    p = face_probabilities(dirt_map, n)
+    if p is not None:
+        seen = ~np.isnan(p)
+        return np.nan_to_num(p, nan=0.0), seen, dirty
+    seen = dirty.copy()
+    seen[np.asarray(dirt_map.get("seen_clean", []), np.int64)] = True
+    return dirty.astype(float), seen, dirty
+
+
+def merge_dirt_maps(old: dict[str, Any], new: dict[str, Any], mesh: Any) -> dict[str, Any]:  # noqa: ANN401
+    """``old`` with every face ``new`` saw replaced by what ``new`` says (a dirt map with ``face_p``)."""
+    from cellctl.classify.heatmap import FaceMap
+
+    n = mesh.n_faces
+    p0, s0, d0 = _face_state(old, n)
+    p1, s1, d1 = _face_state(new, n)
+    dirty = np.where(s1, d1, d0)
+    fm = FaceMap(p=np.where(s1, p1, p0), seen=s0 | s1, dirty=dirty, dirty_area_m2=float(mesh.areas[dirty].sum()))
+    return fm.as_json()
+
+
+class Verifying(Step):
+    NAME = "verifying"
+    OUTCOMES = ("succeeded", "failed")
+    DESCRIPTION = "re-inspect the washed regions and their splash neighbours; merge into the dirt map; record the round"
+    READS = ("wash_plan", "plan", "dirt_map")
+    WRITES = ("dirt_map", "viewpoints", "wash_rounds", "wash", "wash_plan", "wash_next_view")
+
+    def execute(self, run: StepRun) -> str:
+        from cellctl.washing.targets import dilate
+
+        ctx = run.ctx
+        wplan, iplan = ctx.wash_plan, ctx.plan
+        assert wplan is not None and iplan is not None  # READS
+        mesh = wash_mesh(ctx)
+        r = len(ctx.wash_rounds) + 1
+        look = dilate(mesh, wplan.targets | wplan.washed, ctx.cfg.wash.splash_m)
+        views = [vp for vp in iplan.viewpoints if any(0 <= f < mesh.n_faces and look[f] for f in vp.faces)]
+        for k in range(ctx.wash_next_view, len(views)):
+            self._look(run, views[k], r)
+            ctx.wash_next_view = k + 1
+        mine = [v for v in ctx.viewpoints if v.wash_round == r]
+        new_map = self._dirt_map(ctx, mesh, mine)
+        before = wplan.dirty
+        ctx.dirt_map = merge_dirt_maps(ctx.dirt_map or {}, new_map, mesh)
+        # the heat maps are in the MCAP (topics.HEATMAP); the CycleResult keeps the fused face_p
+        ctx.viewpoints = [v.model_copy(update={"heatmap": None}) if v.wash_round == r else v for v in ctx.viewpoints]
+        from cellctl.washing.targets import dirty_from_map
+
+        after, _ = dirty_from_map(ctx.dirt_map, mesh.n_faces, ctx.cfg.wash.threshold)
+        stats = ctx.wash_run
+        pictures = list(stats.get("pictures", []))
+        folder = picture_dir(ctx)
+        if folder is not None:
+            from cellctl.recording.dirt_map import draw_dirt_map
+
+            png = draw_dirt_map(mesh, ctx.dirt_map, folder / f"r{r}_after.png", f"{ctx.bin_type} round {r}: after")
+            pictures.append(f"{folder.name}/{png.name}")
+        a = mesh.areas
+        rec = WashRound(
+            round=r,
+            dirty_faces_before=int(before.sum()),
+            dirty_m2_before=round(float(a[before].sum()), 6),
+            sweeps_planned=len(wplan.sweeps),
+            sweeps_run=int(stats.get("sweeps_run", 0)),
+            passes_run=int(stats.get("passes_run", 0)),
+            washed_m2=round(float(a[wplan.washed].sum()), 6),
+            covered_m2=round(float(a[wplan.covered].sum()), 6),
+            unwashable=unwashable_summary(wplan, mesh),
+            sweeps_refused=list(stats.get("refused", [])),
+            reinspected_views=len(mine),
+            dirty_faces_after=int(after.sum()),
+            dirty_m2_after=round(float(a[after].sum()), 6),
+            plan_s=round(float(wplan.times_s.get("total", 0.0)), 3),
+            plan_cpu_s=round(float(wplan.cpu_s), 3),
+            pictures=pictures,
+        )
+        ctx.log.write_json(topics.WASH_ROUND, "cellctl.WashRound", rec.model_dump(mode="json"))
+        ctx.wash_rounds.append(rec)
+        ctx.wash = WashResult(rounds=list(ctx.wash_rounds))  # the verdict is wash_check's
+        ctx.wash_plan = None
+        ctx.wash_next_view = 0
+        run.event(
+            "info",
+            f"wash round {r} re-inspected with {len(mine)} views: {int(after.sum())} dirty faces "
+            f"({float(a[after].sum()) * 1e4:.0f} cm²) left, were {int(before.sum())}",
+        )
+        return "succeeded"
+
+    @staticmethod
+    def _look(run: StepRun, vp: Any, r: int) -> None:  # noqa: ANN401 - PlannedViewpoint
+        from cellctl.supervisor.steps.board_mask import mask_board
+        from cellctl.supervisor.steps.classifying import record_heat, with_reply
+        from cellctl.supervisor.steps.identifying import captured_image
+        from cellctl.supervisor.steps.scanning import classify_image
+
+        ctx = run.ctx
+        try:
+            moved, _ = run.call(
+                "robot", "move", MoveRequest(joints=vp.joints, settle_s=ctx.cfg.robot.settle_s), MoveReply
+            )
+        except WorkerFailed as err:
+            run.checkpoint()
+            ctx.viewpoints.append(
+                ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err), wash_round=r)
+            )
+            return
+        cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
+        data = captured_image(cap, image)
+        ctx.log.image(topics.CAMERA_IMAGE, data, cap.format, "camera")
+        img = data
+        bt = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
+        if bt is not None and ctx.T_base_bin is not None:
+            img = mask_board(data, bt, ctx.T_base_bin, moved.camera_pose.matrix(), cap.intrinsics)
+        reply = classify_image(run, vp.index, img, "png" if img is not data else cap.format, ctx.surface)
+        record_heat(run, reply)
+        ctx.viewpoints.append(
+            with_reply(ViewpointResult(index=vp.index, camera_pose=moved.camera_pose, wash_round=r), reply)
+        )
+
+    @staticmethod
+    def _dirt_map(ctx: Any, mesh: Any, views: list[ViewpointResult]) -> dict[str, Any]:  # noqa: ANN401
+        """The re-inspection's own map: heat maps fused per face, else each view's label on its faces."""
+        from cellctl.supervisor.steps.reporting import dirt_map, view_evidence
+
+        if any(v.heatmap for v in views):
+            from cellctl.classify.heatmap import fuse_views
+            from cellctl.geometry.camera import CameraModel
+
+            vc = ctx.cfg.classifier.verdict
+            fm = fuse_views(
+                view_evidence(ctx.plan, views, ctx.T_base_bin),
+                mesh,
+                CameraModel.from_config(ctx.cfg.camera),
+                prior=vc.face_prior,
+                face_threshold=vc.face_threshold,
+            )
+            return fm.as_json()
+        out, _ = dirt_map(ctx.plan, views, mesh, ctx.surface)
+        return out

@@ -1,0 +1,199 @@
+"""wash_check → washing → verifying (Start mode wash_and_verify) on the case-study bin: the real
+wash planner, scripted robot/camera/classifier replies (no Zenoh)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cellctl.errors import RobotError, WorkerFailed
+from cellctl.geometry.catalog import load_catalog
+from cellctl.geometry.transforms import invert
+from cellctl.messages import (
+    CaptureReply,
+    ClassifyReply,
+    MoveReply,
+    PlanLookupReply,
+    PlannedViewpoint,
+    RobotState,
+    StartParams,
+    WashReply,
+    WashRound,
+)
+from cellctl.sim.ground_truth import PowderField
+from cellctl.sim.scene import HOME_JOINTS, nominal_T_bin_base
+from cellctl.supervisor.steps.verifying import Verifying, merge_dirt_maps
+from cellctl.supervisor.steps.washing import WashCheck, Washing
+from cellctl.surface import EXTERNAL
+from tests.fakes.workers import CAM_POSE, INTRINSICS, _png
+from tests.supervisor._scripted import ListRecorder, ScriptedRun, context
+
+WASH = StartParams(mode="wash_and_verify")
+STATE = RobotState(joints=HOME_JOINTS.tolist(), flange_pose=CAM_POSE, camera_pose=CAM_POSE)
+
+
+class DiskRecorder(ListRecorder):
+    def __init__(self, path: Path) -> None:
+        super().__init__()
+        self.path = path
+
+
+def _dirty(mesh, centre, normal) -> np.ndarray:  # noqa: ANN001
+    f = PowderField(np.array([centre], float), np.array([0.04]), np.array([EXTERNAL], np.uint8), np.array([normal]), 7)
+    return f.dirty_faces(mesh)
+
+
+@pytest.fixture
+def case(cfg):  # noqa: ANN001, ANN201
+    cat = load_catalog(cfg.path(cfg.catalog), cfg.root)
+    mesh = cat.load_mesh("case_study")
+    T_base_bin = invert(nominal_T_bin_base(cat.get("case_study"), mesh))
+    return cat, mesh, T_base_bin
+
+
+def _ctx(cfg, case, dirty: np.ndarray | None, **kw):  # noqa: ANN001, ANN202
+    cat, mesh, T = case
+    dm = None if dirty is None else {"seen_dirty": np.flatnonzero(dirty).tolist(), "seen_clean": []}
+    # the inspection plan: one viewpoint sees the dirty faces, one sees faces far from them
+    far = np.flatnonzero(~dirty)[:5].tolist() if dirty is not None else [0]
+    near = np.flatnonzero(dirty).tolist() if dirty is not None else [1]
+    vps = [
+        PlannedViewpoint(index=0, camera_pose=CAM_POSE, joints=[0.1] * 6, faces=near),
+        PlannedViewpoint(index=1, camera_pose=CAM_POSE, joints=[0.2] * 6, faces=far),
+    ]
+    plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=mesh.n_faces)
+    return context(cfg, params=WASH, catalog=cat, bin_type="case_study", T_base_bin=T, dirt_map=dm, plan=plan, **kw)
+
+
+def _script(refuse_second: bool = False, label: str = "clean") -> dict:
+    calls = {"n": 0}
+
+    def wash(req):  # noqa: ANN001, ANN202
+        calls["n"] += 1
+        if refuse_second and calls["n"] == 2:
+            raise WorkerFailed("wash sweep 0 (of 1, round 1) is in collision", role="robot")
+        return WashReply(sweeps_run=1, passes_run=req.sweeps[0].passes, joints=req.sweeps[0].joints[-1]), None
+
+    return {
+        ("robot", "state"): (STATE, None),
+        ("robot", "wash"): wash,
+        ("robot", "move"): (MoveReply(joints=[0.0] * 6, camera_pose=CAM_POSE), None),
+        ("camera", "capture"): (CaptureReply(format="png", intrinsics=INTRINSICS, camera_pose=CAM_POSE), _png()),
+        ("classifier", "classify"): (
+            ClassifyReply(label=label, p_dirty=0.1 if label == "clean" else 0.9, model_id="m"),
+            None,
+        ),
+    }
+
+
+def test_other_modes_pass_wash_check_untouched(cfg, case) -> None:  # noqa: ANN001
+    ctx = _ctx(cfg, case, _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0)))
+    ctx.mode = "evaluate"
+    run = ScriptedRun(ctx, {})
+    assert WashCheck()(run) == "done" and run.calls == [] and ctx.wash is None
+
+
+def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(cfg, case, tmp_path) -> None:  # noqa: ANN001
+    _, mesh, _ = case
+    dirty = _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0))
+    log = DiskRecorder(tmp_path / "c-1.mcap")
+    ctx = _ctx(cfg, case, dirty, log=log)
+    run = ScriptedRun(ctx, _script(refuse_second=True))
+    assert WashCheck()(run) == "wash"
+    plan = ctx.wash_plan
+    assert plan.moves and not plan.unwashable and plan.dirty.sum() == dirty.sum()
+    assert Washing()(run) == "succeeded"
+    washes = [m for r, o, m in run.calls if o == "wash"]
+    assert len(washes) == len(plan.sweeps)  # one request per sweep: a Hold resumes at the next
+    assert [len(w.sweeps) for w in washes] == [1] * len(washes)
+    assert np.allclose(washes[0].sweeps[0].joints, plan.sweeps[0].q)
+    assert ctx.wash_run["sweeps_run"] == len(plan.sweeps) - 1 and len(ctx.wash_run["refused"]) == 1
+    assert Verifying()(run) == "succeeded"
+    moves = [m for r, o, m in run.calls if o == "move"]
+    assert [list(m.joints) for m in moves] == [[0.1] * 6]  # only the viewpoint that sees the washed faces
+    assert [v.wash_round for v in ctx.viewpoints] == [1]
+    (rec,) = ctx.wash_rounds
+    assert rec.dirty_faces_before == dirty.sum() and rec.dirty_faces_after == 0
+    assert rec.sweeps_run == len(plan.sweeps) - 1 and rec.sweeps_refused and rec.reinspected_views == 1
+    assert [Path(p).name for p in rec.pictures] == ["r1_before.png", "r1_path.png", "r1_after.png"]
+    for p in rec.pictures:
+        assert (tmp_path / p).stat().st_size > 10_000
+    assert ("/wash/plan", "cellctl.WashPlan") in log.records and ("/wash/round", "cellctl.WashRound") in log.records
+    assert WashCheck()(run) == "done"
+    assert ctx.verdict == "clean" and ctx.wash.verdict == "clean" and len(ctx.wash.rounds) == 1
+    assert ctx.wash.remaining_faces == []
+
+
+def test_dirt_no_nozzle_pose_reaches_ends_dirty_as_unwashable_without_motion(cfg, case) -> None:  # noqa: ANN001
+    dirty = _dirty(case[1], (0.0, 0.37, -0.5), (0, 1.0, 0))  # far outside wall, seen from the board side
+    ctx = _ctx(cfg, case, dirty)
+    run = ScriptedRun(ctx, _script())
+    assert WashCheck()(run) == "done"
+    assert [o for _, o, _ in run.calls] == ["state"]  # no wash, no move
+    assert ctx.verdict == "dirty" and ctx.wash.verdict == "dirty"
+    assert ctx.wash.reason.startswith("unwashable: no nozzle pose reaches any dirty region")
+    assert ctx.wash.unwashable and ctx.wash.remaining_faces == np.flatnonzero(dirty).tolist()
+
+
+def test_no_dirt_map_is_a_reason_and_no_motion(cfg, case) -> None:  # noqa: ANN001
+    ctx = _ctx(cfg, case, None)
+    run = ScriptedRun(ctx, _script())
+    assert WashCheck()(run) == "done" and run.calls == []
+    assert ctx.wash.verdict is None and "no dirt map" in ctx.wash.reason
+
+
+def test_dirt_left_after_the_last_round_ends_dirty(cfg, case) -> None:  # noqa: ANN001
+    dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
+    ctx = _ctx(cfg, case, dirty)
+    ctx.wash_rounds = [
+        WashRound(
+            round=k + 1,
+            dirty_faces_before=1,
+            dirty_m2_before=0.0,
+            sweeps_planned=1,
+            sweeps_run=1,
+            passes_run=2,
+            washed_m2=0.0,
+            covered_m2=0.0,
+        )  # fmt: skip
+        for k in range(cfg.wash.max_rounds)
+    ]
+    run = ScriptedRun(ctx, _script())
+    assert WashCheck()(run) == "done" and run.calls == []
+    assert ctx.verdict == "dirty" and "after 3 wash round(s)" in ctx.wash.reason and len(ctx.wash.rounds) == 3
+
+
+def test_a_hold_during_a_sweep_is_not_a_refusal_and_resumes_there(cfg, case) -> None:  # noqa: ANN001
+    from cellctl.supervisor.context import Cancelled
+
+    dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
+    ctx = _ctx(cfg, case, dirty)
+    script = _script()
+    run = ScriptedRun(ctx, script)
+    assert WashCheck()(run) == "wash"
+
+    def held(req):  # noqa: ANN001, ANN202
+        run.cancelled.set()  # the supervisor cancels the step, then stops the robot: the sweep fails
+        raise WorkerFailed(str(RobotError("motion stopped (hold)")), role="robot")
+
+    script[("robot", "wash")] = held
+    with pytest.raises(Cancelled):
+        Washing()(run)
+    assert ctx.wash_next_sweep == 0 and ctx.wash_run["refused"] == []
+    resumed = ScriptedRun(ctx, _script())
+    assert Washing()(resumed) == "succeeded"
+    assert ctx.wash_run["sweeps_run"] == len(ctx.wash_plan.sweeps)
+
+
+def test_merging_keeps_unseen_faces_and_replaces_seen_ones(case) -> None:  # noqa: ANN001
+    _, mesh, _ = case
+    old = {"seen_dirty": [1, 2, 3], "seen_clean": [4]}
+    new = {"seen_dirty": [3], "seen_clean": [1, 5]}
+    from cellctl.washing.targets import dirty_from_map
+
+    merged = merge_dirt_maps(old, new, mesh)
+    dirty, source = dirty_from_map(merged, mesh.n_faces, 0.5)
+    assert source == "face_p" and np.flatnonzero(dirty).tolist() == [2, 3]
+    assert sorted(merged["seen_clean"]) == [1, 4, 5]
