@@ -39,6 +39,8 @@ from cellctl.messages import (
     RobotState,
     RobotStateRequest,
     StopRequest,
+    WashReply,
+    WashRequest,
 )
 from cellctl.workers._server import WorkerServer
 
@@ -107,6 +109,7 @@ class FakeCell:
                 lambda q, p: RobotState(joints=[0.0] * 6, flange_pose=CAM_POSE, camera_pose=CAM_POSE),
             )
             r.serve("stop", StopRequest, self._stop)
+            r.serve("wash", WashRequest, self._wash)
         if "camera" in self.servers:
             self.servers["camera"].serve("capture", CaptureRequest, self._capture)
         if "classifier" in self.servers:
@@ -130,6 +133,11 @@ class FakeCell:
         self._guard("move")
         time.sleep(self.move_delay_s)
         return MoveReply(joints=req.joints or [0.0] * 6, camera_pose=CAM_POSE)
+
+    def _wash(self, req: WashRequest, _: bytes | None) -> WashReply:
+        self._guard("wash")
+        passes = sum(s.passes for s in req.sweeps)
+        return WashReply(sweeps_run=len(req.sweeps), passes_run=passes, joints=req.sweeps[-1].joints[-1])
 
     def _stop(self, req: StopRequest, _: bytes | None) -> StopRequest:
         self.stops += 1
