@@ -178,7 +178,8 @@ class Command(WireMessage):
     """A PackML command or a unit-mode change request from a PLC or operator on ``cell/<id>/cmd``.
 
     Exactly one of ``command`` (lower-case name), ``cntrl_cmd`` (PackTags code), ``unit_mode``
-    (mode name) or ``unit_mode_code`` (PackTags UnitMode code) is given.
+    (mode name), ``unit_mode_code`` (PackTags UnitMode code) or ``base_parked`` (a manual base's
+    confirmation) is given.
     """
 
     type: Literal["cellctl/Command"] = "cellctl/Command"
@@ -189,6 +190,9 @@ class Command(WireMessage):
     cntrl_cmd: int | None = Field(default=None, description="PackTags CntrlCmd code 1..10")
     unit_mode: UnitModeName | None = Field(default=None, description="requested PackML unit mode")
     unit_mode_code: int | None = Field(default=None, description="PackTags UnitModeRequested code 1..3")
+    base_parked: int | None = Field(
+        default=None, ge=0, description="manual base: the operator/PLC confirms the base is parked at this station"
+    )
     request_id: str | None = Field(default=None, max_length=MAX_REQUEST_ID_CHARS)
     user: str | None = Field(
         default=None, max_length=MAX_USER_CHARS, description="who sent it, e.g. 'hmi:alice' (printable)"
@@ -205,6 +209,11 @@ class Command(WireMessage):
     def _integer_mode(cls, v: Any) -> Any:
         return _strict_code(v, "unit_mode_code", "1..3")
 
+    @field_validator("base_parked", mode="before")
+    @classmethod
+    def _station(cls, v: Any) -> Any:
+        return _strict_code(v, "base_parked", "(a station number >= 0)")
+
     @field_validator("user")
     @classmethod
     def _printable(cls, v: str | None) -> str | None:
@@ -216,6 +225,10 @@ class Command(WireMessage):
     def _one_command(self) -> Command:
         state_cmd = [f for f in ("command", "cntrl_cmd") if getattr(self, f) is not None]
         mode_cmd = [f for f in ("unit_mode", "unit_mode_code") if getattr(self, f) is not None]
+        if self.base_parked is not None:
+            if state_cmd or mode_cmd:
+                raise ValueError(f"a base confirmation ('base_parked') comes alone, got it with {state_cmd + mode_cmd}")
+            return self
         if mode_cmd and not state_cmd:
             if len(mode_cmd) == 2:
                 raise ValueError("give exactly one of 'unit_mode' (a mode name) or 'unit_mode_code' (1..3), got both")
@@ -257,6 +270,8 @@ class Command(WireMessage):
             return self.command
         if self.cntrl_cmd is not None:
             return PackMLCommand(self.cntrl_cmd).name
+        if self.base_parked is not None:
+            return "base_parked"
         return "unit_mode"
 
 

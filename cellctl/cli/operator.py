@@ -24,6 +24,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="request this PackML unit mode instead of a command (accepted in Stopped, Idle, Aborted)",
     )
+    p.add_argument(
+        "--base-parked",
+        type=int,
+        default=None,
+        metavar="STATION",
+        help="manual base: confirm the base is parked at this station (the cell waits in approaching)",
+    )
     p.add_argument("--user", default=None, help="who sends it, recorded and echoed in the Ack (e.g. hmi:alice)")
     p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE", help="start params, e.g. mode=collect")
     p.add_argument("--wait", metavar="STATE", default=None, help="then wait until the cell reaches this PackML state")
@@ -67,13 +74,15 @@ def run_cmd(args: argparse.Namespace) -> int:
     from cellctl.messages import Ack, Command, Status
 
     cfg = config_from_args(args)
-    if (args.command is None) == (args.unit_mode is None):
-        raise CellError("cellctl cmd: give a PackML command or --unit-mode MODE (exactly one)")
-    if args.unit_mode is not None and args.param:
-        raise CellError(f"cellctl cmd: --unit-mode takes no --param, got {args.param}")
+    given = [x for x in (args.command, args.unit_mode, args.base_parked) if x is not None]
+    if len(given) != 1:
+        raise CellError("cellctl cmd: give a PackML command, --unit-mode MODE or --base-parked STATION (exactly one)")
+    if args.command is None and args.param:
+        raise CellError(f"cellctl cmd: only a PackML command takes --param, got {args.param}")
     cmd = Command(
         command=args.command,
         unit_mode=args.unit_mode,
+        base_parked=args.base_parked,
         user=args.user,
         request_id=f"cli-{time.time_ns()}",
         params=_parse_params(args.param),

@@ -26,6 +26,8 @@ class Accepted:
     """The checked Start params (``start`` only)."""
     mode: UnitMode | None = None
     """The unit mode asked for (a mode change only)."""
+    base_station: int | None = None
+    """The station a manual base is confirmed parked at (a base confirmation only)."""
 
     def ack(self, state: str, mode: UnitMode | None = None) -> Ack:
         """The accepting Ack: ``state`` after applying, ``mode`` the unit mode now (default: the one asked for)."""
@@ -66,6 +68,11 @@ def check_command(payload: bytes, *, max_bytes: int, state: str, allowed: list[s
             unit_mode=mode.name,
         )
 
+    if cmd.base_parked is not None:
+        # any state: the supervisor checks that a park is awaited (only a running approach waits)
+        if cmd.params:
+            return reject(f"a base confirmation takes no params, got {sorted(cmd.params)}", "base_parked")
+        return Accepted(cmd, base_station=cmd.base_parked)
     requested = cmd.requested_mode
     if requested is not None:
         if cmd.params:

@@ -41,6 +41,7 @@ if TYPE_CHECKING:  # the daemon imports neither at start: vision pulls OpenCV in
     from cellctl.geometry.catalog import Catalog
     from cellctl.vision.fuse import FusedIdentification
     from cellctl.vision.identify import Identification
+    from cellctl.workers.base import Base
 
 __all__ = ["INITIAL_CONTEXT", "Cancelled", "CycleContext", "Identify", "StepRun"]
 
@@ -90,6 +91,8 @@ class CycleContext:
     post_event: Callable[[str, str], None] = lambda level, text: None
     identify: Identify | None = None
     catalog: Catalog | None = None
+    base: Base | None = None
+    """The mobile base (``base.backend``) the approaching step parks through; None: the robot worker alone."""
 
     observation_index: int = 0
     identify_attempts: int = 0

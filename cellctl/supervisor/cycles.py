@@ -20,6 +20,7 @@ from cellctl.supervisor.admin import AdminBook
 from cellctl.supervisor.context import CycleContext, Identify
 from cellctl.supervisor.publisher import Outbox
 from cellctl.supervisor.recorder import CycleRecorder, NullRecorder, Recorder, assemble_result, new_cycle_id
+from cellctl.workers.base import make_base
 
 if TYPE_CHECKING:
     from cellctl.geometry.catalog import Catalog
@@ -57,6 +58,7 @@ class CycleKeeper:
         self.robot_alive = robot_alive
         self.identify = identify
         self.catalog = catalog
+        self.base = make_base(cfg)
         self.ctx: CycleContext | None = None
         self.start_params = StartParams()
         self.results: list[CycleResult] = []
@@ -108,6 +110,7 @@ class CycleKeeper:
             post_event=self.event,
             identify=self.identify,
             catalog=self.catalog,
+            base=self.base,
         )
         self.event("info", f"cycle {cycle_id} started ({params.mode})")
         return self.ctx

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as, encode
 from cellctl.config import CellConfig
-from cellctl.errors import ProtocolError
+from cellctl.errors import CellError, ProtocolError
 from cellctl.messages import Ack, CycleResult, Event, Status, UnitMode
 from cellctl.recording.index import CycleIndex
 from cellctl.supervisor import events
@@ -195,6 +195,8 @@ class Supervisor:
         if not isinstance(checked, Accepted):
             return checked
         cmd, by = checked.cmd, f" by {checked.cmd.user}" if checked.cmd.user else ""
+        if checked.base_station is not None:
+            return self._confirm_base(checked, before, by)
         if checked.mode is not None:
             self.unit_mode = checked.mode
             self.cycles.event("info", f"unit mode {checked.mode.name}{by}")
@@ -209,6 +211,23 @@ class Supervisor:
             self.cycles.note(f"{name} commanded in {self.state}")
         self.model.trigger(name)
         return checked.ack(self.top_state, self.unit_mode)
+
+    def _confirm_base(self, checked: Accepted, state: str, by: str) -> Ack:
+        """A manual base's ``base_parked`` confirmation: wakes the approaching step that waits for it."""
+        k = checked.base_station
+        assert k is not None
+        confirm = getattr(self.cycles.base, "confirm", None)
+        try:
+            if confirm is None:
+                raise CellError(f"base backend {self.cfg.base.backend!r} parks by itself; nothing to confirm")
+            confirm(k)
+        except CellError as err:
+            return Ack(
+                request_id=checked.cmd.request_id, command="base_parked", accepted=False, reason=str(err),
+                state=state, user=checked.cmd.user, unit_mode=self.unit_mode.name,
+            )  # fmt: skip
+        self.cycles.event("info", f"base confirmed parked at station {k}{by}")
+        return checked.ack(state, self.unit_mode)
 
     def _on_command(self, payload: bytes, query: events.Query | None) -> None:
         ack = self.apply_command(payload)

@@ -24,11 +24,22 @@ def test_sim_base_parks_and_a_stop_interrupts_it() -> None:
 
 def test_manual_base_waits_for_the_confirmation_of_that_station() -> None:
     b = ManualBase(timeout_s=5.0)
-    threading.Timer(0.05, b.confirm, (0,)).start()  # the wrong station does not count
+    with pytest.raises(RobotError, match="not waiting for the base"):
+        b.confirm(3)  # before the cell asks: refused, not remembered
+    wrong: list[str] = []
+
+    def confirm_wrong() -> None:
+        try:
+            b.confirm(0)
+        except RobotError as err:
+            wrong.append(str(err))
+
+    threading.Timer(0.05, confirm_wrong).start()  # the wrong station does not count
     threading.Timer(0.2, b.confirm, (3,)).start()
     t0 = time.monotonic()
     st = b.park(3)
     assert st.station == 3 and st.parked and time.monotonic() - t0 >= 0.15
+    assert wrong == ["base confirmed parked at station 0, but the cell waits for station 3"]
 
 
 def test_manual_base_times_out_naming_the_station_and_the_setting() -> None:

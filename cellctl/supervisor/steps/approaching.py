@@ -3,9 +3,15 @@
 In a whole-bin cycle the base parks at the current station's planned pose (bin frame) once the
 stations are known (the first park, before the bin is identified, is the nominal one); at a
 station that cannot see the board the arm stays tucked (identifying carries the pose over).
+
+The base parks through the Base interface (``base.backend``) first: ``manual`` waits here for
+the operator's/PLC's ``base_parked`` command (timeout ``base.confirm_timeout_s``), ``sim``
+leaves the drive to the twin. Then the robot worker is told the base is parked (``park``).
 """
 
 from __future__ import annotations
+
+import threading
 
 from cellctl.messages import ApproachReply, ApproachRequest
 from cellctl.supervisor.context import StepRun
@@ -41,7 +47,35 @@ class Approaching(Step):
                 "info",
                 f"station {ctx.station_index + 1}/{len(ctx.station_order)} (plan station {st.station}): parking",
             )
+        if first and ctx.base is not None:
+            self._park_base(run, st.station if st is not None else 0)
         req = approach_request(run, ctx.observation_index, first)
         reply, _ = run.call("robot", "approach", req, ApproachReply)
         ctx.approach = reply
         return "succeeded"
+
+    @staticmethod
+    def _park_base(run: StepRun, station: int) -> None:
+        """Park the base at ``station`` (blocking); a cancelled step stops the base. Raises RobotError."""
+        base = run.ctx.base
+        assert base is not None
+        if base.NEEDS_CONFIRMATION:
+            run.event(
+                "info",
+                f"waiting for the base to be parked at station {station}: confirm with a Command "
+                f'{{"base_parked": {station}}} (cellctl cmd --base-parked {station})',
+            )
+        done = threading.Event()
+
+        def watch() -> None:  # a Hold/Stop/Abort cancels the step: the base must not go on driving
+            while not done.wait(0.05):
+                if run.cancelled.is_set():
+                    base.stop(f"{run.name} cancelled")
+                    return
+
+        threading.Thread(target=watch, name="base-watch", daemon=True).start()
+        try:
+            base.park(station)
+        finally:
+            done.set()
+        run.checkpoint()

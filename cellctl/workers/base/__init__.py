@@ -4,8 +4,11 @@ A vendor base plugs in as one more :class:`Base` subclass chosen by ``base.backe
 REST-driven AMR implements :meth:`Base.park` as "post a mission to the dock of station k, poll the
 vendor's status endpoint until it reports docked (or an error), with the timeout", :meth:`Base.stop`
 as the vendor's pause/cancel call, and :meth:`Base.state` from its pose endpoint (map frame →
-cell frame by the station's calibrated dock pose). Not yet wired into the cycle: the robot
-backends still park through the twin's scenario (``PlannedRobot._park``).
+cell frame by the station's calibrated dock pose); ``docs/deploy/base.md``.
+
+The supervisor's approaching step parks through it before the arm goes to its observation
+pose: station k of the whole-bin plan (station 0 before the plan is known, and in
+single-station cycles). A cancelled step (Hold, Stop, Abort) stops the base.
 """
 
 from cellctl.workers.base._port import Base, BaseState, ManualBase, SimBase, make_base

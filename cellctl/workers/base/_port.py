@@ -6,6 +6,7 @@ import abc
 import threading
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 from cellctl.config import CellConfig
 from cellctl.errors import ConfigError, RobotError
@@ -25,6 +26,9 @@ class BaseState:
 
 class Base(abc.ABC):
     """A mobile base that parks the arm beside the bin at numbered stations."""
+
+    NEEDS_CONFIRMATION: ClassVar[bool] = False
+    """True when a person or the PLC parks it and confirms (``base_parked`` command): the cycle says so."""
 
     @abc.abstractmethod
     def park(self, station: int) -> BaseState:
@@ -76,6 +80,8 @@ class ManualBase(Base):
     """An operator or the PLC parks the base and confirms (:meth:`confirm`, fed from the command topic/OPC UA);
     :meth:`park` waits for that confirmation up to ``timeout_s``."""
 
+    NEEDS_CONFIRMATION = True
+
     def __init__(self, timeout_s: float = 300.0) -> None:
         self.timeout_s = timeout_s
         self._cv = threading.Condition()
@@ -84,10 +90,27 @@ class ManualBase(Base):
         self._waiting: int | None = None
 
     def confirm(self, station: int) -> None:
-        """The operator/PLC says the base is parked at ``station``."""
+        """The operator/PLC says the base is parked at ``station``.
+
+        Raises:
+            RobotError: no park is awaited, or another station is (the confirmation changes nothing).
+        """
+        k = _check_station(station)
         with self._cv:
-            self._confirmed = _check_station(station)
+            if self._waiting is None:
+                raise RobotError(f"base confirmed parked at station {k}, but the cell is not waiting for the base")
+            if self._waiting != k:
+                raise RobotError(
+                    f"base confirmed parked at station {k}, but the cell waits for station {self._waiting}"
+                )
+            self._confirmed = k
             self._cv.notify_all()
+
+    @property
+    def waiting(self) -> int | None:
+        """The station a park waits to be confirmed at, or None."""
+        with self._cv:
+            return self._waiting
 
     def park(self, station: int) -> BaseState:
         k = _check_station(station)
@@ -122,14 +145,18 @@ class ManualBase(Base):
 
 
 def make_base(cfg: CellConfig) -> Base:
-    """The ``base.backend`` of ``cfg``.
+    """The ``base.backend`` of ``cfg``, as the supervisor's approaching step drives it.
+
+    ``sim``: the twin's base; the drive itself is modelled by the sim/UR robot worker when it
+    parks (ApproachRequest.park, ``DRIVE_S / robot.speed_scale``), so this side does not wait
+    again. ``manual``: waits for the operator's/PLC's ``base_parked`` command.
 
     Raises:
         ConfigError: an unknown backend.
     """
     name = cfg.base.backend
     if name == "sim":
-        return SimBase(4.0 / cfg.robot.speed_scale)
+        return SimBase(0.0)
     if name == "manual":
         return ManualBase(cfg.base.confirm_timeout_s)
     raise ConfigError(f"base backend {name!r} is unknown; expected one of ['sim', 'manual']")
