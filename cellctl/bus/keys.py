@@ -37,6 +37,7 @@ __all__ = [
     "sim_state",
     "status",
     "worker_all",
+    "worker_fault",
     "worker_op",
 ]
 
@@ -95,6 +96,15 @@ def worker_all(cell_id: str, role: str) -> str:
     if role not in ROLES:
         raise ConfigError(f"worker role {role!r} is unknown; expected one of {list(ROLES)}")
     return f"{prefix(cell_id)}/{role}/**"
+
+
+def worker_fault(cell_id: str, role: str) -> str:
+    """Where a worker reports a fault (an error ``Event``) just before it withdraws its token:
+    ``cell/<id>/<role>/fault`` — under its own role's keys, which its principal may publish on (and one
+    subscription per role, not ``*/fault``: the ACL matches a subscriber's key against the role's keys)."""
+    if role not in ROLES:
+        raise ConfigError(f"worker role {role!r} is unknown; expected one of {list(ROLES)}")
+    return f"{prefix(cell_id)}/{role}/fault"
 
 
 def robot_op(cell_id: str, op: str) -> str:

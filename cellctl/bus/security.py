@@ -73,10 +73,15 @@ PRINCIPALS: dict[str, Principal] = {
         Principal("plc", ("observe", "command"), "the line PLC: sends PackML commands, reads everything"),
         Principal(
             "hmi",
-            ("observe", "command"),
-            "the web HMI (cellctl hmi): commands for its logged-in users, reads everything; serves no worker key",
+            ("observe", "command", "robot-maintenance"),
+            "the web HMI (cellctl hmi): commands and the robot's maintenance op for its logged-in users, reads "
+            "everything; serves no worker key",
         ),
-        Principal("operator", ("observe",), "people and the cellctl CLI: status, acks, results, events, liveliness"),
+        Principal(
+            "operator",
+            ("observe", "robot-maintenance"),
+            "people and the cellctl CLI: status, acks, results, events, liveliness; the robot's maintenance op",
+        ),
         Principal("viewer", ("status",), "dashboards: the status key only"),
         Principal(
             "engineer",
@@ -107,6 +112,7 @@ def _grant_rules(cell_id: str) -> dict[str, list[tuple[str, list[str], list[str]
         keys.robot_joints(c),
         keys.sim_state(c),
         keys.planner_job_progress(c),
+        *(keys.worker_fault(c, role) for role in keys.ROLES),
     ]
     grants: dict[str, list[tuple[str, list[str], list[str]]]] = {
         "status": [("ingress", _SUBSCRIBE_IN, [keys.status(c)]), ("egress", _SUBSCRIBE_OUT, [keys.status(c)])],
@@ -126,6 +132,13 @@ def _grant_rules(cell_id: str) -> dict[str, list[tuple[str, list[str], list[str]
         "watch-supervisor": [
             ("ingress", ["declare_liveliness_subscriber", "liveliness_query"], [keys.alive(c, "supervisor")]),
             ("egress", ["liveliness_token", "reply"], [keys.alive(c, "supervisor")]),
+        ],
+        # Unlocking a protective stop, powering on, releasing brakes, clearing the latched fault: a
+        # person who looked at the cause (UR: "inspect the cause before unlocking"), never the PLC's
+        # program nor the supervisor, which could loop on it. Exactly this op, not robot/**.
+        "robot-maintenance": [
+            ("ingress", ["query"], [keys.robot_op(c, "maintenance")]),
+            ("egress", ["reply"], [keys.robot_op(c, "maintenance")]),
         ],
         "sim-view": [("ingress", ["query"], [keys.sim_state(c)]), ("egress", ["reply"], [keys.sim_state(c)])],
         "maintain": [

@@ -59,7 +59,7 @@ class AliveChanged:
 
 @dataclass(frozen=True)
 class EventReceived:
-    """An Event on ``cell/<id>/events`` that may be a worker's fault report (``<role> fault: …``)."""
+    """An Event on ``cell/<id>/<role>/fault``: a worker's fault report (``<role> fault: …``)."""
 
     payload: bytes
 

@@ -30,16 +30,15 @@ def declare_inbox(session: Any, cell_id: str, put: Callable[[DispatchEvent], Non
             lambda sample: put(AliveChanged(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)),
             history=True,
         ),
-        # a worker's fault report (``robot fault: protective stop``) gives a lost token its reason;
-        # the byte test keeps the supervisor's own event stream off the dispatcher queue
-        s.declare_subscriber(keys.events(c), lambda sample: _fault_report(sample.payload.to_bytes(), put)),
+        # a worker's fault report (``robot fault: protective stop``) gives a lost token its reason
+        *(
+            s.declare_subscriber(
+                keys.worker_fault(c, role), lambda sample: put(EventReceived(sample.payload.to_bytes()))
+            )
+            for role in keys.ROLES
+        ),
         s.liveliness().declare_token(keys.alive(c, "supervisor")),
     ]
-
-
-def _fault_report(payload: bytes, put: Callable[[DispatchEvent], None]) -> None:
-    if b" fault: " in payload:
-        put(EventReceived(payload))
 
 
 def undeclare_all(decls: list[Any]) -> None:

@@ -31,6 +31,7 @@ def test_every_key_is_a_canonical_zenoh_key() -> None:
         keys.alive(c, "robot"),
         keys.alive(c, "planner", "p-1"),
         keys.alive_all(c),
+        keys.worker_fault(c, "robot"),
     ]
     for k in built:
         assert str(zenoh.KeyExpr(k)) == k

@@ -1,4 +1,4 @@
-"""A robot fault reaches the cycle's reason: the worker reports ``robot fault: <text>`` on the events
+"""A robot fault reaches the cycle's reason: the worker reports ``robot fault: <text>`` on its fault
 key and withdraws its token; the CycleResult names the fault, whichever of the two arrives first."""
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ def test_the_cycle_result_names_the_robot_fault(cfg, cell, plc, report_first) ->
         assert plc.wait_for(lambda s: s.state == "Idle", 10)
         assert plc.cmd("start").accepted
         _wait(lambda: "move" in fake.calls)
-        pub = fake.session.declare_publisher(keys.events(cfg.cell_id))
+        pub = fake.session.declare_publisher(keys.worker_fault(cfg.cell_id, "robot"))
         report = encode(Event(level="error", text="robot fault: protective stop"))
         if report_first:
             pub.put(report)
@@ -58,7 +58,7 @@ def test_a_report_from_long_ago_is_not_the_reason_of_a_later_loss(cfg, cell, plc
     with FakeCell(cfg, n_viewpoints=20, move_delay_s=0.2) as fake:
         plc.cmd("reset")
         assert plc.wait_for(lambda s: s.state == "Idle", 10)
-        pub = fake.session.declare_publisher(keys.events(cfg.cell_id))
+        pub = fake.session.declare_publisher(keys.worker_fault(cfg.cell_id, "robot"))
         pub.put(encode(Event(level="error", text="robot fault: protective stop")))
         _wait(lambda: "robot" in cell.supervisor._faults)
         time.sleep(0.3)

@@ -414,7 +414,7 @@ class UrRobot(PlannedRobot):
                         self._send(_T_KICK, self._c.kickWatchdog)
                 except _Wedged as err:
                     st = None
-                    reason = f"the UR control interface stopped answering ({err}): link to {self.ur.host} lost?"
+                    reason = f"lost RTDE connection to {self.ur.host}: the control interface stopped answering ({err})"
                 except RuntimeError as err:
                     st = None
                     reason = f"lost RTDE connection to {self.ur.host}: {err}"
@@ -514,7 +514,7 @@ class UrRobot(PlannedRobot):
                     self._send(_T_CMD, self._c.setWatchdog, self.ur.faults.watchdog_hz)
         except _Wedged as err:
             if self._fault is None:
-                self._latch(f"the UR control interface stopped answering ({err})")
+                self._latch(f"lost RTDE connection to {self.ur.host}: the control interface stopped answering ({err})")
             raise RobotError(f"motion not started: UR fault ({self._fault})") from None
         except RuntimeError as err:
             raise RobotError(f"the UR controller refused the motion: {err}") from None
@@ -551,9 +551,14 @@ class UrRobot(PlannedRobot):
                         self._check_tcp()
                         return now - t0
                     if now - t0 > 0.5:  # the RTDE sample may lag the controller's finish by a period
-                        raise RobotError(
-                            f"the motion ended {err:.4f} rad short of its goal ({self._fault or 'stopped'})"
-                        )
+                        # a safety stop ends the program in the same sample the monitor reads its bits
+                        # from: give it a few polls to latch, so the error names the fault
+                        deadline = now + 15 * period
+                        while self._fault is None and time.monotonic() < deadline:
+                            time.sleep(period)
+                        if self._fault is not None:
+                            raise RobotError(f"motion aborted: UR fault ({self._fault}) at {np.round(q, 4).tolist()}")
+                        raise RobotError(f"the motion ended {err:.4f} rad short of its goal (stopped)")
                 if now - t0 > traj.duration / slow + 5.0:
                     raise RobotError(f"the motion did not finish within {traj.duration / slow + 5.0:.1f} s")
         except RobotError:
