@@ -96,6 +96,7 @@ class Timeouts(_Model):
     plan_wait: float = Field(default=600.0, gt=0)
     stop: float = Field(default=2.0, gt=0)
     wash: float = Field(default=120.0, gt=0, description="one wash request: the transit to a sweep and its passes")
+    wash_plan: float = Field(default=180.0, gt=0, description="a wash plan from the planner worker")
 
 
 class SupervisorConfig(_Model):

@@ -72,6 +72,10 @@ __all__ = [
     "UnitMode",
     "UnitModeName",
     "ViewpointResult",
+    "PlannedSweep",
+    "UnwashablePiece",
+    "WashPlanReply",
+    "WashPlanRequest",
     "WashReply",
     "WashRequest",
     "WashResult",
@@ -735,6 +739,64 @@ class WashReply(WireMessage):
     duration_s: FiniteFloat = 0.0
 
 
+class WashPlanRequest(WireMessage):
+    """Plan a wash from a cycle's dirt map (planner op ``wash_plan``; the planner worker owns the
+    heavy planning stack, the supervisor never imports it)."""
+
+    type: Literal["cellctl/WashPlanRequest"] = "cellctl/WashPlanRequest"
+    v: Literal[1] = 1
+    bin_type: str = Field(min_length=1, max_length=128)
+    stations: list[PoseMsg] = Field(min_length=1, max_length=36, description="base poses T_bin_base (frame 'bin')")
+    q_start: Joints = Field(description="the arm's joints now: the tour starts there")
+    dirt_map: dict[str, Any] | None = Field(description="the CycleResult's dirt_map (face_p or seen_dirty)")
+    threshold: float = Field(default=0.5, gt=0, lt=1)
+    margin_m: float = Field(default=0.02, ge=0, le=0.3)
+    seed: int = Field(default=0, ge=0, lt=2**63)
+    round: int = Field(default=1, ge=1, le=100)
+
+
+class PlannedSweep(BaseModel):
+    """One sweep of a wash plan: joint waypoints, passes, and where its jet's spot runs (bin frame)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    joints: list[Joints] = Field(min_length=1, max_length=2000)
+    passes: int = Field(default=1, ge=1, le=20)
+    region: int = 0
+    station: int = 0
+    faces: list[int] = Field(default_factory=list, description="target faces it sprays")
+    spots: list[tuple[FiniteFloat, FiniteFloat, FiniteFloat]] = Field(default_factory=list)
+    axes: list[tuple[FiniteFloat, FiniteFloat, FiniteFloat]] = Field(default_factory=list)
+
+
+class UnwashablePiece(BaseModel):
+    """A piece of a target region no sweep sprays, and why."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    region: int
+    faces: list[int]
+    area_m2: float
+    reason: str
+
+
+class WashPlanReply(WireMessage):
+    """The planned sweeps in execution order and what they cover (face ids of the bin mesh)."""
+
+    type: Literal["cellctl/WashPlanReply"] = "cellctl/WashPlanReply"
+    v: Literal[1] = 1
+    sweeps: list[PlannedSweep] = Field(default_factory=list)
+    reason: str | None = Field(default=None, description="nothing to do, or nothing can be done: no motion")
+    dirty: list[int] = Field(default_factory=list)
+    targets: list[int] = Field(default_factory=list)
+    covered: list[int] = Field(default_factory=list)
+    washed: list[int] = Field(default_factory=list)
+    unwashable: list[UnwashablePiece] = Field(default_factory=list)
+    summary: dict[str, Any] = Field(default_factory=dict, description="counts, areas, stage times (WashPlan.summary)")
+    plan_s: float = 0.0
+    cpu_s: float = 0.0
+
+
 class WashRound(BaseModel):
     """One wash-and-verify round as the CycleResult records it (areas in m²)."""
 
@@ -1028,6 +1090,8 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
         SimState,
         WashRequest,
         WashReply,
+        WashPlanRequest,
+        WashPlanReply,
         CaptureRequest,
         CaptureReply,
         ClassifyRequest,

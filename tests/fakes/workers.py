@@ -39,6 +39,7 @@ from cellctl.messages import (
     RobotState,
     RobotStateRequest,
     StopRequest,
+    WashPlanRequest,
     WashReply,
     WashRequest,
 )
@@ -118,6 +119,11 @@ class FakeCell:
             p = self.servers["planner"]
             p.serve("lookup", PlanLookupRequest, self._lookup)
             p.serve("jobs", (PlanJobRequest, PlanJobQuery), self._submit, key=keys.planner_jobs(c))
+            # the real wash planner, as the planner worker serves it (a plan is geometry, not a double)
+            from cellctl.washing.service import MeshCache, wash_plan_reply
+
+            meshes = MeshCache(self.cfg)
+            p.serve("wash_plan", WashPlanRequest, lambda r, _: wash_plan_reply(self.cfg, meshes, r))
         for s in self.servers.values():
             s.announce()
         time.sleep(0.2)  # let the liveliness tokens reach the router

@@ -1,5 +1,6 @@
 """wash_check → washing → verifying (Start mode wash_and_verify) on the case-study bin: the real
-wash planner, scripted robot/camera/classifier replies (no Zenoh)."""
+wash planner (the planner worker's service, called in-process), scripted robot/camera/classifier
+replies (no Zenoh)."""
 
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ from cellctl.sim.scene import HOME_JOINTS, nominal_T_bin_base
 from cellctl.supervisor.steps.verifying import Verifying, merge_dirt_maps
 from cellctl.supervisor.steps.washing import WashCheck, Washing
 from cellctl.surface import EXTERNAL
+from cellctl.washing.service import MeshCache, wash_plan_reply
 from tests.fakes.workers import CAM_POSE, INTRINSICS, _png
 from tests.supervisor._scripted import ListRecorder, ScriptedRun, context
 
@@ -67,8 +69,9 @@ def _ctx(cfg, case, dirty: np.ndarray | None, **kw):  # noqa: ANN001, ANN202
     return context(cfg, params=WASH, catalog=cat, bin_type="case_study", T_base_bin=T, dirt_map=dm, plan=plan, **kw)
 
 
-def _script(refuse_second: bool = False, label: str = "clean") -> dict:
+def _script(cfg, refuse_second: bool = False, label: str = "clean") -> dict:  # noqa: ANN001
     calls = {"n": 0}
+    meshes = MeshCache(cfg)
 
     def wash(req):  # noqa: ANN001, ANN202
         calls["n"] += 1
@@ -78,6 +81,7 @@ def _script(refuse_second: bool = False, label: str = "clean") -> dict:
 
     return {
         ("robot", "state"): (STATE, None),
+        ("planner", "wash_plan"): lambda req: (wash_plan_reply(cfg, meshes, req), None),
         ("robot", "wash"): wash,
         ("robot", "move"): (MoveReply(joints=[0.0] * 6, camera_pose=CAM_POSE), None),
         ("camera", "capture"): (CaptureReply(format="png", intrinsics=INTRINSICS, camera_pose=CAM_POSE), _png()),
@@ -100,15 +104,15 @@ def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(
     dirty = _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0))
     log = DiskRecorder(tmp_path / "c-1.mcap")
     ctx = _ctx(cfg, case, dirty, log=log)
-    run = ScriptedRun(ctx, _script(refuse_second=True))
+    run = ScriptedRun(ctx, _script(cfg, refuse_second=True))
     assert WashCheck()(run) == "wash"
     plan = ctx.wash_plan
-    assert plan.moves and not plan.unwashable and plan.dirty.sum() == dirty.sum()
+    assert plan.sweeps and not plan.unwashable and len(plan.dirty) == dirty.sum() and plan.reason is None
     assert Washing()(run) == "succeeded"
     washes = [m for r, o, m in run.calls if o == "wash"]
     assert len(washes) == len(plan.sweeps)  # one request per sweep: a Hold resumes at the next
     assert [len(w.sweeps) for w in washes] == [1] * len(washes)
-    assert np.allclose(washes[0].sweeps[0].joints, plan.sweeps[0].q)
+    assert washes[0].sweeps[0].joints == plan.sweeps[0].joints and washes[0].sweeps[0].passes == 2
     assert ctx.wash_run["sweeps_run"] == len(plan.sweeps) - 1 and len(ctx.wash_run["refused"]) == 1
     assert Verifying()(run) == "succeeded"
     moves = [m for r, o, m in run.calls if o == "move"]
@@ -129,9 +133,9 @@ def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(
 def test_dirt_no_nozzle_pose_reaches_ends_dirty_as_unwashable_without_motion(cfg, case) -> None:  # noqa: ANN001
     dirty = _dirty(case[1], (0.0, 0.37, -0.5), (0, 1.0, 0))  # far outside wall, seen from the board side
     ctx = _ctx(cfg, case, dirty)
-    run = ScriptedRun(ctx, _script())
+    run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done"
-    assert [o for _, o, _ in run.calls] == ["state"]  # no wash, no move
+    assert [o for _, o, _ in run.calls] == ["state", "wash_plan"]  # no wash, no move
     assert ctx.verdict == "dirty" and ctx.wash.verdict == "dirty"
     assert ctx.wash.reason.startswith("unwashable: no nozzle pose reaches any dirty region")
     assert ctx.wash.unwashable and ctx.wash.remaining_faces == np.flatnonzero(dirty).tolist()
@@ -139,7 +143,7 @@ def test_dirt_no_nozzle_pose_reaches_ends_dirty_as_unwashable_without_motion(cfg
 
 def test_no_dirt_map_is_a_reason_and_no_motion(cfg, case) -> None:  # noqa: ANN001
     ctx = _ctx(cfg, case, None)
-    run = ScriptedRun(ctx, _script())
+    run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done" and run.calls == []
     assert ctx.wash.verdict is None and "no dirt map" in ctx.wash.reason
 
@@ -160,7 +164,7 @@ def test_dirt_left_after_the_last_round_ends_dirty(cfg, case) -> None:  # noqa: 
         )  # fmt: skip
         for k in range(cfg.wash.max_rounds)
     ]
-    run = ScriptedRun(ctx, _script())
+    run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done" and run.calls == []
     assert ctx.verdict == "dirty" and "after 3 wash round(s)" in ctx.wash.reason and len(ctx.wash.rounds) == 3
 
@@ -170,7 +174,7 @@ def test_a_hold_during_a_sweep_is_not_a_refusal_and_resumes_there(cfg, case) -> 
 
     dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
     ctx = _ctx(cfg, case, dirty)
-    script = _script()
+    script = _script(cfg)
     run = ScriptedRun(ctx, script)
     assert WashCheck()(run) == "wash"
 
@@ -182,7 +186,7 @@ def test_a_hold_during_a_sweep_is_not_a_refusal_and_resumes_there(cfg, case) -> 
     with pytest.raises(Cancelled):
         Washing()(run)
     assert ctx.wash_next_sweep == 0 and ctx.wash_run["refused"] == []
-    resumed = ScriptedRun(ctx, _script())
+    resumed = ScriptedRun(ctx, _script(cfg))
     assert Washing()(resumed) == "succeeded"
     assert ctx.wash_run["sweeps_run"] == len(ctx.wash_plan.sweeps)
 

@@ -28,7 +28,7 @@ from cellctl.messages import (
 )
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
-from cellctl.supervisor.steps.washing import picture_dir, unwashable_summary, wash_mesh
+from cellctl.supervisor.steps.washing import face_mask, picture_dir, wash_mesh
 
 __all__ = ["Verifying", "merge_dirt_maps"]
 
@@ -75,14 +75,16 @@ class Verifying(Step):
         assert wplan is not None and iplan is not None  # READS
         mesh = wash_mesh(ctx)
         r = len(ctx.wash_rounds) + 1
-        look = dilate(mesh, wplan.targets | wplan.washed, ctx.cfg.wash.splash_m)
+        n = mesh.n_faces
+        washed, covered = face_mask(wplan.washed, n), face_mask(wplan.covered, n)
+        look = dilate(mesh, face_mask(wplan.targets, n) | washed, ctx.cfg.wash.splash_m)
         views = [vp for vp in iplan.viewpoints if any(0 <= f < mesh.n_faces and look[f] for f in vp.faces)]
         for k in range(ctx.wash_next_view, len(views)):
             self._look(run, views[k], r)
             ctx.wash_next_view = k + 1
         mine = [v for v in ctx.viewpoints if v.wash_round == r]
         new_map = self._dirt_map(ctx, mesh, mine)
-        before = wplan.dirty
+        before = face_mask(wplan.dirty, n)
         ctx.dirt_map = merge_dirt_maps(ctx.dirt_map or {}, new_map, mesh)
         # the heat maps are in the MCAP (topics.HEATMAP); the CycleResult keeps the fused face_p
         ctx.viewpoints = [v.model_copy(update={"heatmap": None}) if v.wash_round == r else v for v in ctx.viewpoints]
@@ -105,15 +107,15 @@ class Verifying(Step):
             sweeps_planned=len(wplan.sweeps),
             sweeps_run=int(stats.get("sweeps_run", 0)),
             passes_run=int(stats.get("passes_run", 0)),
-            washed_m2=round(float(a[wplan.washed].sum()), 6),
-            covered_m2=round(float(a[wplan.covered].sum()), 6),
-            unwashable=unwashable_summary(wplan, mesh),
+            washed_m2=round(float(a[washed].sum()), 6),
+            covered_m2=round(float(a[covered].sum()), 6),
+            unwashable=list(wplan.summary.get("unwashable", [])),
             sweeps_refused=list(stats.get("refused", [])),
             reinspected_views=len(mine),
             dirty_faces_after=int(after.sum()),
             dirty_m2_after=round(float(a[after].sum()), 6),
-            plan_s=round(float(wplan.times_s.get("total", 0.0)), 3),
-            plan_cpu_s=round(float(wplan.cpu_s), 3),
+            plan_s=wplan.plan_s,
+            plan_cpu_s=wplan.cpu_s,
             pictures=pictures,
         )
         ctx.log.write_json(topics.WASH_ROUND, "cellctl.WashRound", rec.model_dump(mode="json"))

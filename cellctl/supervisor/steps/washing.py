@@ -3,8 +3,9 @@
 After reporting, ``wash_check`` reads the cycle's dirt map: no dirty face → the bin is
 ``clean``; dirt left after ``wash.max_rounds`` rounds, or dirt no nozzle pose reaches from
 where the base is parked → ``dirty`` with the reason and the remaining faces; else it plans the
-round's wash (:func:`cellctl.washing.plan.plan_wash` at the measured bin pose, from the arm's
-joints now) and ``washing`` runs it: one robot ``wash`` request per sweep, so a Hold resumes at
+round's wash (the planner worker's ``wash_plan`` op, :func:`cellctl.washing.plan.plan_wash` at
+the measured bin pose from the arm's joints now: the supervisor never imports the planning
+stack) and ``washing`` runs it: one robot ``wash`` request per sweep, so a Hold resumes at
 the next sweep and a sweep the robot refuses costs only its faces. ``verifying``
 (:mod:`cellctl.supervisor.steps.verifying`) re-inspects what was washed and loops back here.
 
@@ -16,17 +17,28 @@ before, wash path on the mesh, dirt map after) beside the cycle's MCAP, in ``<cy
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from cellctl.bus import topics
 from cellctl.errors import PlanningError, WorkerFailed
-from cellctl.messages import RobotState, RobotStateRequest, WashReply, WashRequest, WashResult, WashSweep
+from cellctl.messages import (
+    PoseMsg,
+    RobotState,
+    RobotStateRequest,
+    WashPlanReply,
+    WashPlanRequest,
+    WashReply,
+    WashRequest,
+    WashResult,
+    WashSweep,
+)
 from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import Step
 
-__all__ = ["WashCheck", "Washing", "picture_dir", "unwashable_summary"]
+__all__ = ["WashCheck", "Washing", "face_mask", "picture_dir"]
 
 
 def picture_dir(ctx: CycleContext) -> Path | None:
@@ -35,8 +47,33 @@ def picture_dir(ctx: CycleContext) -> Path | None:
     return Path(path).parent / f"{ctx.cycle_id}.wash" if path is not None else None
 
 
-def unwashable_summary(plan: Any, mesh: Any) -> list[dict[str, Any]]:  # noqa: ANN401 - WashPlan, BinMesh
-    return plan.summary(mesh)["unwashable"]
+def face_mask(ids: list[int], n_faces: int) -> np.ndarray:
+    """(F,) bool of a face id list (a WashPlanReply's ``dirty``, ``targets``, ...)."""
+    out = np.zeros(n_faces, bool)
+    out[np.asarray(ids, np.int64)] = True
+    return out
+
+
+def _plan_view(plan: WashPlanReply, n_faces: int, T_bin_base: np.ndarray) -> Any:  # noqa: ANN401
+    """What :func:`cellctl.washing.pictures.draw_wash_path` reads of a plan, from the planner's reply."""
+    return SimpleNamespace(
+        dirty=face_mask(plan.dirty, n_faces),
+        targets=face_mask(plan.targets, n_faces),
+        washed=face_mask(plan.washed, n_faces),
+        unwashable=[SimpleNamespace(faces=np.asarray(u.faces, np.int64), area_m2=u.area_m2) for u in plan.unwashable],
+        sweeps=plan.sweeps,
+        stations=[T_bin_base],
+    )
+
+
+def _spot_passes(plan: WashPlanReply) -> list[Any]:
+    """Each sweep's spot path once per pass, back and forth (as the twin runs them)."""
+    out = []
+    for sw in plan.sweeps:
+        fwd = SimpleNamespace(spots=np.asarray(sw.spots).reshape(-1, 3), axes=np.asarray(sw.axes).reshape(-1, 3))
+        back = SimpleNamespace(spots=fwd.spots[::-1], axes=fwd.axes[::-1])
+        out += [fwd if k % 2 == 0 else back for k in range(sw.passes)]
+    return out
 
 
 def wash_mesh(ctx: CycleContext) -> Any:  # noqa: ANN401 - BinMesh
@@ -76,11 +113,11 @@ class WashCheck(Step):
             why = f"dirt left after {done} wash round(s) (wash.max_rounds): {int(dirty.sum())} faces"
             why += f", {area * 1e4:.0f} cm²"
             return self._end(run, "dirty", why, dirty, mesh)
-        plan = self._plan(run, mesh)
-        ctx.log.write_json(topics.WASH_PLAN, "cellctl.WashPlan", {"round": done + 1, **plan.summary(mesh)})
-        if not plan.moves:
+        plan = self._plan(run, done + 1)
+        ctx.log.write_json(topics.WASH_PLAN, "cellctl.WashPlan", {"round": done + 1, **plan.summary})
+        if not plan.sweeps:
             why = f"unwashable: {plan.reason}"
-            return self._end(run, "dirty", why, dirty, mesh, unwashable_summary(plan, mesh))
+            return self._end(run, "dirty", why, dirty, mesh, plan.summary.get("unwashable", []))
         ctx.wash_plan = plan
         ctx.wash_next_sweep = 0
         ctx.wash_next_view = 0
@@ -89,50 +126,47 @@ class WashCheck(Step):
         run.event(
             "info",
             f"wash round {done + 1}: {int(dirty.sum())} dirty faces ({area * 1e4:.0f} cm²) → {len(plan.sweeps)} "
-            f"sweeps planned in {plan.times_s.get('total', 0.0):.1f} s"
-            + (f"; {n_unw} piece(s) unwashable from here" if n_unw else ""),
+            f"sweeps planned in {plan.plan_s:.1f} s" + (f"; {n_unw} piece(s) unwashable from here" if n_unw else ""),
         )
         self._pictures(ctx, mesh, plan, done + 1)
         return "wash"
 
     @staticmethod
-    def _plan(run: StepRun, mesh: Any) -> Any:  # noqa: ANN401 - BinMesh → WashPlan
+    def _plan(run: StepRun, r: int) -> WashPlanReply:
         from cellctl.geometry.transforms import invert
-        from cellctl.planning.robot import default_robot_model
-        from cellctl.washing.nozzle import NozzleModel
-        from cellctl.washing.plan import WashParams, plan_wash
 
         ctx = run.ctx
         wc = ctx.cfg.wash
         state, _ = run.call("robot", "state", RobotStateRequest(), RobotState)
-        params = WashParams(
-            threshold=wc.threshold, margin_m=wc.margin_m, seed=ctx.params.seed, q_start=tuple(state.joints)
+        assert ctx.T_base_bin is not None and ctx.bin_type is not None  # wash_mesh checked them
+        req = WashPlanRequest(
+            bin_type=ctx.bin_type,
+            # the base stays where the cycle parked it: the one station is the measured pose
+            stations=[PoseMsg.from_matrix(invert(ctx.T_base_bin), "bin")],
+            q_start=state.joints,
+            dirt_map=ctx.dirt_map,
+            threshold=wc.threshold,
+            margin_m=wc.margin_m,
+            seed=ctx.params.seed,
+            round=r,
         )
-        assert ctx.T_base_bin is not None  # wash_mesh checked it
-        # the base stays where the cycle parked it: the one station is the measured pose
-        return plan_wash(
-            mesh,
-            ctx.dirt_map,
-            [invert(ctx.T_base_bin)],
-            NozzleModel.from_config(ctx.cfg.nozzle),
-            default_robot_model(),
-            params,
-        )
+        reply, _ = run.call("planner", "wash_plan", req, WashPlanReply)
+        return reply
 
     @staticmethod
-    def _pictures(ctx: CycleContext, mesh: Any, plan: Any, r: int) -> None:  # noqa: ANN401
+    def _pictures(ctx: CycleContext, mesh: Any, plan: WashPlanReply, r: int) -> None:  # noqa: ANN401
         folder = picture_dir(ctx)
         if folder is None:
             return
+        from cellctl.geometry.transforms import invert
         from cellctl.recording.dirt_map import draw_dirt_map
-        from cellctl.washing.nozzle import NozzleModel
         from cellctl.washing.pictures import draw_wash_path
-        from cellctl.washing.spots import plan_spots
 
+        assert ctx.T_base_bin is not None
         name = ctx.bin_type or "bin"
-        spots = plan_spots(plan, mesh, NozzleModel.from_config(ctx.cfg.nozzle))
+        view = _plan_view(plan, mesh.n_faces, invert(ctx.T_base_bin))
         before = draw_dirt_map(mesh, ctx.dirt_map or {}, folder / f"r{r}_before.png", f"{name} round {r}: before")
-        path = draw_wash_path(mesh, plan, spots, folder / f"r{r}_path.png", f"{name} round {r}:")
+        path = draw_wash_path(mesh, view, _spot_passes(plan), folder / f"r{r}_path.png", f"{name} round {r}:")
         ctx.wash_run["pictures"] = [f"{folder.name}/{p.name}" for p in (before, path)]
 
     @staticmethod
@@ -182,7 +216,7 @@ class Washing(Step):
         for i in range(ctx.wash_next_sweep, len(plan.sweeps)):
             sw = plan.sweeps[i]
             req = WashRequest(
-                sweeps=[WashSweep(joints=sw.q.tolist(), passes=sw.passes, region=sw.region)],
+                sweeps=[WashSweep(joints=sw.joints, passes=sw.passes, region=sw.region)],
                 round=r,
             )
             try:

@@ -11,6 +11,8 @@ Ops (``cellctl worker planner``):
 * ``cell/<id>/planner/lookup``: :class:`PlanLookupRequest` → :class:`PlanLookupReply`: cache
   lookup + pose tolerance + IK/collision re-check at the measured pose, so the supervisor
   never imports OMPL/trimesh/open3d.
+* ``cell/<id>/planner/wash_plan``: :class:`~cellctl.messages.WashPlanRequest` →
+  :class:`~cellctl.messages.WashPlanReply` (:mod:`cellctl.washing.service`), for the same reason.
 
 Several workers may serve the same cell (each with its own liveliness instance name). A planner
 pool serving several cells from the compute host (``--backend pool``, one job to exactly one
@@ -177,8 +179,14 @@ class PlannerService:
         if req.whole:
             whole = self._whole_stations(req.bin_type, mesh, req.bin_pose.matrix())
             if not whole["stations"]:
-                # a whole-bin cycle without a whole-bin plan: replan the whole bin, not one station
-                return PlanLookupReply(hit=False, reason=whole["reason"], mesh_faces=int(len(mesh.faces)))
+                # no whole-bin plan: replan the whole bin, not one station; an empty one (no station
+                # sees the bin) is named, so the cycle fails with its reason instead of replanning again
+                return PlanLookupReply(
+                    hit=False,
+                    reason=whole["reason"],
+                    mesh_faces=int(len(mesh.faces)),
+                    whole_plan_id=whole.get("plan_id"),
+                )
         return PlanLookupReply(
             hit=res.hit,
             reason=res.reason,
@@ -225,7 +233,7 @@ class PlannerService:
             except CellError as err:
                 log.warning("plan cache: skipping whole-bin record %s", err)
                 continue
-            if d.get("format") != WHOLE_FORMAT or d.get("bin_type") != bin_type or not d.get("stations"):
+            if d.get("format") != WHOLE_FORMAT or d.get("bin_type") != bin_type:
                 continue
             if d.get("mesh_sha256") != mesh.sha256 or d.get("robot_model_id") != rid:
                 why = f"whole-bin plan {d.get('plan_id')} was made for another mesh or robot model; replan"
@@ -244,6 +252,12 @@ class PlannerService:
         if not usable:
             return {"stations": [], "reason": why}
         d = max(usable, key=lambda r: r.get("created", ""))
+        if not d["stations"]:
+            return {
+                "stations": [],
+                "plan_id": d["plan_id"],
+                "reason": f"whole-bin plan {d['plan_id']} has no station: {d.get('reason') or 'none was usable'}",
+            }
         bt = load_catalog(self.cfg.path(self.cfg.catalog), verify_meshes=False).get(bin_type)
         obs = [observation_T_bin_cam(bt, k) for k in range(n_observation_poses())]
         stations: list[StationInfo] = []
@@ -393,6 +407,11 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
         server = WorkerServer(session, cfg.cell_id, "planner", instance=instance)
         server.serve("jobs", (PlanJobRequest, PlanJobQuery), service.on_jobs, key=keys.planner_jobs(cfg.cell_id))
         server.serve("lookup", PlanLookupRequest, service.on_lookup)
+        from cellctl.messages import WashPlanRequest
+        from cellctl.washing.service import MeshCache, wash_plan_reply
+
+        meshes = MeshCache(cfg)
+        server.serve("wash_plan", WashPlanRequest, lambda r, _: wash_plan_reply(cfg, meshes, r))
         server.announce()
         log.info("planner %s serving %s", instance, keys.planner_jobs(cfg.cell_id))
         try:
