@@ -98,3 +98,29 @@ def test_a_record_whose_station_plans_are_gone_is_not_used(svc) -> None:  # noqa
     _write(svc, _record(svc, "w-gone", "2026-03-01T00:00:00"), with_plans=False)
     r = _lookup(svc, invert(BASES[0]))
     assert r.stations == [] and "misses station plan(s) ['w-gone-0e'" in r.reason
+
+
+def test_a_whole_plan_without_stations_fails_the_cycle_with_its_reason(svc, cfg) -> None:  # noqa: ANN001
+    from cellctl.errors import PlanningError
+    from cellctl.supervisor.steps.checking_cache import CheckingCache
+    from tests.supervisor._scripted import ScriptedRun, context
+
+    rec = _record(svc, "w-empty", "2026-05-01T00:00:00")
+    rec["stations"], rec["reason"] = [], "no candidate station sees the bin"
+    _write(svc, rec)
+    r = _lookup(svc, invert(BASES[0]))
+    assert not r.hit and r.whole_plan_id == "w-empty" and r.stations == []
+    assert r.reason == "whole-bin plan w-empty has no station: no candidate station sees the bin"
+    cfg.planner.whole.enabled = True
+    ctx = context(cfg, bin_type="case_study", T_base_bin=invert(BASES[0]))
+    run = ScriptedRun(ctx, {("planner", "lookup"): (r, None)})
+    with pytest.raises(PlanningError, match="no candidate station sees the bin"):
+        CheckingCache()(run)  # not a miss: replanning would find no station again
+
+
+def test_replay_reads_a_request_recorded_before_the_station_fields_with_todays_defaults() -> None:
+    from cellctl.recording.replay import _as_today
+
+    old = {"type": "cellctl/ApproachRequest", "v": 1, "observation_index": 1, "park": True}
+    assert _as_today(old) == {**old, "base_pose": None, "observe": True}
+    assert _as_today({"type": "cellctl/Nope", "v": 1}) == {"type": "cellctl/Nope", "v": 1}

@@ -9,7 +9,7 @@ lookup of a cycle fixes the station loop: it starts at the station the first par
 
 from __future__ import annotations
 
-from cellctl.errors import PlanCacheError
+from cellctl.errors import PlanCacheError, PlanningError
 from cellctl.messages import PlanLookupReply, PlanLookupRequest, PoseMsg
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
@@ -39,6 +39,9 @@ class CheckingCache(Step):
         ctx = run.ctx
         asked = ctx.surface
         reply = self._lookup(run)
+        if ctx.whole and reply.whole_plan_id is not None and not reply.stations:
+            # the whole-bin planner found no station for this bin: replanning would find none again
+            raise PlanningError(reply.reason or f"whole-bin plan {reply.whole_plan_id} has no station")
         if ctx.whole and ctx.stations is None and reply.stations:
             ranks = [s.station for s in reply.stations]
             ctx.stations = reply.stations
