@@ -228,7 +228,9 @@ def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
         "bins": {},
     }
     cfg_path = str(opts.config) if opts.config else None
-    tasks = [(n, s, cfg_path, tuple(opts.overrides), None) for n in names for s in seeds]
+    # seed-major: a run cut short (its --out file is rewritten after every plan) has every bin at
+    # the same number of seeds
+    tasks = [(n, s, cfg_path, tuple(opts.overrides), None) for s in seeds for n in names]
     rows: dict[str, dict[int, dict[str, Any]]] = {n: {} for n in names}
     with mp.get_context("spawn").Pool(PROCESSES) as pool:
         for name, seed, row in pool.imap_unordered(_whole_task, tasks):

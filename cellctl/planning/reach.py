@@ -33,6 +33,7 @@ __all__ = [
 ]
 
 MAX_ACCEPT_TRIES = 8  # solutions per viewpoint offered to ``accept``
+SHAPE_SAMPLE = 96  # viewpoints the preferred arm shape is judged on
 _WRAPPABLE = (0, 3, 4, 5)  # joints with a ±2π range: q and q ± 2π are the same geometry
 
 
@@ -145,7 +146,8 @@ def reachability(
 
     All IK candidates (every roll, every branch) of the viewpoints of one rank are checked in
     one batch. Then one IK branch is preferred for the whole plan — the branch most viewpoints
-    can use — and each viewpoint takes its free candidate of that branch closest to the
+    can use, judged on a sample of :data:`SHAPE_SAMPLE` viewpoints of the first distance (only
+    that arm shape's candidates are then collision-checked) — and each viewpoint takes its free candidate of that branch closest to the
     branch's median configuration (the wrist-flipped twin of the branch only when it has
     none; viewpoints reachable only with another arm shape count as unreachable), so
     consecutive viewpoints are usually joined by short, collision-free joint motions.
@@ -186,6 +188,17 @@ def reachability(
             continue
         Qc, rc, own = np.concatenate(Qs), np.concatenate(rs), np.asarray(owners)
         br = branch_signature(Qc, robot)
+        if preferred is None:
+            # the arm shape most viewpoints can use, judged on every k-th viewpoint (≤ SHAPE_SAMPLE):
+            # then only that shape's solutions need the collision check (3/4 of them are not)
+            ids = np.unique(own)
+            m = np.isin(own, ids[:: max(1, len(ids) // SHAPE_SAMPLE)])
+            fs = world.robot_free(Qc[m])
+            if fs.any():
+                o, b, Qf = own[m][fs], br[m][fs], Qc[m][fs]
+                preferred = int(np.argmax([len(np.unique(o[b == k])) for k in range(8)]))
+                sel = b == preferred
+                centre = np.median(Qf[sel], axis=0) if sel.any() else q_ref
         if preferred is not None:
             # once the arm shape is fixed only its solutions can be kept (below): check only those
             shape = (br >> 1) == (preferred >> 1)

@@ -658,6 +658,144 @@ def _timed_tour(
     return order, Dr, paths, secs, int(free.sum()), int(unverified)
 
 
+ALTERNATIVES = 6  # other configurations per viewpoint the refinement weighs
+
+
+def _alternatives(
+    q: NDArray[np.float64],
+    near: NDArray[np.float64],
+    robot: RobotModel,
+    world: PlanningWorld,
+    accept: Callable[[int, NDArray[np.float64]], bool] | None,
+) -> NDArray[np.float64]:
+    """Other free configurations that put the camera where ``q`` puts it (every IK branch, every
+    2π turn of a ±2π joint), the :data:`ALTERNATIVES` nearest to the neighbours ``near`` (K, 6)."""
+    from cellctl.planning.reach import _WRAPPABLE
+
+    S = robot.ik_cam(robot.fk_cam(q[None])[0])
+    if len(S) == 0:
+        return np.zeros((0, 6))
+    out = [S]
+    for j in _WRAPPABLE:
+        turned = [np.c_[A[:, :j], A[:, j] + k * 2 * np.pi, A[:, j + 1 :]] for A in out for k in (-1, 1)]
+        out += turned
+    A = np.concatenate(out)
+    A = A[np.all((A >= robot.q_min - 1e-9) & (A <= robot.q_max + 1e-9), axis=1)]
+    A = A[np.abs(A - q).max(axis=1) > 1e-6]
+    if len(A) == 0:
+        return A
+    A = A[np.argsort(np.abs(A[:, None, :] - near[None]).max(axis=2).sum(axis=1))]
+    A = A[: 4 * ALTERNATIVES]
+    A = A[world.robot_free(A)]
+    if accept is not None and len(A):
+        many = getattr(accept, "many", None)
+        ok = many(A) if many is not None else np.array([accept(0, a) for a in A], dtype=bool)
+        A = A[ok]
+    return A[:ALTERNATIVES]
+
+
+def _refine_configurations(
+    nodes: NDArray[np.float64],
+    order: NDArray[np.int64],
+    paths: list[NDArray[np.float64]],
+    secs: list[float],
+    robot: RobotModel,
+    world: PlanningWorld,
+    accept: Callable[[int, NDArray[np.float64]], bool] | None,
+    timing: TimingModel,
+    q_home: NDArray[np.float64],
+    step: float,
+) -> tuple[NDArray[np.float64], list[NDArray[np.float64]], list[float], int]:
+    """The tour's order kept, each viewpoint's configuration chosen to make it fastest.
+
+    A camera pose has up to 8 IK solutions, and the ±2π joints add turns of each: the one
+    reachability picked (closest to the plan's median arm) is not the one nearest its tour
+    neighbours. Dynamic programming over [picked, ≤ :data:`ALTERNATIVES` others] per viewpoint
+    minimises the motion time of the tour and of its last move home; a move it uses that is
+    not the original one must be straight and free at ``step`` (the sim arm's check): checked
+    lazily, and a failing pair is barred and the programme re-solved (≤ 8 rounds, else the
+    original configurations). Viewpoints next to a move that is not straight (via home) keep
+    theirs. The camera poses (and so what is seen) do not change.
+
+    Args:
+        nodes: (n, 6) the tour's nodes: the start, then the selected viewpoints' configurations.
+        order: node order of the tour (starting at 0).
+        paths, secs: per tour edge (along ``order``) the joint path and its seconds.
+
+    Returns:
+        ``(configurations per node (n, 6), paths, seconds, viewpoints whose configuration changed)``.
+    """
+    seq = [int(k) for k in order]
+    m = len(seq)
+    if m < 2:
+        return nodes, paths, secs, 0
+    straight = [len(p) == 2 for p in paths]
+    alts = [nodes[seq[0]][None]]
+    for pos in range(1, m):
+        q = nodes[seq[pos]]
+        free_here = straight[pos - 1] and (pos == m - 1 or straight[pos])
+        near = np.array([nodes[seq[pos - 1]], nodes[seq[min(pos + 1, m - 1)]]])
+        extra = _alternatives(q, near, robot, world, accept) if free_here else np.zeros((0, 6))
+        alts.append(np.vstack([q[None], extra]))
+    t_cache: dict[tuple[int, int, int], float] = {}
+    barred: set[tuple[int, int, int]] = set()
+    good: set[tuple[int, int, int]] = set()
+
+    def edge_s(pos: int, ia: int, ib: int) -> float:
+        if ia == 0 and ib == 0:
+            return float(secs[pos - 1])
+        key = (pos, ia, ib)
+        if key in barred:
+            return np.inf
+        if key not in t_cache:
+            t_cache[key] = timing.motion_s(np.array([alts[pos - 1][ia], alts[pos][ib]]))
+        return t_cache[key]
+
+    def home_s(ib: int) -> float:
+        key = (m, ib, -1)
+        if key in barred:
+            return np.inf
+        if key not in t_cache:
+            t_cache[key] = timing.motion_s(np.array([alts[m - 1][ib], q_home]))
+        return t_cache[key]
+
+    pick = [0] * m
+    for _round in range(8):
+        cost = np.zeros(1)
+        back: list[NDArray[np.int64]] = []
+        for pos in range(1, m):
+            C = np.array(
+                [[cost[ia] + edge_s(pos, ia, ib) for ib in range(len(alts[pos]))] for ia in range(len(alts[pos - 1]))]
+            )
+            back.append(C.argmin(axis=0))
+            cost = C.min(axis=0)
+        cost = cost + np.array([home_s(ib) for ib in range(len(alts[m - 1]))])
+        pick = [0] * m
+        pick[m - 1] = int(np.argmin(cost))
+        for pos in range(m - 1, 0, -1):
+            pick[pos - 1] = int(back[pos - 1][pick[pos]])
+        todo = [(pos, pick[pos - 1], pick[pos]) for pos in range(1, m) if pick[pos - 1] or pick[pos]]
+        if pick[m - 1]:
+            todo.append((m, pick[m - 1], -1))
+        todo = [k for k in todo if k not in good]
+        if not todo:
+            break
+        A = np.array([alts[p - 1][a] if b >= 0 else alts[m - 1][a] for p, a, b in todo])
+        B = np.array([alts[p][b] if b >= 0 else q_home for p, a, b in todo])
+        for key, ok in zip(todo, world.motion_free(A, B, step), strict=True):
+            (good if ok else barred).add(key)
+    else:
+        pick = [0] * m
+    out = nodes.copy()
+    new_paths, new_secs = list(paths), list(secs)
+    for pos in range(1, m):
+        out[seq[pos]] = alts[pos][pick[pos]]
+        if pick[pos - 1] or pick[pos]:
+            new_paths[pos - 1] = np.array([alts[pos - 1][pick[pos - 1]], alts[pos][pick[pos]]])
+            new_secs[pos - 1] = edge_s(pos, pick[pos - 1], pick[pos])
+    return out, new_paths, new_secs, int(sum(1 for k in pick if k))
+
+
 # --- the whole-bin pipeline ------------------------------------------------------------------
 
 
@@ -673,6 +811,7 @@ class _StationEval:
     identify: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
     replaced: int = 0
     unconnected: int = 0
+    accept: Callable[[int, NDArray[np.float64]], bool] | None = None
 
 
 def _identification(
@@ -834,6 +973,7 @@ def plan_whole(
         ev.identify, why = _identification(bin_type, world, robot, T_base_bin, q_home, step)
         ev.setups["identify_reason"] = why
         accept = robust_acceptor(mesh, robot, c.T_bin_base, p0)
+        ev.accept = accept
         for surf, (filt, sf, rng) in shared.items():
             p = replace(p0, surface=surf)
             s = pl.Setup(
@@ -977,6 +1117,16 @@ def plan_whole(
             order, Dr, paths, secs_e, n_straight, unverified = _timed_tour(
                 q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step
             )
+            q_chain = con.reached.q.copy()  # the chains home are straight between these configurations
+            nodes = np.vstack([q_now[None], con.reached.q[sel]])
+            new_q, paths, secs_e, n_changed = _refine_configurations(
+                nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step
+            )
+            con.reached.q[sel] = new_q[1:]
+            counts["reconfigured"] = counts.get("reconfigured", 0) + n_changed
+            Dr = np.zeros_like(Dr)
+            for a, b, pth in zip(order[:-1], order[1:], paths, strict=True):
+                Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(pth, axis=0), axis=1).sum())
             approaches = tuple(None if len(pth) == 2 else pth for pth in paths)
             n_nodes = len(sel) + 1
             tour_counts = {
@@ -998,7 +1148,10 @@ def plan_whole(
             cycle += mt + len(sel) * per_vp
             last = int(sel[order[-1] - 1])
             q_now = found.reached.q[last]
-            hub = [*chain_to_start(last, con.parent, con.reached.q), q_home]
+            if np.allclose(q_now, q_chain[last]):
+                hub = [*chain_to_start(last, con.parent, q_chain), q_home]
+            else:  # a new configuration at the end is one whose straight motion home was checked
+                hub = [q_now, q_home]
         cycle += timing.motion_s(np.array(hub))  # home before the base drives on
         stations.append(
             StationPlan(
