@@ -291,6 +291,10 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
         update={"max_views": int(rec.metadata.get("cycle", {}).get("relook_max_views", 0))}
     )
     cfg = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"relook": relook})})
+    # so does the station loop (a log without the key was recorded before whole-bin cycles existed)
+    whole = rec.metadata.get("cycle", {}).get("whole_bin", "false") == "true"
+    planner = cfg.planner.model_copy(update={"whole": cfg.planner.whole.model_copy(update={"enabled": whole})})
+    cfg = cfg.model_copy(update={"planner": planner})
     cell = build_cell(cfg, identification=identification)
     session = open_session(cfg, "client")
     servers = []

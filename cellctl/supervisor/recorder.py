@@ -94,7 +94,12 @@ class CycleRecorder(Recorder):
         index.begin(cycle_id, cfg.cell_id, str(self.path), now.isoformat(timespec="milliseconds"))
         # What changes the requests a cycle makes beyond its replies is recorded, so that
         # replay --verify re-runs the cycle as it ran (logs without it predate re-looks).
-        meta = {"cell": cfg.cell_id, "mode": mode, "relook_max_views": str(cfg.classifier.relook.max_views)}
+        meta = {
+            "cell": cfg.cell_id,
+            "mode": mode,
+            "relook_max_views": str(cfg.classifier.relook.max_views),
+            "whole_bin": str(cfg.planner.whole.enabled).lower(),
+        }
         self._log = CycleLog(self.path, cycle_id, meta)
 
     def write_json(self, topic: str, schema: str, obj: dict[str, Any] | bytes) -> None:

@@ -189,3 +189,17 @@ def test_a_first_park_at_no_station_drives_to_the_first_station(cfg, cell, plc, 
     parks = [a for a in fake.approaches if a.park]
     assert parks[0].base_pose is None and np.allclose(parks[1].base_pose.matrix(), BASES[0])
     assert len(parks) == 4 and len(res.viewpoints) == 10
+
+
+def test_replay_verify_passes_on_a_whole_bin_cycle(cfg, cell, plc, faces, tmp_path) -> None:  # noqa: F811
+    from cellctl.recording.replay import verify
+    from tests.fakes.workers import fake_identify
+    from tests.supervisor.test_cycle_over_zenoh import _verify_config
+
+    with WholeFakeCell(cfg, faces, dirty_viewpoints={2}):
+        res = _run(plc)
+    assert res.outcome == "completed", res.reason
+    vcfg = _verify_config(tmp_path / "v", settle_s=0)  # single-station config: the log says whole-bin
+    report = verify(cfg.path(res.log), vcfg, timeout_s=30, identification=(fake_identify, cell.supervisor.catalog))
+    assert report.ok, report.differences
+    assert "Execute.next_station" in report.states_replayed
