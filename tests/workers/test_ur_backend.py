@@ -238,3 +238,26 @@ def test_stop_interrupts_the_motion_at_once(robot, emu) -> None:
     _rest(emu)
     assert robot.fault is None  # a stop is not a fault: the next motion runs
     robot.move(MoveRequest(joints=start.tolist()))
+
+
+def test_approach_parks_the_twin_base_at_a_whole_bin_station_and_observes_from_there(robot, emu) -> None:
+    """ApproachRequest.base_pose (bin frame) as the sim backend does it: the twin's base parks at the
+    station (with the seeded parking error), the arm is tucked first, and observes from a station."""
+    from cellctl.geometry.transforms import pose_error, transform_from_xyz_rpy
+    from cellctl.messages import ApproachRequest, PoseMsg
+
+    robot.cfg.robot.speed_scale = 50.0  # the drive is modelled time
+    bt = robot.catalog.get("case_study")
+    mesh = robot.catalog.load_mesh("case_study")
+    T_bin_station = transform_from_xyz_rpy((0, 0, 0), (0, 0, np.pi / 2)) @ scene.nominal_T_bin_base(bt, mesh)
+    station = PoseMsg.from_matrix(T_bin_station, "bin")
+    robot.approach(ApproachRequest(park=True, base_pose=station, observe=False))
+    assert np.abs(np.array(emu.state()["q"]) - scene.HOME_JOINTS).max() < 1e-4  # tucked on the real arm
+    T_world_base = robot.sim_state().world_T_base.matrix()
+    dt, _ = pose_error(robot.scenario.T_world_bin(bt) @ T_bin_station, T_world_base)
+    assert 0 < dt <= robot.cfg.sim.approach_error_m + 1e-9
+    nominal = PoseMsg.from_matrix(scene.nominal_T_bin_base(bt, mesh), "bin")  # observation 0 is reachable there
+    reply = robot.approach(ApproachRequest(park=True, base_pose=nominal, observe=True, observation_index=0))
+    q = np.array(emu.state()["q"])
+    assert np.abs(q - scene.HOME_JOINTS).max() > 0.05  # the emulated arm went to the observation pose
+    assert np.abs(np.array(reply.joints) - q).max() < 1e-3
