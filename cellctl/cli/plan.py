@@ -179,7 +179,10 @@ def run_whole(args: argparse.Namespace, cfg: Any) -> int:
     if plan_params.mode != "fast":
         raise PlanningError("--whole plans in fast mode only (paper mode's RRT* budget per query × stations)")
     params = WholeParams.from_config(pc.whole, plan_params, cfg.robot.speed_fraction)
-    plan = plan_whole(mesh, params, default_robot_model(), bin_type=bin_type)
+    from cellctl.geometry.robot_model import _quiet_stdout
+
+    with _quiet_stdout():  # ur-analytic-ik's C++ warnings on fd 1 would corrupt --json
+        plan = plan_whole(mesh, params, default_robot_model(), bin_type=bin_type)
     out = write_whole(plan, cfg.path(pc.plans_dir), args.out)
     if args.png:
         from cellctl.planning.whole_render import render_whole

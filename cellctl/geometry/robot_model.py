@@ -204,7 +204,7 @@ def wrap_near(q: NDArray[np.float64], q_ref: NDArray[np.float64]) -> NDArray[np.
     return out
 
 
-_STDOUT_LOCK = threading.Lock()
+_STDOUT_LOCK = threading.RLock()  # re-entrant: a caller may silence a whole run that calls ik()
 
 
 @contextlib.contextmanager

@@ -47,7 +47,7 @@ model (``ur_moveit_config/config/joint_limits.yaml``: "chosen conservatively to 
 cases"); our payload is a camera of under 1 kg against the UR10e's 12.5 kg. It replaced URScript's
 ``movej`` default of 1.4 rad/s² (a program default, not a limit), at which most inspection moves
 were acceleration-bound (speed fraction 0.5 → 1.0 shortened the tours' motion by only 9 %).
-``robot.accel_fraction`` scales it down for a cell that needs gentler motion."""
+``robot.ur.accel_fraction`` scales it down for a cell that needs gentler motion."""
 
 UR10E_JOINT_ACCEL_CEILING = 40.0
 """The most a ``movej``/``stopj`` may ask for (rad/s²): PolyScope's 2291 °/s² Move maximum, the

@@ -147,10 +147,11 @@ def reachability(
     All IK candidates (every roll, every branch) of the viewpoints of one rank are checked in
     one batch. Then one IK branch is preferred for the whole plan — the branch most viewpoints
     can use, judged on a sample of :data:`SHAPE_SAMPLE` viewpoints of the first distance (only
-    that arm shape's candidates are then collision-checked) — and each viewpoint takes its free candidate of that branch closest to the
-    branch's median configuration (the wrist-flipped twin of the branch only when it has
-    none; viewpoints reachable only with another arm shape count as unreachable), so
-    consecutive viewpoints are usually joined by short, collision-free joint motions.
+    that arm shape's candidates are then collision-checked) — and each viewpoint takes its
+    free candidate of that branch closest to the branch's median configuration (the
+    wrist-flipped twin of the branch only when it has none; viewpoints reachable only with
+    another arm shape count as unreachable), so consecutive viewpoints are usually joined by
+    short, collision-free joint motions.
 
     Args:
         vp: filtered viewpoints (bin frame).

@@ -225,9 +225,7 @@ def candidate_stations(mesh: BinMesh, bin_type: BinType | None, sp: StationParam
                         f"the mobile base at {np.round(xy, 2).tolist()} m (bin frame) would hit the cabin wall "
                         f"(cabin ±{half[0]:g} × ±{half[1]:g} m, {1000 * float(over.max()):.0f} mm beyond)"
                     )
-            out.append(
-                Candidate(index=len(out), angle_deg=ang, T_bin_base=T, reason=reason, ring_xy=xy, ring=ring)
-            )
+            out.append(Candidate(index=len(out), angle_deg=ang, T_bin_base=T, reason=reason, ring_xy=xy, ring=ring))
     return out
 
 

@@ -76,7 +76,7 @@ class TimingModel:
         capture_s: one capture.
         speed_fraction: fraction of the UR10e joint velocity limits (``robot.speed_fraction``).
         accel_fraction: fraction of the nominal joint accelerations
-            (:data:`cellctl.motion.UR10E`, ``robot.accel_fraction``): the arms move this way.
+            (:data:`cellctl.motion.UR10E`, ``robot.ur.accel_fraction`` on the UR backend): the arm moves this way.
     """
 
     settle_s: float = 0.5
@@ -112,7 +112,7 @@ class WholeParams:
         """From the config's ``planner.whole`` section (:class:`cellctl.config.WholeBinConfig`).
 
         ``speed_fraction`` and ``accel_fraction`` are the arm's (``robot.speed_fraction``,
-        ``robot.accel_fraction``): the modelled cycle moves as the arm does.
+        ``robot.ur.accel_fraction`` on the UR backend, else 1): the modelled cycle moves as the arm does.
         """
         return cls(
             plan=plan,
