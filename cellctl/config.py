@@ -238,6 +238,11 @@ class RelookConfig(_Model):
     offset_m: float = Field(default=0.03, ge=0, le=0.2, description="sideways shift of the camera")
     glance_deg: float = Field(default=12.0, ge=0, le=45, description="swing about the point looked at")
     depth_m: float = Field(default=0.35, gt=0, le=2, description="distance of that point ahead of the camera")
+    confirm_dirty: Literal["off", "whole_bin", "on"] = Field(
+        default="whole_bin",
+        description="re-look once at a view called dirty with certainty; a certain-clean re-look overrules it "
+        "(whole_bin: in whole-bin cycles only, where one false-dirty view in ~100 decides the bin)",
+    )
 
 
 class ClassifierConfig(_Model):

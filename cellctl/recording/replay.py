@@ -288,7 +288,10 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     # Re-looks depend on the config the cycle ran with, not on a reply: take it from the log
     # (a log without the key was recorded before re-looks existed, so it made none).
     relook = cfg.classifier.relook.model_copy(
-        update={"max_views": int(rec.metadata.get("cycle", {}).get("relook_max_views", 0))}
+        update={
+            "max_views": int(rec.metadata.get("cycle", {}).get("relook_max_views", 0)),
+            "confirm_dirty": rec.metadata.get("cycle", {}).get("relook_confirm_dirty", "off"),
+        }
     )
     cfg = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"relook": relook})})
     # so does the station loop (a log without the key was recorded before whole-bin cycles existed)

@@ -98,6 +98,7 @@ class CycleRecorder(Recorder):
             "cell": cfg.cell_id,
             "mode": mode,
             "relook_max_views": str(cfg.classifier.relook.max_views),
+            "relook_confirm_dirty": cfg.classifier.relook.confirm_dirty,
             "whole_bin": str(cfg.planner.whole.enabled).lower(),
         }
         self._log = CycleLog(self.path, cycle_id, meta)

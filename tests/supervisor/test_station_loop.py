@@ -113,7 +113,7 @@ def _run(p) -> object:  # noqa: ANN001
 
 
 def test_the_cycle_visits_every_station_and_both_surfaces(cfg, cell, plc, faces) -> None:  # noqa: F811
-    with WholeFakeCell(cfg, faces, dirty_viewpoints={5}) as fake:
+    with WholeFakeCell(cfg, faces, dirty_viewpoints={5, 6}) as fake:  # the sixth view, and its confirming re-look
         res = _run(plc)
     assert res.outcome == "completed", res.reason
     # first park nominal (stations unknown), then stations 1 and 2 at their planned poses
@@ -124,9 +124,10 @@ def test_the_cycle_visits_every_station_and_both_surfaces(cfg, cell, plc, faces)
     # lookups: station 0 ext, int; station 1 ext, int (carried-over pose = planned); station 2 ext
     assert [q.surface for q in fake.lookups] == ["external", "internal", "external", "internal", "external"]
     assert np.allclose(fake.lookups[2].bin_pose.matrix(), invert(BASES[1]), atol=1e-9)
-    where = [(v.station, v.surface, v.index) for v in res.viewpoints]
+    where = [(v.station, v.surface, v.index) for v in res.viewpoints if v.relook_of is None]
     assert where == [(k, s, i) for k in range(3) for s in SURFACES_AT[k] for i in range(2)]
-    assert res.verdict == "dirty"  # the sixth view: station 1, external, index 1
+    assert [(v.station, v.surface, v.index) for v in res.viewpoints if v.relook_of is not None] == [(1, "external", 1)]
+    assert res.verdict == "dirty"  # the sixth view: station 1, external, index 1, confirmed
     assert res.plan_id == res.whole_plan_id == "whole-1" and res.modelled_cycle_s == 170.0
     assert [s.station for s in res.stations] == [0, 1, 2]
     assert [s.bin_pose_source for s in res.stations] == ["measured", "carried_over", "measured"]

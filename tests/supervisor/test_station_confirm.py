@@ -1,0 +1,72 @@
+"""Confirming a certain-dirty view by a re-look (classifier.relook.confirm_dirty; whole-bin cycles by default)."""
+
+from __future__ import annotations
+
+from concurrent.futures import Future
+
+import pytest
+
+from cellctl.messages import CaptureReply, ClassifyReply, MoveReply, PoseMsg, StationInfo, ViewpointResult
+from cellctl.supervisor.steps.classifying import Classifying
+from tests.fakes.workers import CAM_POSE, INTRINSICS, _png
+from tests.supervisor._scripted import ScriptedRun, context
+
+
+def _done(label: str, p: float, uncertain: bool = False) -> Future:
+    f: Future = Future()
+    f.set_result(ClassifyReply(label=label, p_dirty=p, uncertain=uncertain, model_id="m"))
+    return f
+
+
+def _ctx(cfg, whole: bool):  # noqa: ANN001, ANN202
+    cfg.planner.whole.enabled = whole
+    where = {"station": 0, "surface": "external"} if whole else {}
+    ctx = context(
+        cfg,
+        viewpoints=[ViewpointResult(index=i, camera_pose=CAM_POSE, **where) for i in range(3)],
+    )
+    if whole:
+        ctx.stations = [
+            StationInfo(station=0, base_pose=PoseMsg.from_matrix(CAM_POSE.matrix(), "bin"), plans={"external": "p"})
+        ]
+        ctx.station_order = [0]
+    ctx.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.8), 2: _done("clean", 0.1)}
+    return ctx
+
+
+def _run(ctx, relook: ClassifyReply) -> ScriptedRun:  # noqa: ANN001
+    script = {
+        ("robot", "move"): lambda req: (MoveReply(joints=[0.0] * 6, camera_pose=req.camera_pose), None),
+        ("camera", "capture"): (CaptureReply(format="png", intrinsics=INTRINSICS, camera_pose=CAM_POSE), _png()),
+        ("classifier", "classify"): (relook, None),
+    }
+    return ScriptedRun(ctx, script)
+
+
+@pytest.mark.parametrize(
+    "relook, verdict",
+    [
+        (ClassifyReply(label="clean", p_dirty=0.08, model_id="m"), "clean"),  # a certain-clean re-look overrules
+        (ClassifyReply(label="clean", p_dirty=0.45, uncertain=True, model_id="m"), "dirty"),  # an unsure one not
+        (ClassifyReply(label="dirty", p_dirty=0.9, model_id="m"), "dirty"),
+    ],
+)
+def test_a_whole_bin_cycle_re_looks_once_at_a_certain_dirty_view(cfg, relook, verdict) -> None:  # noqa: ANN001
+    ctx = _ctx(cfg, whole=True)
+    run = _run(ctx, relook)
+    assert Classifying()(run) == "succeeded"
+    again = [v for v in ctx.viewpoints if v.relook_of is not None]
+    assert [(v.index, v.relook_of, v.station, v.surface) for v in again][:1] == [(1, 1, 0, "external")]
+    assert ctx.verdict == verdict
+
+
+def test_a_single_station_cycle_keeps_a_certain_dirty_view_without_a_re_look(cfg) -> None:  # noqa: ANN001
+    ctx = _ctx(cfg, whole=False)
+    run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.08, model_id="m"))
+    assert Classifying()(run) == "succeeded"
+    assert run.calls == [] and ctx.verdict == "dirty"
+    cfg.classifier.relook.confirm_dirty = "on"  # on: single-station cycles confirm too
+    ctx = _ctx(cfg, whole=False)
+    run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.08, model_id="m"))
+    assert Classifying()(run) == "succeeded"
+    assert ctx.verdict == "clean" and len(ctx.viewpoints) == 4
