@@ -70,3 +70,12 @@ def test_a_single_station_cycle_keeps_a_certain_dirty_view_without_a_re_look(cfg
     run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.08, model_id="m"))
     assert Classifying()(run) == "succeeded"
     assert ctx.verdict == "clean" and len(ctx.viewpoints) == 4
+
+
+def test_once_a_dirty_view_is_confirmed_no_further_one_is_re_looked(cfg) -> None:  # noqa: ANN001
+    ctx = _ctx(cfg, whole=True)
+    ctx.classifications = {0: _done("dirty", 0.9), 1: _done("dirty", 0.8), 2: _done("dirty", 0.85)}
+    run = _run(ctx, ClassifyReply(label="dirty", p_dirty=0.9, model_id="m"))
+    assert Classifying()(run) == "succeeded"
+    assert [v.relook_of for v in ctx.viewpoints if v.relook_of is not None] == [1]  # the least sure, then stop
+    assert ctx.verdict == "dirty"

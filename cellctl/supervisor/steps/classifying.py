@@ -112,6 +112,22 @@ class Classifying(Step):
         return "succeeded"
 
     @staticmethod
+    def _confirmed_dirty(viewpoints: list[ViewpointResult]) -> bool:
+        """Some certain-dirty view was re-looked and not overruled by a certain-clean re-look."""
+        groups: dict[tuple[int | None, str | None, int], list[ViewpointResult]] = {}
+        for v in viewpoints:
+            if v.label is not None:
+                groups.setdefault(view_key(v), []).append(v)
+        return any(
+            len(vs) > 1
+            and vs[0].relook_of is None
+            and vs[0].label == "dirty"
+            and not vs[0].uncertain
+            and not any(w.label == "clean" and not w.uncertain for w in vs[1:])
+            for vs in groups.values()
+        )
+
+    @staticmethod
     def _confirming(ctx) -> bool:  # noqa: ANN001
         mode = ctx.cfg.classifier.relook.confirm_dirty
         return mode == "on" or (mode == "whole_bin" and ctx.whole)
@@ -156,13 +172,15 @@ class Classifying(Step):
         from cellctl.supervisor.steps.scanning import classify_image
 
         bin_type = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
-        confirm = self._confirming(ctx)
+        confirming = self._confirming(ctx)
         st = ctx.current_station()
         # a re-look moves the arm by a camera pose in this base frame: only this station's views, this surface
         here = (st.station, ctx.surface) if st is not None else (None, None)
         done = 0
         tried: dict[tuple[int | None, str | None, int], int] = {}
         while done < rc.max_views:
+            # once one dirty view is confirmed the bin is dirty: more confirmations would only cost moves
+            confirm = confirming and not self._confirmed_dirty(ctx.viewpoints)
             pending = [
                 v
                 for v in ctx.viewpoints
