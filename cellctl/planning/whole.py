@@ -734,7 +734,7 @@ def _refine_configurations(
     for pos in range(1, m):
         q = nodes[seq[pos]]
         free_here = straight[pos - 1] and (pos == m - 1 or straight[pos])
-        near = np.array([nodes[seq[pos - 1]], nodes[seq[min(pos + 1, m - 1)]]])
+        near = np.array([nodes[seq[pos - 1]], nodes[seq[pos + 1]] if pos < m - 1 else q_home])
         extra = _alternatives(q, near, robot, world, accept) if free_here else np.zeros((0, 6))
         alts.append(np.vstack([q[None], extra]))
     t_cache: dict[tuple[int, int, int], float] = {}

@@ -278,3 +278,28 @@ def test_whole_record_and_station_plans_read_back_the_same(whole, tmp_path):
     for a, b in zip(whole.stations, back.stations, strict=True):
         for surf, p in b.plans.items():
             assert p.to_json() == a.plans[surf].to_json()
+
+
+def test_refinement_takes_the_turn_of_a_joint_nearest_the_tour_neighbour(box, robot, T_bin_base):
+    from cellctl.planning.collision import PlanningWorld
+    from cellctl.planning.whole import TimingModel, _refine_configurations
+    from cellctl.sim.motion import STEP_RAD
+
+    world = PlanningWorld(box, robot, T_bin_base)
+    timing = TimingModel()
+    home = robot.q_home
+    start = home + np.array([0.0, 0.3, 0.6, -0.9, -1.2, 0.0])  # away from the candle's singularity
+    a = start + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.3])
+    b = a + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.2 - 2 * np.pi])  # the same camera pose as wrist 3 at +0.5
+    assert world.robot_free(np.array([start, a, b])).all()
+    nodes = np.array([start, a, b])
+    order = np.array([0, 1, 2])
+    paths = [np.array([start, a]), np.array([a, b])]
+    secs = [timing.motion_s(p) for p in paths]
+    out, new_paths, new_secs, changed = _refine_configurations(
+        nodes, order, paths, secs, robot, world, None, timing, home, STEP_RAD
+    )
+    assert changed >= 1 and out[2][5] == pytest.approx(0.5)
+    assert np.allclose(robot.fk_cam(out[2][None])[0], robot.fk_cam(b[None])[0])  # same camera pose
+    assert new_secs[1] < 0.5 * secs[1] and len(new_paths[1]) == 2
+    assert world.motion_free(new_paths[1][:1], new_paths[1][1:], STEP_RAD).all()
