@@ -79,3 +79,35 @@ def test_once_a_dirty_view_is_confirmed_no_further_one_is_re_looked(cfg) -> None
     assert Classifying()(run) == "succeeded"
     assert [v.relook_of for v in ctx.viewpoints if v.relook_of is not None] == [1]  # the least sure, then stop
     assert ctx.verdict == "dirty"
+
+
+def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None:  # noqa: ANN001
+    from cellctl.errors import WorkerFailed
+    from cellctl.messages import PlanLookupReply, PlannedViewpoint
+    from cellctl.supervisor.steps.scanning import Scanning
+
+    cfg.planner.whole.enabled = True
+    ctx = context(cfg)
+    ctx.stations = [
+        StationInfo(station=0, base_pose=PoseMsg.from_matrix(CAM_POSE.matrix(), "bin"), plans={"external": "p"})
+    ]
+    ctx.station_order = [0]
+    vps = [PlannedViewpoint(index=i, camera_pose=CAM_POSE, joints=[0.1 * i] * 6, faces=[i]) for i in range(2)]
+    ctx.plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=10)
+
+    def move(req):  # noqa: ANN001, ANN202
+        if req.joints == [0.1] * 6:
+            raise WorkerFailed("target joints are in collision: wrist_2 vs bin", role="robot")
+        return MoveReply(joints=[0.0] * 6, camera_pose=CAM_POSE), None
+
+    script = {
+        ("robot", "move"): move,
+        ("camera", "capture"): (CaptureReply(format="png", intrinsics=INTRINSICS, camera_pose=CAM_POSE), _png()),
+        ("classifier", "classify"): (ClassifyReply(label="clean", p_dirty=0.1, model_id="m"), None),
+    }
+    run = ScriptedRun(ctx, script)
+    assert Scanning()(run) == "succeeded"
+    assert [v.error for v in ctx.viewpoints] == [None, None]
+    moves = [m for r, op, m in run.calls if (r, op) == ("robot", "move")]
+    assert [m.joints is None for m in moves] == [False, False, True]  # viewpoint 1 again, by its camera pose
+    assert any("reached by its camera pose" in t for _, t in run.events)

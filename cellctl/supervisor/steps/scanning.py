@@ -66,13 +66,30 @@ class Scanning(Step):
             try:
                 moved, _ = run.call("robot", "move", move, MoveReply)
             except WorkerFailed as err:
-                # One refused viewpoint (e.g. newly in collision after adjustment) costs coverage,
-                # not the cycle; hangs and missing workers still abort.
-                ctx.viewpoints.append(
-                    ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err), **where)
-                )
-                ctx.next_viewpoint = k + 1
-                continue
+                again = None
+                if st is not None and move.joints is not None:
+                    # whole-bin cycle: the planned joints may touch the bin where the park's error is not
+                    # measured (a carried-over station); the camera pose lets the arm pick another IK solution
+                    try:
+                        again, _ = run.call(
+                            "robot", "move", MoveRequest(camera_pose=vp.camera_pose, settle_s=settle), MoveReply
+                        )
+                        run.event(
+                            "info",
+                            f"station {st.station} {surface} viewpoint {vp.index}: joints refused "
+                            f"({err}); reached by its camera pose",
+                        )
+                    except WorkerFailed as err2:
+                        err = WorkerFailed(f"{err}; by its camera pose: {err2}", role="robot")
+                if again is None:
+                    # One refused viewpoint (e.g. newly in collision after adjustment) costs coverage,
+                    # not the cycle; hangs and missing workers still abort.
+                    ctx.viewpoints.append(
+                        ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err), **where)
+                    )
+                    ctx.next_viewpoint = k + 1
+                    continue
+                moved = again
             cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
             data = captured_image(cap, image)
             ctx.log.image(topics.CAMERA_IMAGE, data, cap.format, "camera")
