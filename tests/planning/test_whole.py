@@ -256,6 +256,8 @@ def test_plan_whole_cli_on_any_mesh_prints_the_issue_json(tmp_path, capsys):
             "--set",
             "planner.whole.candidates=4",
             "--set",
+            "planner.whole.inner_candidates=0",
+            "--set",
             f"planner.plans_dir={tmp_path / 'plans'}",
         ]
     )

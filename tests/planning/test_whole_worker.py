@@ -18,7 +18,9 @@ def test_whole_job_writes_station_plans_each_found_at_its_station(tmp_path, box_
     cfg = _cfg(tmp_path, box_catalog, free_port())
     cfg = cfg.model_copy(
         update={
-            "planner": cfg.planner.model_copy(update={"whole": cfg.planner.whole.model_copy(update={"candidates": 4})})
+            "planner": cfg.planner.model_copy(
+                update={"whole": cfg.planner.whole.model_copy(update={"candidates": 4, "inner_candidates": 2})}
+            )
         }
     )
     svc = PlannerService(cfg, "t1")
