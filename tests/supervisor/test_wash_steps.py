@@ -201,3 +201,12 @@ def test_merging_keeps_unseen_faces_and_replaces_seen_ones(case) -> None:  # noq
     dirty, source = dirty_from_map(merged, mesh.n_faces, 0.5)
     assert source == "face_p" and np.flatnonzero(dirty).tolist() == [2, 3]
     assert sorted(merged["seen_clean"]) == [1, 4, 5]
+
+
+def test_a_whole_bin_cycle_is_not_washed_and_says_why(cfg, case) -> None:  # noqa: ANN001
+    dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
+    ctx = _ctx(cfg.model_copy(update={"planner": cfg.planner.model_copy(update={"whole": cfg.planner.whole.model_copy(
+        update={"enabled": True})})}), case, dirty)  # fmt: skip
+    run = ScriptedRun(ctx, _script(cfg))
+    assert WashCheck()(run) == "done" and run.calls == []
+    assert ctx.wash.verdict is None and "single-station cycles" in ctx.wash.reason

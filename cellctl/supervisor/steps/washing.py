@@ -104,6 +104,10 @@ class WashCheck(Step):
         done = len(ctx.wash_rounds)
         if ctx.dirt_map is None:
             return self._end(run, None, "no dirt map: the wash needs the cycle's dirt map (nothing was inspected)")
+        if ctx.whole:
+            # the rounds wash and re-inspect from one park; a whole-bin cycle ends at its last station
+            why = "not washed: wash_and_verify runs in single-station cycles (planner.whole.enabled is true)"
+            return self._end(run, None, why)
         mesh = wash_mesh(ctx)
         dirty = _dirty_faces(ctx, mesh)
         if not dirty.any():
