@@ -307,11 +307,13 @@ def exact_station_cover(
     t0 = time.perf_counter()
     if not must.any() or not columns:
         return StationCover(0, 0, True, 0.0)
+    A_all = np.array([c for _, c in columns]).T[must]  # (m, pairs)
+    if not A_all.any(axis=1).all():
+        raise PlanningError("exact station cover: a face to cover is seen by no (station, viewpoint) pair")
+    columns = _undominated(columns, A_all)
     st_ids = sorted({s for s, _ in columns})
     P, S = len(columns), len(st_ids)
     A = np.array([c for _, c in columns]).T[must]  # (m, P)
-    if not A.any(axis=1).all():
-        raise PlanningError("exact station cover: a face to cover is seen by no (station, viewpoint) pair")
     A = np.unique(A, axis=0)
     cover = hstack([csr_matrix(A.astype(np.float64)), csr_matrix((A.shape[0], S))])
     link = np.zeros((P, P + S))
@@ -335,6 +337,30 @@ def exact_station_cover(
         return StationCover(None, None, False, dt)
     x = np.round(res.x)
     return StationCover(int(x[P:].sum()), int(x[:P].sum()), bool(res.status == 0), dt)
+
+
+def _undominated(
+    columns: list[tuple[int, NDArray[np.bool_]]], A: NDArray[np.bool_]
+) -> list[tuple[int, NDArray[np.bool_]]]:
+    """The pairs no other pair of the same station beats: it sees a face to cover, and no pair of
+    its station sees a superset of those faces (ties: the first kept). Dropping the others keeps
+    the optimum (a dominating pair costs the same and needs the same station) and shrinks the
+    MILP several times, so HiGHS proves it within its time limit."""
+    stations = np.array([s for s, _ in columns])
+    keep = np.zeros(len(columns), dtype=bool)
+    for s in np.unique(stations):
+        idx = np.flatnonzero(stations == s)
+        idx = idx[A[:, idx].any(axis=0)]
+        if len(idx) == 0:
+            continue
+        B = A[:, idx].astype(np.float32)
+        outside = B.T @ (1.0 - B)  # [i, j]: faces i sees that j does not
+        sub = outside < 0.5  # i ⊆ j
+        n = np.arange(len(idx))
+        strict = sub & ~sub.T  # i ⊂ j strictly
+        tie = sub & sub.T & (n[None, :] < n[:, None])  # an equal column earlier
+        keep[idx[~(strict | tie).any(axis=1)]] = True
+    return [c for c, k in zip(columns, keep, strict=True) if k]
 
 
 def base_move_s(cands: list[Candidate], a: int, b: int, sp: StationParams) -> float:

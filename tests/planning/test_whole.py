@@ -140,6 +140,26 @@ def test_exact_station_cover_counts_stations_before_viewpoints():
     assert (res.stations, res.viewpoints) == (1, 2) or (res.stations, res.viewpoints) == (1, 3)
 
 
+def test_the_exact_cover_drops_only_pairs_a_pair_of_the_same_station_beats():
+    from cellctl.planning.stations import _undominated
+
+    F = lambda *x: np.array(x, dtype=bool)  # noqa: E731
+    cols = [
+        (0, F(1, 1, 0, 0)),
+        (0, F(1, 0, 0, 0)),  # ⊂ the first of its station: dropped
+        (0, F(1, 1, 0, 0)),  # equal to the first: dropped
+        (1, F(1, 0, 0, 0)),  # ⊂ a pair of another station: kept (it needs no station 0)
+        (1, F(0, 0, 0, 1)),  # sees no face to cover: dropped
+        (1, F(0, 0, 1, 0)),
+    ]
+    must = F(1, 1, 1, 0)
+    A = np.array([c for _, c in cols]).T[must]
+    kept = _undominated(cols, A)
+    assert [(s, c.astype(int).tolist()) for s, c in kept] == [(0, [1, 1, 0, 0]), (1, [1, 0, 0, 0]), (1, [0, 0, 1, 0])]
+    res = exact_station_cover(cols, must)
+    assert (res.stations, res.viewpoints, res.proven) == (2, 2, True)
+
+
 # --- a whole plan on the box --------------------------------------------------------------------
 
 
