@@ -210,3 +210,24 @@ def test_a_whole_bin_cycle_is_not_washed_and_says_why(cfg, case) -> None:  # noq
     run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done" and run.calls == []
     assert ctx.wash.verdict is None and "single-station cycles" in ctx.wash.reason
+
+
+def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) -> None:  # noqa: ANN001
+    dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
+    ctx = _ctx(cfg, case, dirty)
+    script = _script(cfg)
+    run = ScriptedRun(ctx, script)
+    assert WashCheck()(run) == "wash"
+    firsts = {tuple(sw.joints[0]) for sw in ctx.wash_plan.sweeps if len(sw.joints) > 1}
+
+    def one_way(req):  # noqa: ANN001, ANN202
+        sw = req.sweeps[0]
+        if tuple(sw.joints[0]) in firsts:
+            raise WorkerFailed("no collision-free path from home to the sweep's start within 3 s", role="robot")
+        return WashReply(sweeps_run=1, passes_run=sw.passes, joints=sw.joints[-1]), None
+
+    script[("robot", "wash")] = one_way
+    assert Washing()(run) == "succeeded"
+    n = len(ctx.wash_plan.sweeps)
+    assert ctx.wash_run["sweeps_run"] == n and ctx.wash_run["refused"] == []
+    assert sum(1 for _, o, _ in run.calls if o == "wash") == n + len(firsts)

@@ -224,7 +224,15 @@ class Washing(Step):
                 round=r,
             )
             try:
-                reply, _ = run.call("robot", "wash", req, WashReply)
+                try:
+                    reply, _ = run.call("robot", "wash", req, WashReply)
+                except WorkerFailed as err:
+                    run.checkpoint()
+                    if "no collision-free path" not in str(err) or len(sw.joints) < 2:
+                        raise
+                    # the transit to one end found no path in the robot's time: the other end may be easier
+                    back = WashSweep(joints=sw.joints[::-1], passes=sw.passes, region=sw.region)
+                    reply, _ = run.call("robot", "wash", WashRequest(sweeps=[back], round=r), WashReply)
             except WorkerFailed as err:
                 run.checkpoint()  # a Hold/Stop interrupts the sweep: not a refusal, resume it
                 # one refused sweep (newly in collision at the measured pose) costs its faces, not the round
