@@ -144,6 +144,7 @@ def _median_worst(rows: list[dict[str, Any]]) -> dict[str, Any]:
         a = np.asarray(vals, dtype=float)
         return {"median": float(np.median(a)), "worst": float(a.min() if worst == "min" else a.max())}
 
+    proven = [r["exact_cover"] for r in rows if r["exact_cover"] and r["exact_cover"]["proven"]]
     out: dict[str, Any] = {
         "stations": pair([r["stations"] for r in rows], "max"),
         "viewpoints": pair([r["viewpoints"] for r in rows], "max"),
@@ -152,8 +153,9 @@ def _median_worst(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "cycle_time_s": pair([r["cycle_time_s"] for r in rows], "max"),
         "dropped_unconnected": pair([r["dropped_unconnected"] for r in rows], "max"),
         "unverified_moves": pair([r["unverified_moves"] for r in rows], "max"),
-        "exact_cover_stations": pair([r["exact_cover"]["stations"] or 0 for r in rows if r["exact_cover"]], "max"),
-        "exact_cover_viewpoints": pair([r["exact_cover"]["viewpoints"] or 0 for r in rows if r["exact_cover"]], "max"),
+        # only proven covers are a bound (a timed-out MILP's incumbent is not)
+        "exact_cover_stations": pair([e["stations"] for e in proven], "max") if proven else None,
+        "exact_cover_viewpoints": pair([e["viewpoints"] for e in proven], "max") if proven else None,
         "exact_cover_proven": sum(bool(r["exact_cover"] and r["exact_cover"]["proven"]) for r in rows),
     }
     for surf in rows[0]["surfaces"]:

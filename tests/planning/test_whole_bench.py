@@ -60,6 +60,9 @@ def test_summary_reports_the_median_and_the_worst_direction_of_each_figure():
     assert s["cycle_time_s"] == {"median": 210.0, "worst": 260.0}  # worst time = highest
     assert s["planning_s"]["worst"] == 35.0 and s["unverified_moves"]["worst"] == 1
     assert s["exact_cover_proven"] == 2
+    assert s["exact_cover_stations"] == {"median": 3.0, "worst": 3.0}  # of the proven covers only
+    rows[0]["exact_cover"] = rows[2]["exact_cover"] = {"stations": 7, "viewpoints": 90, "proven": False}
+    assert _median_worst(rows)["exact_cover_stations"] is None  # no proven cover: no bound
     assert s["internal"] == {"reason": "no internal faces"}
 
 
