@@ -113,6 +113,10 @@ class _Wedged(RuntimeError):
     """A control call overran its bound: the interface is given up (a RuntimeError like ur-rtde's)."""
 
 
+class _Late(RuntimeError):
+    """A call that may overrun (a watchdog kick on a loaded machine) did: nothing is given up."""
+
+
 class _CallThread:
     """Runs one interface's sending calls in order on a daemon thread; each caller waits with a bound.
 
@@ -121,6 +125,8 @@ class _CallThread:
 
     def __init__(self, name: str) -> None:
         self.wedged: str | None = None
+        self.busy = False
+        """A call is queued or running (a late one that was not fatal may still be)."""
         self._q: queue.SimpleQueue[tuple[Callable[..., Any], tuple[Any, ...], threading.Event, list[Any]] | None]
         self._q = queue.SimpleQueue()
         threading.Thread(target=self._run, name=name, daemon=True).start()
@@ -132,16 +138,27 @@ class _CallThread:
                 box.append((True, fn(*args)))
             except Exception as err:  # handed to the caller
                 box.append((False, err))
+            self.busy = False
             done.set()
 
-    def call(self, timeout_s: float, fn: Callable[..., Any], *args: Any) -> Any:
+    def call(self, timeout_s: float, fn: Callable[..., Any], *args: Any, fatal: bool = True) -> Any:
+        """``fn(*args)`` on the call thread, waited for ``timeout_s``.
+
+        Raises:
+            _Wedged: the interface was given up, or (``fatal``) this call overran: it is given up now.
+            _Late: a call that is not ``fatal`` overran (it may still finish; nothing is given up).
+        """
         if self.wedged is not None:
             raise _Wedged(self.wedged)
         done: threading.Event = threading.Event()
         box: list[Any] = []
+        self.busy = True
         self._q.put((fn, args, done, box))
         if not done.wait(timeout_s):
-            self.wedged = f"{getattr(fn, '__name__', 'call')} did not return within {timeout_s:g} s"
+            late = f"{getattr(fn, '__name__', 'call')} did not return within {timeout_s:g} s"
+            if not fatal:
+                raise _Late(late)
+            self.wedged = late
             raise _Wedged(self.wedged)
         ok, value = box[0]
         if ok:
@@ -152,10 +169,13 @@ class _CallThread:
         self._q.put(None)
 
 
-_T_KICK = 0.5
-_T_CMD = 3.0
-_T_PATH = 10.0
-"""Bounds (s) of control calls: a watchdog kick, a stop/setting, a path (stop, upload, start, command)."""
+_T_KICK = 1.0
+_T_CMD = 5.0
+_T_PATH = 15.0
+"""Bounds (s) of control calls: a watchdog kick, a stop/setting, a path (stop, upload, start, command).
+Generous: a dead link is noticed by the receive side (disconnected, or no data for data_stale_ms); the
+bounds only keep a wedged call from holding the lock, and a 0.5 s kick bound overran under a load
+average of 10 on 2 cores (the demo's only false fault)."""
 
 
 def _dispose(*handles: Any) -> None:
@@ -303,14 +323,15 @@ class UrRobot(PlannedRobot):
         log.info("connected to %s at %s (PolyScope %s)", name, host, version)
         self._check_tcp()
 
-    def _send(self, timeout_s: float, fn: Callable[..., Any], *args: Any) -> Any:
-        """A sending control call, bounded (caller holds :attr:`io`); an overrun gives the interface up.
+    def _send(self, timeout_s: float, fn: Callable[..., Any], *args: Any, fatal: bool = True) -> Any:
+        """A sending control call, bounded (caller holds :attr:`io`); an overrun gives the interface up
+        (unless not ``fatal``: then :class:`_Late`).
 
         Raises:
-            RuntimeError: ur-rtde's error, or :class:`_Wedged` (overrun, or given up before).
+            RuntimeError: ur-rtde's error, :class:`_Wedged` (overrun, or given up before) or :class:`_Late`.
         """
         try:
-            return self._calls.call(timeout_s, fn, *args)
+            return self._calls.call(timeout_s, fn, *args, fatal=fatal)
         except _Wedged:
             c, self._c = self._c, None
             if c is not None:
@@ -344,9 +365,14 @@ class UrRobot(PlannedRobot):
 
     # --- state ------------------------------------------------------------------------------
 
-    def _read_state(self) -> dict[str, Any]:
-        """One poll of the RTDE state (caller holds :attr:`io`)."""
-        r = self._r
+    def _read_state(self, r: Any = None) -> dict[str, Any]:
+        """One poll of the RTDE state of ``r`` (default: the current receive interface).
+
+        The receive interface's getters are cache reads under its own mutex: the monitor polls
+        without :attr:`io`, so a control call that blocks (a stalled controller holds ``moveJ``)
+        cannot hide the stall from it.
+        """
+        r = self._r if r is None else r
         st = {
             "connected": bool(r.isConnected()),
             "ts": float(r.getTimestamp()),
@@ -405,19 +431,29 @@ class UrRobot(PlannedRobot):
         not_playing_since: float | None = None
         while not self._monitor_stop.wait(period):
             reason: str | None = None
-            with self.io:
-                if self._r is None:
-                    continue
+            r = self._r
+            if r is None:
+                continue
+            st: dict[str, Any] | None
+            try:
+                st = self._read_state(r)
+            except RuntimeError as err:
+                st, reason = None, f"lost RTDE connection to {self.ur.host}: {err}"
+            # the kick only when the lock is free: a control call holding it (a path being sent)
+            # restarts the program, and with it the watchdog; a kick in flight is not queued behind
+            if st is not None and st["connected"] and self._runtime == _PLAYING and self.io.acquire(blocking=False):
                 try:
-                    st = self._read_state()
-                    if st["connected"] and self._runtime == _PLAYING and self._linked():
-                        self._send(_T_KICK, self._c.kickWatchdog)
+                    if self._linked() and not self._calls.busy:
+                        self._send(_T_KICK, self._c.kickWatchdog, fatal=False)
+                except _Late as err:
+                    log.warning("UR watchdog kick late: %s", err)
                 except _Wedged as err:
                     st = None
                     reason = f"lost RTDE connection to {self.ur.host}: the control interface stopped answering ({err})"
                 except RuntimeError as err:
-                    st = None
-                    reason = f"lost RTDE connection to {self.ur.host}: {err}"
+                    st, reason = None, f"lost RTDE connection to {self.ur.host}: {err}"
+                finally:
+                    self.io.release()
             now = time.monotonic()
             if st is not None:
                 if st["ts"] != self._ts:
@@ -446,7 +482,11 @@ class UrRobot(PlannedRobot):
         self.fault_log.append((time.monotonic(), reason))
         log.error("UR fault: %s", reason)
         self.stop(f"UR fault: {reason}")
-        self._stopj()
+        # stopJ first, but not behind a control call that a stalled controller holds (the report
+        # must not wait for the stall to end; the stopJ follows as soon as the lock is free)
+        t = threading.Thread(target=self._stopj, name="ur-fault-stopj", daemon=True)
+        t.start()
+        t.join(0.5)
         if self.on_fault is not None:
             try:
                 self.on_fault(reason)
