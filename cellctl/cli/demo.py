@@ -6,6 +6,12 @@ would drive it (Reset, Start over the command topic); the sim scenario is change
 cycles through the sim robot worker's ``scenario`` op. Outputs go to ``logs/demo-<time>/``
 (cycle logs, index, a fresh plan cache, dirt-map PNGs). Exits non-zero if any cycle
 misbehaves.
+
+By default every cycle is a whole-bin cycle (``planner.whole.enabled``): the first plans the
+whole bin (stations, both surfaces), the others visit every station. To stay a few minutes on
+a small machine the demo plans at p_SP 3 % and runs the sim arm 10× faster with a 50 ms settle
+(``robot.speed_scale``, ``robot.settle_s``); the CycleResult still reports the plan's modelled
+cycle time at the arm's real limits (0.5 s settle). ``--single-station`` plays the story of one station and one surface.
 """
 
 from __future__ import annotations
@@ -31,6 +37,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--worker-timeout", type=float, default=240.0, help="seconds to wait for the workers to come up")
     p.add_argument("--cycle-timeout", type=float, default=600.0)
     p.add_argument("--robot", choices=("sim", "ur"), default=None, help="ur: UR backend against `sim ur-controller`")
+    p.add_argument(
+        "--single-station", action="store_true", help="one station, one surface per cycle (the story before whole-bin)"
+    )
     add_config_arguments(p)
     p.set_defaults(func=run)
 
@@ -50,6 +59,10 @@ class Row:
     verdict: str = "-"
     viewpoints: str = "-"
     coverage: str = "-"
+    surfaces: str = "-"
+    stations: str = "-"
+    refused: int = 0
+    modelled: str = "-"
     seconds: float = 0.0
     note: str = ""
     ok: bool = False
@@ -62,6 +75,8 @@ class Stage:
     expect: Expect
     after: str | None = None
     rows: list[Row] = field(default_factory=list)
+    params: dict[str, Any] = field(default_factory=dict)
+    """Start params of the stage's cycle (``mode=wash_and_verify``)."""
 
 
 def _say(text: str) -> None:
@@ -69,53 +84,56 @@ def _say(text: str) -> None:
 
 
 def _table(rows: list[Row]) -> str:
-    head = f"{'#':>2}  {'story':44} {'outcome':16} {'verdict':8} {'views':>5} {'cover':>6} {'time':>6}  ok  note"
+    head = (
+        f"{'#':>2}  {'story':44} {'outcome':16} {'verdict':8} {'views':>5} {'cover':>6} {'ext/int':>9} {'st':>3} "
+        f"{'ref':>3} {'model':>6} {'time':>6}  ok  note"
+    )
     lines = [head, "-" * len(head)]
     for r in rows:
         lines.append(
-            f"{r.n:>2}  {r.story:44} {r.outcome:16} {r.verdict:8} {r.viewpoints:>5} {r.coverage:>6} "
-            f"{r.seconds:>5.1f}s  {'✓' if r.ok else '✗'}   {r.note}"
+            f"{r.n:>2}  {r.story:44} {r.outcome:16} {r.verdict:8} {r.viewpoints:>5} {r.coverage:>6} {r.surfaces:>9} "
+            f"{r.stations:>3} {r.refused:>3} {r.modelled:>6} {r.seconds:>5.1f}s  {'✓' if r.ok else '✗'}   {r.note}"
         )
+    lines.append(
+        "cover: area of the inspected surface(s) seen; ext/int: per surface; st: stations visited; "
+        "ref: viewpoints the arm refused at run time; model: the plan's modelled cycle at the arm's real limits"
+    )
     return "\n".join(lines)
 
 
-def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top to bottom
-    from cellctl.app import build_cell
-    from cellctl.bus import keys
-    from cellctl.bus.plc_client import PlcClient
-    from cellctl.bus.rpc import request
-    from cellctl.config import output_overrides
-    from cellctl.messages import SimScenarioRequest, SimState
+def _fill(row: Row, res: Any) -> None:
+    """The table row's figures from a CycleResult."""
+    from cellctl.surface import SURFACES
 
-    now = _dt.datetime.now()
-    out = Path(args.out) if args.out else Path("logs") / f"demo-{now:%Y%m%d-%H%M%S}"
-    base_cfg = config_from_args(args)
-    out = base_cfg.path(out)
-    # a Python emulator on a shared machine sends late packages now and then: the thresholds of cell_ur.yaml
-    ur = ["robot.backend=ur", "robot.ur.twin=true", "robot.ur.faults.data_stale_ms=1000"]
-    ur = [*ur, "robot.ur.faults.watchdog_hz=2"] if args.robot == "ur" else []
-    overrides = [*args.overrides, *ur, *output_overrides(out)]
-    cfg = config_from_args(argparse.Namespace(config=args.config, overrides=overrides))
-    c = cfg.cell_id
-    _say(f"cellctl demo — cell {c!r} on {cfg.bus.listen}, outputs in {out}")
+    row.outcome = res.outcome.value
+    row.verdict = res.verdict or "-"
+    row.viewpoints = str(len(res.viewpoints)) if res.viewpoints else "-"
+    row.coverage = f"{res.coverage:.0%}" if res.coverage is not None else "-"
+    row.refused = sum(1 for v in res.viewpoints if v.error is not None and v.relook_of is None)
+    cov = res.coverage_by_surface
+    if cov:
+        row.surfaces = "/".join(f"{cov[s]:.0%}" if cov.get(s) is not None else "-" for s in SURFACES)
+    if res.stations:
+        row.stations = str(sum(1 for st in res.stations if st.plan_ids))
+    if res.modelled_cycle_s is not None:
+        row.modelled = f"{res.modelled_cycle_s:.0f}s"
 
-    x0, y0, z0, yaw0 = cfg.sim.bin_pose_xyz_yaw
-    home = (x0, y0, z0, math.radians(yaw0))
-    bt = cfg.sim.bin_type
-    # The base parks relative to the bin, so "the bin stands somewhere new" is modelled as a
-    # systematic parking offset (an obstacle where the base would park).
-    nudged = (0.008, -0.006, math.radians(0.5))
-    moved = (-0.15, 0.0, math.radians(5.0))
-    stages = [
+
+def _whole_stages(bt: str, home: tuple, nudged: tuple, moved: tuple) -> list[Stage]:
+    """The story with whole-bin cycles: each scan visits every station, both surfaces.
+
+    A whole-bin cycle adjusts every station's plan to the pose measured there, so "plan found"
+    and "adjusted" are one cycle (parked 10 mm, 0.5° off at every station): two full scans, not three.
+    """
+    return [
         Stage(
-            f"new {bt} bin → no plan",
+            f"new {bt} bin → no plan: whole-bin job",
             {"bin_type": bt, "bin_xyz_yaw": home, "dirty": False, "park_offset_xy_yaw": (0.0, 0.0, 0.0)},
             Expect("replan_required"),
             after="wait_plan",
         ),
-        Stage("same bin, clean → plan found, scan", {}, Expect("completed", "clean")),
         Stage(
-            "parked 10 mm, 0.5° off → adjusted, scan",
+            "parked 10 mm, 0.5° off → plan found, adjusted",
             {"park_offset_xy_yaw": nudged},
             Expect("completed", "clean", True),
         ),
@@ -130,6 +148,73 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
             Expect("replan_required"),
         ),
     ]
+
+
+def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top to bottom
+    from cellctl.app import build_cell
+    from cellctl.bus import keys
+    from cellctl.bus.plc_client import PlcClient
+    from cellctl.bus.rpc import request
+    from cellctl.config import output_overrides
+    from cellctl.messages import SimScenarioRequest, SimState
+
+    now = _dt.datetime.now()
+    t_demo = time.monotonic()
+    out = Path(args.out) if args.out else Path("logs") / f"demo-{now:%Y%m%d-%H%M%S}"
+    base_cfg = config_from_args(args)
+    out = base_cfg.path(out)
+    # a Python emulator on a shared machine sends late packages now and then: the thresholds of cell_ur.yaml
+    ur = ["robot.backend=ur", "robot.ur.twin=true", "robot.ur.faults.data_stale_ms=1000"]
+    ur = [*ur, "robot.ur.faults.watchdog_hz=1"] if args.robot == "ur" else []
+    # whole-bin story: a few minutes on a small machine (module docstring); --set still wins
+    whole = ["planner.whole.enabled=true", "planner.seed_pct=3", "robot.speed_scale=10", "robot.settle_s=0.05"]
+    whole = [] if args.single_station else whole
+    overrides = [*whole, *args.overrides, *ur, *output_overrides(out)]
+    cfg = config_from_args(argparse.Namespace(config=args.config, overrides=overrides))
+    c = cfg.cell_id
+    _say(f"cellctl demo — cell {c!r} on {cfg.bus.listen}, outputs in {out}")
+
+    x0, y0, z0, yaw0 = cfg.sim.bin_pose_xyz_yaw
+    home = (x0, y0, z0, math.radians(yaw0))
+    bt = cfg.sim.bin_type
+    # The base parks relative to the bin, so "the bin stands somewhere new" is modelled as a
+    # systematic parking offset (an obstacle where the base would park).
+    nudged = (0.008, -0.006, math.radians(0.5))
+    moved = (-0.15, 0.0, math.radians(5.0))
+    stages = (
+        _whole_stages(bt, home, nudged, moved)
+        if not args.single_station
+        else [
+            Stage(
+                f"new {bt} bin → no plan",
+                {"bin_type": bt, "bin_xyz_yaw": home, "dirty": False, "park_offset_xy_yaw": (0.0, 0.0, 0.0)},
+                Expect("replan_required"),
+                after="wait_plan",
+            ),
+            Stage("same bin, clean → plan found, scan", {}, Expect("completed", "clean")),
+            Stage(
+                "parked 10 mm, 0.5° off → adjusted, scan",
+                {"park_offset_xy_yaw": nudged},
+                Expect("completed", "clean", True),
+            ),
+            Stage(
+                "same place, powder on the bin → dirty",
+                {"dirty": True, "powder_amount": 0.6, "seed": 7},
+                Expect("completed", "dirty"),
+            ),
+            Stage(
+                "powder on the wall → wash and verify → clean",
+                {"dirty": True, "powder_amount": 0.15, "seed": 29},
+                Expect("completed", "clean"),
+                params={"mode": "wash_and_verify"},
+            ),
+            Stage(
+                "parked 0.15 m back, 5° off → beyond tolerance",
+                {"park_offset_xy_yaw": moved, "dirty": False},
+                Expect("replan_required"),
+            ),
+        ]
+    )
 
     def _terminate(signum: int, _frame: object) -> None:
         raise KeyboardInterrupt(f"signal {signum}")  # unwinds the cell: workers stopped, logs closed
@@ -163,7 +248,7 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
             t0 = time.monotonic()
             if plc.command("reset").accepted:
                 plc.wait_for(lambda s: s.state == "Idle", 30)
-            ack = plc.command("start")
+            ack = plc.command("start", **stage.params)
             if not ack.accepted:
                 row.note = f"start refused: {ack.reason}"
                 failures += 1
@@ -178,10 +263,7 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
             # the result is published while Completing/Aborting; the next Reset needs the wait state
             plc.wait_for(lambda s: s.state in ("Complete", "Aborted", "Stopped"), 30)
             row.seconds = time.monotonic() - t0
-            row.outcome = res.outcome.value
-            row.verdict = res.verdict or "-"
-            row.viewpoints = str(len(res.viewpoints)) if res.viewpoints else "-"
-            row.coverage = f"{res.coverage:.0%}" if res.coverage is not None else "-"
+            _fill(row, res)
             exp = stage.expect
             problems = []
             if res.outcome.value != exp.outcome:
@@ -193,16 +275,30 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
             row.ok = not problems
             row.note = "; ".join(problems) or (res.reason or "")[:60]
             failures += bool(problems)
+            if res.wash is not None:  # wash_and_verify: the rounds and where their pictures are
+                w = res.wash
+                pics = [p for r in w.rounds for p in r.pictures]
+                why = f": {w.reason}" if w.reason else ""
+                _say(f"   wash {w.verdict or '-'} after {len(w.rounds)} round(s){why}")
+                for p in pics:
+                    _say(f"   picture {cfg.path(res.log).parent / p}" if res.log else f"   picture {p}")
+                row.note = (row.note + f" wash: {len(w.rounds)} round(s), {len(pics)} pictures").strip()
             if res.dirt_map and res.outcome.value == "completed":
                 try:
                     from cellctl.geometry.catalog import load_catalog
                     from cellctl.recording.dirt_map import draw_dirt_map
 
                     mesh = load_catalog(cfg.path(cfg.catalog)).load_mesh(res.bin.type or bt)
-                    png = draw_dirt_map(
-                        mesh, res.dirt_map, out / f"dirt-map-cycle{i}.png", f"cycle {i}: verdict {res.verdict}"
-                    )
-                    row.note = (row.note + f" map: {png.name}").strip()
+                    title = f"cycle {i}: verdict {res.verdict}"
+                    if res.coverage_by_surface:  # whole bin: one picture per surface (the cavity on its own)
+                        pngs = [
+                            draw_dirt_map(mesh, res.dirt_map, out / f"dirt-map-cycle{i}-{s}.png", title, surface=s)
+                            for s, c in res.coverage_by_surface.items()
+                            if c is not None
+                        ]
+                    else:
+                        pngs = [draw_dirt_map(mesh, res.dirt_map, out / f"dirt-map-cycle{i}.png", title)]
+                    row.note = (row.note + " map: " + ", ".join(p.name for p in pngs)).strip()
                 except Exception as err:  # a picture must not fail the story
                     _say(f"   (dirt map not drawn: {err})")
             if stage.after == "wait_plan" and res.planner_job_id:
@@ -226,6 +322,13 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
                 plc.wait_for(lambda s: s.state == "Stopped", 30)
         plc.close()
     _say("\n" + _table(rows))
-    summary = {"cycles": len(rows), "failed": failures, "out": str(out)}
+    summary = {
+        "cycles": len(rows),
+        "failed": failures,
+        "refused_viewpoints": sum(r.refused for r in rows),
+        "whole_bin": not args.single_station,
+        "wall_s": round(time.monotonic() - t_demo, 1),
+        "out": str(out),
+    }
     _say(json.dumps(summary))
     return 1 if failures else 0

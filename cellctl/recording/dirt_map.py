@@ -55,7 +55,12 @@ def face_colours(n_faces: int, dirt_map: dict[str, Any]) -> np.ndarray:
 
 
 def draw_dirt_map(
-    mesh: Any, dirt_map: dict[str, Any], out: Path, title: str = "", camera_positions: np.ndarray | None = None
+    mesh: Any,
+    dirt_map: dict[str, Any],
+    out: Path,
+    title: str = "",
+    camera_positions: np.ndarray | None = None,
+    surface: str | None = None,
 ) -> Path:
     """Write a PNG with two views of the bin (outside and from above) coloured by the dirt map.
 
@@ -63,6 +68,8 @@ def draw_dirt_map(
         mesh: a :class:`cellctl.geometry.catalog.BinMesh` (bin frame, metres).
         dirt_map: ``{"seen_dirty": [...], "seen_clean": [...]}`` face ids.
         camera_positions: optional (N, 3) viewpoint positions in the bin frame, drawn as dots.
+        surface: draw only this surface's faces (``internal``: the cavity, no outer wall in front of it);
+            the counts are that surface's.
     """
     import matplotlib
 
@@ -74,6 +81,12 @@ def draw_dirt_map(
     colours = face_colours(mesh.n_faces, dirt_map)
     graded = "face_p" in dirt_map
     tris = mesh.vertices[mesh.faces]
+    if surface is not None:
+        from cellctl.surface import FACE_TAG
+
+        keep = np.asarray(mesh.surface) == FACE_TAG[surface]  # type: ignore[index]
+        states, colours, tris = states[keep], colours[keep], tris[keep]
+        title = f"{title} — {surface} surface".strip(" —")
     fig = plt.figure(figsize=(12, 6), dpi=110)
     lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
     for i, (elev, azim, name) in enumerate(((18, -60, "outside"), (80, -90, "from above"))):

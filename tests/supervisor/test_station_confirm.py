@@ -111,3 +111,17 @@ def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None
     moves = [m for r, op, m in run.calls if (r, op) == ("robot", "move")]
     assert [m.joints is None for m in moves] == [False, False, True]  # viewpoint 1 again, by its camera pose
     assert any("reached by its camera pose" in t for _, t in run.events)
+
+
+def test_in_a_whole_bin_cycle_an_uncertain_view_and_its_re_look_are_fused_by_their_mean(cfg) -> None:  # noqa: ANN001
+    ctx = _ctx(cfg, whole=True)
+    # the demo's case: uncertain dirty at p 0.78, a certain-clean re-look at p 0.002 (nearest-the-mean: a tie)
+    ctx.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.78, uncertain=True), 2: _done("clean", 0.1)}
+    run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.002, model_id="m"))
+    assert Classifying()(run) == "succeeded"
+    assert ctx.verdict == "clean"
+    ctx = _ctx(cfg, whole=True)
+    ctx.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.9, uncertain=True), 2: _done("clean", 0.1)}
+    run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.45, uncertain=True, model_id="m"))
+    assert Classifying()(run) == "succeeded"
+    assert ctx.verdict == "dirty"  # mean logit 1.0 above the threshold estimate 0

@@ -38,6 +38,22 @@ def _logit(p: float) -> float:
     return math.log(q / (1 - q))
 
 
+def _mean_label(vs: list[ViewpointResult]) -> str:
+    """The views' mean logit against the threshold estimated as logit 0 (p 0.5) clipped into what
+    the labels allow (above every clean view's logit, at most every dirty view's).
+
+    "The label of the view nearest the mean" is a coin flip for two views that disagree (the mean is
+    halfway between them): a clean re-look at p 0.002 lost to its uncertain original at p 0.78.
+    """
+    logits = [_logit(v.p_dirty) for v in vs]  # type: ignore[arg-type]
+    clean = [x for x, v in zip(logits, vs, strict=True) if v.label == "clean"]
+    dirty = [x for x, v in zip(logits, vs, strict=True) if v.label == "dirty"]
+    if not clean or not dirty:
+        return vs[0].label  # type: ignore[return-value]
+    t = min(max(0.0, max(clean)), min(dirty))
+    return "dirty" if sum(logits) / len(logits) >= t else "clean"
+
+
 def view_key(v: ViewpointResult) -> tuple[int | None, str | None, int]:
     """Which planned viewpoint a view is of: (station, surface, index); station and surface are None
     in a single-station cycle (indices repeat across a whole-bin cycle's plans)."""
@@ -139,8 +155,9 @@ class Classifying(Step):
         """Label per viewpoint index, a re-looked viewpoint's views fused (mean logit vs its threshold).
 
         The threshold is not on the wire; a view's own label and ``p_dirty`` bound it: fused
-        views keep the label of the one whose logit is nearest the mean. A certain-dirty view
-        re-looked to confirm it (``confirm``) is clean only if a re-look is certain clean.
+        views keep the label of the one whose logit is nearest the mean. With ``confirm`` (whole-bin
+        cycles by default): a certain-dirty view re-looked to confirm it is clean only if a re-look
+        is certain clean, and disagreeing views are decided by :func:`_mean_label`.
         """
         groups: dict[tuple[int | None, str | None, int], list[ViewpointResult]] = {}
         for v in viewpoints:
@@ -155,6 +172,9 @@ class Classifying(Step):
             if confirm and first.relook_of is None and first.label == "dirty" and not first.uncertain:
                 overruled = any(w.label == "clean" and not w.uncertain for w in vs[1:])
                 out[idx] = "clean" if overruled else "dirty"
+                continue
+            if confirm:
+                out[idx] = _mean_label(vs)
                 continue
             mean = sum(_logit(v.p_dirty) for v in vs) / len(vs)  # type: ignore[arg-type]
             out[idx] = min(vs, key=lambda v: abs(_logit(v.p_dirty) - mean)).label  # type: ignore[arg-type]
