@@ -105,29 +105,47 @@ class PowderField:
             return out
         from scipy.spatial import cKDTree
 
-        tree = cKDTree(pts)
-        for sp in self.washes:
-            S, A = np.asarray(sp.spots, np.float64), np.asarray(sp.axes, np.float64)
+        # every pass's spot path at once (one tree, one query: a re-inspection render after a
+        # round of tens of passes stays well within a capture's time)
+        S_l, A_l, P_l = [], [], []
+        for k, sp in enumerate(self.washes):
+            S, A = np.asarray(sp.spots, np.float64).reshape(-1, 3), np.asarray(sp.axes, np.float64).reshape(-1, 3)
             if len(S) > 1:  # densify the spot path so the footprint is continuous along it
                 seg = np.linalg.norm(np.diff(S, axis=0), axis=1)
                 n = np.maximum(1, np.ceil(seg / (sp.radius / 4)).astype(int))
-                f = [np.arange(k) / k for k in n]
+                f = [np.arange(m) / m for m in n]
                 S = np.concatenate([S[i] + (S[i + 1] - S[i]) * f[i][:, None] for i in range(len(n))] + [S[-1:]])
                 A = np.concatenate([np.repeat(A[i : i + 1], n[i], 0) for i in range(len(n))] + [A[-1:]])
-            # the jet is a cylinder of the footprint's radius around its axis: on a face it meets
-            # obliquely the footprint stretches by 1/cos(incidence), so search that far from the spot
-            hits = tree.query_ball_point(S, r=sp.radius / max(sp.cos_incidence, 0.2))
-            owner = np.concatenate([np.full(len(h), j) for j, h in enumerate(hits)]).astype(np.int64)
-            idx = np.concatenate([np.asarray(h, np.int64) for h in hits])
-            if len(idx) == 0:
-                continue
-            v = pts[idx] - S[owner]
-            along = np.einsum("ij,ij->i", v, A[owner])
-            ok = np.linalg.norm(v - along[:, None] * A[owner], axis=1) <= sp.radius
-            if normals is not None:
-                ok &= -np.einsum("ij,ij->i", normals[idx], A[owner]) >= sp.cos_incidence
-            out[np.unique(idx[ok])] *= 1.0 - sp.removal
-        return out
+            S_l.append(S)
+            A_l.append(A)
+            P_l.append(np.full(len(S), k))
+        S, A, P = np.concatenate(S_l), np.concatenate(A_l), np.concatenate(P_l)
+        radius = np.array([sp.radius for sp in self.washes])
+        cos_inc = np.array([sp.cos_incidence for sp in self.washes])
+        removal = np.array([sp.removal for sp in self.washes])
+        # the jet is a cylinder of the footprint's radius around its axis: on a face it meets
+        # obliquely the footprint stretches by 1/cos(incidence), so search that far from the spot
+        reach = radius / np.maximum(cos_inc, 0.2)
+        hits = cKDTree(S).query_ball_point(pts, r=float(reach.max()))
+        lens = np.fromiter((len(h) for h in hits), np.int64, len(hits))
+        if lens.sum() == 0:
+            return out
+        pi = np.repeat(np.arange(len(pts)), lens)
+        si = np.concatenate([np.asarray(h, np.int64) for h in hits if len(h)])
+        k = P[si]
+        v = pts[pi] - S[si]
+        along = np.einsum("ij,ij->i", v, A[si])
+        ok = np.linalg.norm(v, axis=1) <= reach[k]
+        ok &= np.linalg.norm(v - along[:, None] * A[si], axis=1) <= radius[k]
+        if normals is not None:
+            ok &= -np.einsum("ij,ij->i", normals[pi], A[si]) >= cos_inc[k]
+        # each pass counts once per point, however many of its spots cover it
+        pairs = np.unique(pi[ok] * len(self.washes) + k[ok])
+        with np.errstate(divide="ignore"):
+            keep = np.log1p(-removal)  # removal 1 → -inf → nothing left
+        acc = np.zeros(len(pts))
+        np.add.at(acc, pairs // len(self.washes), keep[pairs % len(self.washes)])
+        return np.exp(acc)
 
     @classmethod
     def sample(cls, mesh: BinMesh, amount: float, seed: int) -> PowderField:
