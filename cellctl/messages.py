@@ -817,7 +817,9 @@ class WashRound(BaseModel):
     dirty_m2_after: float | None = None
     plan_s: float = 0.0
     plan_cpu_s: float = 0.0
-    pictures: list[str] = Field(default_factory=list, description="per-round pictures, relative to the log dir")
+    pictures: list[str] = Field(
+        default_factory=list, description="the round's pictures, in <cycle_id>.wash/ beside the log"
+    )
     reason: str | None = None
 
 

@@ -283,7 +283,7 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
                 why = f": {w.reason}" if w.reason else ""
                 _say(f"   wash {w.verdict or '-'} after {len(w.rounds)} round(s){why}")
                 for p in pics:
-                    _say(f"   picture {cfg.path(res.log).parent / p}" if res.log else f"   picture {p}")
+                    _say(f"   picture {cfg.path(res.log).parent / f'{res.cycle_id}.wash' / p}" if res.log else p)
                 row.note = (row.note + f" wash: {len(w.rounds)} round(s), {len(pics)} pictures").strip()
             if res.dirt_map and res.outcome.value == "completed":
                 try:

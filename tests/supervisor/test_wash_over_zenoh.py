@@ -6,8 +6,8 @@ from __future__ import annotations
 from mcap.reader import make_reader
 
 from cellctl.bus import topics
-from tests.fakes.workers import FakeCell
-from tests.supervisor.test_cycle_over_zenoh import cell, plc  # noqa: F401 - fixtures
+from tests.fakes.workers import FakeCell, fake_identify
+from tests.supervisor.test_cycle_over_zenoh import _verify_config, cell, plc  # noqa: F401 - fixtures
 
 # FakeCell's viewpoint i sees faces 2i, 2i+1 of the case-study mesh, the bin 1 m in front of the
 # base: viewpoint 16's faces face the base (washable), viewpoint 1's the far side (out of reach)
@@ -22,7 +22,7 @@ def _cycle(client, **params) -> object:  # noqa: ANN001, ANN003
     return client.results.get(timeout=5)
 
 
-def test_a_washable_dirty_view_is_washed_re_inspected_and_the_bin_ends_clean(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_a_washable_dirty_view_is_washed_re_inspected_and_the_bin_ends_clean(cfg, cell, plc, tmp_path) -> None:  # noqa: ANN001, F811
     with FakeCell(cfg, n_viewpoints=WASHABLE + 1, dirty_viewpoints={WASHABLE}) as fake:
         res = _cycle(plc, mode="wash_and_verify")
     assert res.outcome == "completed" and res.verdict == "clean"
@@ -32,10 +32,17 @@ def test_a_washable_dirty_view_is_washed_re_inspected_and_the_bin_ends_clean(cfg
     assert fake.calls.count("wash") == r1.sweeps_planned  # one request per sweep
     again = [v for v in res.viewpoints if v.wash_round == 1]
     assert again and WASHABLE in {v.index for v in again} and len(again) < WASHABLE + 1  # only near the wash
-    assert len(r1.pictures) == 3 and all((cfg.path(res.log).parent / p).is_file() for p in r1.pictures)
+    folder = cfg.path(res.log).parent / f"{res.cycle_id}.wash"
+    assert len(r1.pictures) == 3 and all((folder / p).is_file() for p in r1.pictures)
     with open(cfg.path(res.log), "rb") as f:
         names = [ch.topic for _, ch, _ in make_reader(f).iter_messages()]
     assert names.count(topics.WASH_PLAN) == 1 and names.count(topics.WASH_ROUND) == 1
+    # the log replays: the same wash plan request, sweeps, re-inspection and result
+    from cellctl.recording.replay import verify
+
+    report = verify(cfg.path(res.log), _verify_config(tmp_path / "v", 0), 60, (fake_identify, cell.supervisor.catalog))
+    assert report.ok, report.differences
+    assert "Execute.washing" in report.states_replayed and "Execute.verifying" in report.states_replayed
 
 
 def test_dirt_out_of_reach_ends_dirty_unwashable_with_no_wash_motion(cfg, cell, plc) -> None:  # noqa: ANN001, F811

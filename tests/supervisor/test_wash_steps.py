@@ -121,9 +121,9 @@ def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(
     (rec,) = ctx.wash_rounds
     assert rec.dirty_faces_before == dirty.sum() and rec.dirty_faces_after == 0
     assert rec.sweeps_run == len(plan.sweeps) - 1 and rec.sweeps_refused and rec.reinspected_views == 1
-    assert [Path(p).name for p in rec.pictures] == ["r1_before.png", "r1_path.png", "r1_after.png"]
+    assert rec.pictures == ["r1_before.png", "r1_path.png", "r1_after.png"]
     for p in rec.pictures:
-        assert (tmp_path / p).stat().st_size > 10_000
+        assert (tmp_path / "c-1.wash" / p).stat().st_size > 10_000
     assert ("/wash/plan", "cellctl.WashPlan") in log.records and ("/wash/round", "cellctl.WashRound") in log.records
     assert WashCheck()(run) == "done"
     assert ctx.verdict == "clean" and ctx.wash.verdict == "clean" and len(ctx.wash.rounds) == 1

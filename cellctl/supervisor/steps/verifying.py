@@ -98,7 +98,7 @@ class Verifying(Step):
             from cellctl.recording.dirt_map import draw_dirt_map
 
             png = draw_dirt_map(mesh, ctx.dirt_map, folder / f"r{r}_after.png", f"{ctx.bin_type} round {r}: after")
-            pictures.append(f"{folder.name}/{png.name}")
+            pictures.append(png.name)
         a = mesh.areas
         rec = WashRound(
             round=r,

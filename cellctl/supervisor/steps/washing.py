@@ -171,7 +171,7 @@ class WashCheck(Step):
         view = _plan_view(plan, mesh.n_faces, invert(ctx.T_base_bin))
         before = draw_dirt_map(mesh, ctx.dirt_map or {}, folder / f"r{r}_before.png", f"{name} round {r}: before")
         path = draw_wash_path(mesh, view, _spot_passes(plan), folder / f"r{r}_path.png", f"{name} round {r}:")
-        ctx.wash_run["pictures"] = [f"{folder.name}/{p.name}" for p in (before, path)]
+        ctx.wash_run["pictures"] = [before.name, path.name]  # in <cycle_id>.wash/: a replay's names match
 
     @staticmethod
     def _end(
