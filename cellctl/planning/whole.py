@@ -598,11 +598,11 @@ def _timed_tour(
     # "direct": one straight motion home, free at the sim arm's step. Only between direct nodes may
     # a move go via home: that is the sim arm's own fallback (plan_path(a, home), plan_path(home, b)),
     # which finds a straight motion there and no chain through other viewpoints
+    # Checked lazily, only where the tour uses it (a move via home, the end): a fine-step check of
+    # a motion home costs ~600 configurations, and most nodes are joined straight.
     two = np.array([len(h) == 2 for h in hubs])
-    direct = np.zeros(n, dtype=bool)
-    if two.any():
-        idx = np.flatnonzero(two)
-        direct[idx] = world.motion_free(nodes[idx], np.repeat(q_home[None], len(idx), axis=0), fine_step)
+    direct = two.copy()  # optimistic until checked
+    known = ~two
     iu, ju = np.triu_indices(n, 1)
     free = world.motion_free(nodes[iu], nodes[ju], max_step) if len(iu) else np.zeros(0, dtype=bool)
     # node n = home at the end of the tour (the arm tucks before the base drives): reached from a
@@ -620,27 +620,50 @@ def _timed_tour(
     ends_home = int(full[-1]) == n
     order = full[full != n]
     checked: set[tuple[int, int]] = set()
-    for _round in range(4):
+
+    def check_direct(order: NDArray[np.int64]) -> bool:
+        """Check the tour's end and its moves' via-home ends; True when one is not direct."""
+        need = {int(order[-1])} | {
+            int(x) for a, b in zip(order[:-1], order[1:], strict=True) if not straight[a, b] for x in (a, b)
+        }
+        todo = [k for k in sorted(need) if not known[k]]
+        if not todo:
+            return False
+        ok = world.motion_free(nodes[todo], np.repeat(q_home[None], len(todo), axis=0), fine_step)
+        for k, good in zip(todo, ok, strict=True):
+            known[k], direct[k] = True, bool(good)
+            if not good:  # no way home at the sim arm's step: no move via home, not the end
+                Tm[k, n] = Tm[n, k] = NO_MOVE_S
+                other = ~straight[k, :n]
+                other[k] = False
+                Tm[k, :n][other] = NO_MOVE_S
+                Tm[:n, k][other] = NO_MOVE_S
+        return not ok.all()
+
+    for _round in range(6):
         edges = [
             (int(a), int(b))
             for a, b in zip(order[:-1], order[1:], strict=True)
             if straight[a, b] and (min(a, b), max(a, b)) not in checked
         ]
-        if not edges:
-            break
-        ok = world.motion_free(
-            np.array([nodes[a] for a, _ in edges]), np.array([nodes[b] for _, b in edges]), fine_step
-        )
-        for (a, b), good in zip(edges, ok, strict=True):
-            checked.add((min(a, b), max(a, b)))
-            if not good:
-                straight[a, b] = straight[b, a] = False
-                Tm[a, b] = Tm[b, a] = float(home_t[a] + home_t[b]) if direct[a] and direct[b] else NO_MOVE_S
-        if ok.all():
+        changed = False
+        if edges:
+            ok = world.motion_free(
+                np.array([nodes[a] for a, _ in edges]), np.array([nodes[b] for _, b in edges]), fine_step
+            )
+            for (a, b), good in zip(edges, ok, strict=True):
+                checked.add((min(a, b), max(a, b)))
+                if not good:
+                    straight[a, b] = straight[b, a] = False
+                    Tm[a, b] = Tm[b, a] = float(home_t[a] + home_t[b]) if direct[a] and direct[b] else NO_MOVE_S
+            changed = not ok.all()
+        changed = check_direct(order) or changed
+        if not changed:
             break
         full = np.asarray(two_opt(Tm, np.r_[order, n]), dtype=np.int64)
         ends_home = int(full[-1]) == n
         order = full[full != n]
+    check_direct(order)  # the figures below only from checked nodes (the last round may have moved)
     paths: list[NDArray[np.float64]] = []
     secs: list[float] = []
     Dr = np.zeros((n, n))
