@@ -35,7 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run the simulated cell end to end (the paper's story)")
     p.add_argument("--out", default=None, help="output folder (default logs/demo-<time>)")
     p.add_argument("--worker-timeout", type=float, default=240.0, help="seconds to wait for the workers to come up")
-    p.add_argument("--cycle-timeout", type=float, default=600.0)
+    # a whole-bin cycle scans ~90 views from 4 stations: 5-7 min on a loaded 2-core machine, longer on the UR emulator
+    p.add_argument("--cycle-timeout", type=float, default=1800.0, help="seconds to wait for one cycle's result")
     p.add_argument("--robot", choices=("sim", "ur"), default=None, help="ur: UR backend against `sim ur-controller`")
     p.add_argument(
         "--single-station", action="store_true", help="one station, one surface per cycle (the story before whole-bin)"
