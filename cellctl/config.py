@@ -165,6 +165,10 @@ class RobotConfig(_Model):
     joint_state_hz: float = Field(default=10.0, gt=0, le=500)
     plan_timeout_s: float = Field(default=3.0, gt=0, le=60, description="sim: RRTConnect budget per move")
     collision_margin_m: float = Field(default=0.005, ge=0, le=0.1, description="sim: clearance around the arm")
+    hand_eye: Path | None = Field(
+        default=None,
+        description="T_flange_cam JSON from `cellctl calibrate hand-eye`; None: the nominal mount (robot_model)",
+    )
 
 
 class CameraConfig(_Model):
@@ -389,6 +393,27 @@ class CellConfig(_Model):
     sim: SimConfig = Field(default_factory=SimConfig)
 
     root: Path = Field(default=PROJECT_ROOT, exclude=True, description="base of relative paths")
+
+    @model_validator(mode="after")
+    def _hand_eye_loads(self) -> CellConfig:
+        # Checked on load so a bad calibration stops `cellctl validate`/`run`, not the first move.
+        self.T_flange_cam()
+        return self
+
+    def T_flange_cam(self) -> Any:
+        """The configured hand–eye ``T_flange_cam`` (4, 4 ndarray), or None when ``robot.hand_eye`` is unset.
+
+        Raises:
+            ConfigError: the file is missing or invalid (:func:`cellctl.vision.handeye.load_hand_eye`).
+        """
+        if self.robot.hand_eye is None:
+            return None
+        from cellctl.vision.handeye import load_hand_eye
+
+        try:
+            return load_hand_eye(self.path(self.robot.hand_eye))
+        except ConfigError as err:
+            raise ConfigError(f"robot.hand_eye: {err}") from None
 
     @property
     def cell_id(self) -> str:

@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     from cellctl.planning.mesh import load_bin_mesh, load_catalog_mesh
     from cellctl.planning.pipeline import PlanParams, base_pose_from_xyz_yaw, make_plan
     from cellctl.planning.planfile import plan_path, write_plan
-    from cellctl.planning.robot import default_robot_model
+    from cellctl.planning.robot import RobotModel
 
     cfg = config_from_args(args)
     pc = cfg.planner
@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         mesh,
         base_pose_from_xyz_yaw(x, y, z, yaw),
         params,
-        default_robot_model(),
+        RobotModel.from_config(cfg),
         bin_type=args.bin_type,
         show_bars=True,
     )
@@ -158,7 +158,7 @@ def run_whole(args: argparse.Namespace, cfg: Any) -> int:
     from cellctl.geometry.catalog import load_catalog
     from cellctl.planning.mesh import load_bin_mesh, load_catalog_mesh
     from cellctl.planning.plan import PlanParams
-    from cellctl.planning.robot import default_robot_model
+    from cellctl.planning.robot import RobotModel
     from cellctl.planning.whole import WholeParams, plan_whole, write_whole
 
     pc = cfg.planner
@@ -182,7 +182,7 @@ def run_whole(args: argparse.Namespace, cfg: Any) -> int:
     from cellctl.geometry.robot_model import _quiet_stdout
 
     with _quiet_stdout():  # ur-analytic-ik's C++ warnings on fd 1 would corrupt --json
-        plan = plan_whole(mesh, params, default_robot_model(), bin_type=bin_type)
+        plan = plan_whole(mesh, params, RobotModel.from_config(cfg), bin_type=bin_type)
     out = write_whole(plan, cfg.path(pc.plans_dir), args.out)
     if args.png:
         from cellctl.planning.whole_render import render_whole

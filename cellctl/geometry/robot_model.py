@@ -187,9 +187,13 @@ def fk(q: ArrayLike) -> NDArray[np.float64]:
     return link_frames(q)[0, 6]
 
 
-def camera_pose(q: ArrayLike) -> NDArray[np.float64]:
-    """``T_base_cam`` (4, 4) of one configuration."""
-    return fk(q) @ T_FLANGE_CAM
+def camera_pose(q: ArrayLike, T_flange_cam: ArrayLike | None = None) -> NDArray[np.float64]:
+    """``T_base_cam`` (4, 4) of one configuration; ``T_flange_cam`` None: the mount :data:`T_FLANGE_CAM`."""
+    return fk(q) @ _flange_cam(T_flange_cam)
+
+
+def _flange_cam(T_flange_cam: ArrayLike | None) -> NDArray[np.float64]:
+    return T_FLANGE_CAM if T_flange_cam is None else np.asarray(T_flange_cam, dtype=np.float64)
 
 
 def wrap_near(q: NDArray[np.float64], q_ref: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -273,14 +277,16 @@ def _select(raw: object, ref: NDArray[np.float64]) -> NDArray[np.float64]:
     return S[np.argsort(np.linalg.norm(S - ref, axis=1), kind="stable")]
 
 
-def ik_camera(T_base_cam: ArrayLike, q_near: ArrayLike | None = None) -> NDArray[np.float64]:
+def ik_camera(
+    T_base_cam: ArrayLike, q_near: ArrayLike | None = None, T_flange_cam: ArrayLike | None = None
+) -> NDArray[np.float64]:
     """All IK solutions (k, 6) that put the camera optical frame at ``T_base_cam``."""
-    return ik(np.asarray(T_base_cam, dtype=np.float64) @ invert(T_FLANGE_CAM), q_near)
+    return ik(np.asarray(T_base_cam, dtype=np.float64) @ invert(_flange_cam(T_flange_cam)), q_near)
 
 
-def unreachable_reason(T_base_cam: ArrayLike) -> str:
+def unreachable_reason(T_base_cam: ArrayLike, T_flange_cam: ArrayLike | None = None) -> str:
     """Why a camera pose has no IK solution, in words with the numbers."""
-    T = np.asarray(T_base_cam, dtype=np.float64) @ invert(T_FLANGE_CAM)
+    T = np.asarray(T_base_cam, dtype=np.float64) @ invert(_flange_cam(T_flange_cam))
     wrist = T[:3, 3] - DH_D[5] * T[:3, 2]
     d = float(np.linalg.norm(wrist - np.array([0.0, 0.0, DH_D[0]])))
     max_d = abs(DH_A[1]) + abs(DH_A[2]) + 0.05
@@ -289,10 +295,10 @@ def unreachable_reason(T_base_cam: ArrayLike) -> str:
     return f"no analytic IK solution within the joint limits (wrist centre {d:.3f} m from the shoulder)"
 
 
-def view_blocked(q: ArrayLike, distance: float = 0.4) -> bool:
+def view_blocked(q: ArrayLike, distance: float = 0.4, T_flange_cam: ArrayLike | None = None) -> bool:
     """True if the arm itself blocks the camera's optical axis within ``distance`` (m)."""
     frames = link_frames(q)[0]
-    T_cam = frames[6] @ T_FLANGE_CAM
+    T_cam = frames[6] @ _flange_cam(T_flange_cam)
     s = np.linspace(0.02, distance, 24)
     pts = T_cam[:3, 3] + s[:, None] * T_cam[:3, 2]
     for cap in CAPSULES:

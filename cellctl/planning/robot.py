@@ -14,12 +14,16 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from cellctl.geometry import robot_model as rm
 from cellctl.geometry.transforms import invert
+
+if TYPE_CHECKING:
+    from cellctl.config import CellConfig
 
 __all__ = ["RobotModel", "default_robot_model"]
 
@@ -42,6 +46,12 @@ class RobotModel:
         default_factory=lambda: np.array([np.pi, -np.pi / 2, 0.0, -np.pi / 2, 0.0, 0.0])
     )
     name: str = "ur10e"
+
+    @classmethod
+    def from_config(cls, cfg: CellConfig) -> RobotModel:
+        """The cell's model with the configured hand–eye (``robot.hand_eye``), else the nominal mount."""
+        T = cfg.T_flange_cam()
+        return cls() if T is None else cls(T_flange_cam=T)
 
     def model_id(self) -> str:
         """Stable id of everything a plan depends on: DH, limits, hand-eye, capsules, platform."""

@@ -17,17 +17,22 @@ Needs ≥ 3 views with rotations about ≥ 2 non-parallel axes. Light module (nu
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cellctl.errors import CellError
+from cellctl.errors import CellError, ConfigError
 from cellctl.geometry.transforms import check_transform, invert, pose_from_transform, transform_from
 
-__all__ = ["HandEyeResult", "log_rotation", "solve_hand_eye"]
+__all__ = ["MAX_FLANGE_CAM_M", "HandEyeResult", "load_hand_eye", "log_rotation", "solve_hand_eye"]
+
+# A camera further than this from the flange is a wrong file or wrong units (mm), not a mount.
+MAX_FLANGE_CAM_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -172,3 +177,31 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_cam_board: Sequence[Arr
         n_views=n,
         axis_spread_deg=spread,
     )
+
+
+def load_hand_eye(path: Path) -> NDArray[np.float64]:
+    """``T_flange_cam`` (4, 4) from a file ``cellctl calibrate hand-eye`` wrote.
+
+    Raises:
+        ConfigError: the file is missing or not JSON, has no 4×4 ``T_flange_cam_matrix``, its
+            rotation is not proper, or the camera is more than :data:`MAX_FLANGE_CAM_M` from the flange.
+    """
+    if not path.is_file():
+        raise ConfigError(f"hand-eye file {str(path)!r} does not exist (write it with `cellctl calibrate hand-eye`)")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        raise ConfigError(f"hand-eye file {str(path)!r}: not valid JSON: {err}") from err
+    if not isinstance(data, dict) or "T_flange_cam_matrix" not in data:
+        raise ConfigError(f"hand-eye file {str(path)!r}: expected an object with key 'T_flange_cam_matrix'")
+    try:
+        T = check_transform(data["T_flange_cam_matrix"], "T_flange_cam_matrix")
+    except (CellError, ValueError, TypeError) as err:
+        raise ConfigError(f"hand-eye file {str(path)!r}: {err}") from err
+    d = float(np.linalg.norm(T[:3, 3]))
+    if d > MAX_FLANGE_CAM_M:
+        raise ConfigError(
+            f"hand-eye file {str(path)!r}: camera is {d:.3f} m from the flange, expected at most "
+            f"{MAX_FLANGE_CAM_M} m (translation in metres)"
+        )
+    return T

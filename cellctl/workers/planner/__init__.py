@@ -76,14 +76,14 @@ class PlannerService:
     """
 
     def __init__(self, cfg: CellConfig, instance: str, publish: Any = None) -> None:
-        from cellctl.planning.robot import default_robot_model
+        from cellctl.planning.robot import RobotModel
 
         self.cfg = cfg
         self.instance = instance
         self.publish = publish
         self.plans_dir = cfg.path(cfg.planner.plans_dir)
         self.jobs_dir = self.plans_dir / "jobs"
-        self.robot = default_robot_model()
+        self.robot = RobotModel.from_config(cfg)
         self._meshes: dict[str, Any] = {}
         self._queue: queue.Queue[tuple[str, PlanJobRequest] | None] = queue.Queue()
         self._lock = threading.Lock()

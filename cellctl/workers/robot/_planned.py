@@ -76,6 +76,8 @@ class PlannedRobot(Robot):
         self, cfg: CellConfig, catalog: Catalog | None = None, on_change: Callable[[], None] | None = None
     ) -> None:
         self.cfg = cfg
+        self.T_flange_cam = cfg.T_flange_cam()
+        """The controller's hand–eye estimate (``robot.hand_eye``); None: the nominal mount."""
         self.catalog = catalog or load_catalog(cfg.path(cfg.catalog))
         s = cfg.sim
         self.catalog.get(s.bin_type)
@@ -185,14 +187,15 @@ class PlannedRobot(Robot):
 
     def _go_camera(self, T_base_cam: NDArray[np.float64]) -> tuple[float, float]:
         pos = np.round(T_base_cam[:3, 3], 4).tolist()
-        sols = rm.ik_camera(T_base_cam, self.joints)
+        sols = rm.ik_camera(T_base_cam, self.joints, self.T_flange_cam)
         if len(sols) == 0:
-            raise RobotError(f"camera pose at {pos} (base frame) is unreachable: {rm.unreachable_reason(T_base_cam)}")
+            why = rm.unreachable_reason(T_base_cam, self.T_flange_cam)
+            raise RobotError(f"camera pose at {pos} (base frame) is unreachable: {why}")
         flags = self._world.check(sols)
         free = sols[~flags]
         # prefer solutions whose own links do not block the camera's view (stable sort keeps
         # the nearest-first order otherwise)
-        blocked = np.array([rm.view_blocked(q) for q in free], dtype=bool)
+        blocked = np.array([rm.view_blocked(q, T_flange_cam=self.T_flange_cam) for q in free], dtype=bool)
         free = np.concatenate([free[~blocked], free[blocked]]) if len(free) else free
         if len(free) == 0:
             why = "; ".join(", ".join(self._world.explain(s)) for s in sols[:2])
@@ -266,7 +269,7 @@ class PlannedRobot(Robot):
             return ApproachReply(
                 joints=q.tolist(),
                 flange_pose=PoseMsg.from_matrix(rm.fk(q)),
-                camera_pose=PoseMsg.from_matrix(rm.camera_pose(q)),
+                camera_pose=PoseMsg.from_matrix(rm.camera_pose(q, self.T_flange_cam)),
                 observation_index=req.observation_index,
             )
         finally:
@@ -311,7 +314,7 @@ class PlannedRobot(Robot):
             q = self.joints
             return MoveReply(
                 joints=q.tolist(),
-                camera_pose=PoseMsg.from_matrix(rm.camera_pose(q)),
+                camera_pose=PoseMsg.from_matrix(rm.camera_pose(q, self.T_flange_cam)),
                 path_length_rad=length,
                 duration_s=duration,
             )
@@ -395,7 +398,7 @@ class PlannedRobot(Robot):
         return RobotState(
             joints=q.tolist(),
             flange_pose=PoseMsg.from_matrix(rm.fk(q)),
-            camera_pose=PoseMsg.from_matrix(rm.camera_pose(q)),
+            camera_pose=PoseMsg.from_matrix(rm.camera_pose(q, self.T_flange_cam)),
             moving=self._moving,
         )
 
