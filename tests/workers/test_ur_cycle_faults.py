@@ -166,8 +166,13 @@ RECOVERY: dict[str, tuple[str, tuple[str, ...], Callable[[Rig], None]]] = {
     ),
     "safeguard": ("safeguard", ("safeguard stop",), lambda r: r.emu.inject("safeguard_reset")),
     "drop": ("drop 0.5", ("lost RTDE connection",), lambda r: time.sleep(0.7)),
-    # a frozen controller: no data, or a control call that does not return (the client cannot tell)
-    "stall": ("stall 1.5", ("no RTDE data", "lost RTDE connection"), lambda r: time.sleep(0.7)),
+    # a frozen controller: no data, a control call that does not return (the client cannot tell), or, when
+    # the controller resumes before either is noticed, its RTDE watchdog (2 Hz here) expired and stopped the program
+    "stall": (
+        "stall 1.5",
+        ("no RTDE data", "lost RTDE connection", "control program stopped during a motion"),
+        lambda r: time.sleep(0.7),
+    ),
 }
 MOTIONS = ("approaching", "scanning")
 

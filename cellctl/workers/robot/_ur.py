@@ -570,7 +570,6 @@ class UrRobot(PlannedRobot):
                 time.sleep(period)
                 now = time.monotonic()
                 self._check_not_frozen(max(now - last, now - self._tick), "motion")
-                last = now
                 if self._fault is not None:
                     raise RobotError(f"motion aborted: UR fault ({self._fault}) at {np.round(self.joints, 4).tolist()}")
                 if self._stop.is_set():
@@ -581,8 +580,12 @@ class UrRobot(PlannedRobot):
                 with self.io:
                     c = self._c
                     if c is None:  # given up by the monitor: the fault is latched, seen next round
+                        last = time.monotonic()
                         continue
                     running = bool(c.getAsyncOperationProgressEx().isAsyncOperationRunning())
+                # after the lock: waiting for it behind a watchdog kick (bounded, 1 s) is no freeze, the
+                # monitor thread watched the controller meanwhile (a false "frozen" after a stall's recovery)
+                last = time.monotonic()
                 q = self.joints
                 self.tracking.append(path_deviation(path, q))
                 if not running:
