@@ -19,8 +19,8 @@ def cfg(cfg):  # noqa: ANN001, ANN201 - the conftest's cfg with a manual base
     return cfg
 
 
-def _confirm(plc, station: int):  # noqa: ANN001, ANN202
-    return plc.send(Command(base_parked=station, request_id=f"base-{station}", user="plc"), 5)
+def _confirm(client, station: int):  # noqa: ANN001, ANN202
+    return client.send(Command(base_parked=station, request_id=f"base-{station}", user="plc"), 5)
 
 
 def _waiting(plc, cell, timeout: float = 10.0) -> None:  # noqa: ANN001, F811
