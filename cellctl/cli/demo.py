@@ -120,34 +120,54 @@ def _fill(row: Row, res: Any) -> None:
         row.modelled = f"{res.modelled_cycle_s:.0f}s"
 
 
-def _whole_stages(bt: str, home: tuple, nudged: tuple, moved: tuple) -> list[Stage]:
-    """The story with whole-bin cycles: each scan visits every station, both surfaces.
+def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool) -> list[Stage]:
+    """The demo's story: whole-bin cycles (each scan visits every station, both surfaces) or
+    the single-station one.
 
     A whole-bin cycle adjusts every station's plan to the pose measured there, so "plan found"
     and "adjusted" are one cycle (parked 10 mm, 0.5° off at every station): two full scans, not three.
     """
-    return [
-        Stage(
-            f"new {bt} bin → no plan: whole-bin job",
-            {"bin_type": bt, "bin_xyz_yaw": home, "dirty": False, "park_offset_xy_yaw": (0.0, 0.0, 0.0)},
-            Expect("replan_required"),
-            after="wait_plan",
-        ),
-        Stage(
+    new_bin = Stage(
+        f"new {bt} bin → no plan" + (": whole-bin job" if whole else ""),
+        {"bin_type": bt, "bin_xyz_yaw": home, "dirty": False, "park_offset_xy_yaw": (0.0, 0.0, 0.0)},
+        Expect("replan_required"),
+        after="wait_plan",
+    )
+    dirty = Stage(
+        "same place, powder on the bin → dirty",
+        {"dirty": True, "powder_amount": 0.6, "seed": 7},
+        Expect("completed", "dirty"),
+    )
+    beyond = Stage(
+        "parked 0.15 m back, 5° off → beyond tolerance",
+        {"park_offset_xy_yaw": moved, "dirty": False},
+        Expect("replan_required"),
+    )
+    if whole:
+        adjusted = Stage(
             "parked 10 mm, 0.5° off → plan found, adjusted",
             {"park_offset_xy_yaw": nudged},
             Expect("completed", "clean", True),
-        ),
+        )
+        return [new_bin, adjusted, dirty, beyond]
+    return [
+        new_bin,
+        Stage("same bin, clean → plan found, scan", {}, Expect("completed", "clean")),
         Stage(
-            "same place, powder on the bin → dirty",
-            {"dirty": True, "powder_amount": 0.6, "seed": 7},
-            Expect("completed", "dirty"),
+            "parked 10 mm, 0.5° off → adjusted, scan",
+            {"park_offset_xy_yaw": nudged},
+            Expect("completed", "clean", True),
         ),
+        dirty,
+        # the verdict is not asserted: on the twin the rounds leave dirt the nozzle cannot reach
+        # from this park (docs/washing/README.md); the rounds and their pictures are the story
         Stage(
-            "parked 0.15 m back, 5° off → beyond tolerance",
-            {"park_offset_xy_yaw": moved, "dirty": False},
-            Expect("replan_required"),
+            "powder on the wall → wash, re-inspect (rounds)",
+            {"dirty": True, "powder_amount": 0.15, "seed": 29},
+            Expect("completed"),
+            params={"mode": "wash_and_verify"},
         ),
+        beyond,
     ]
 
 
@@ -182,42 +202,7 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     # systematic parking offset (an obstacle where the base would park).
     nudged = (0.008, -0.006, math.radians(0.5))
     moved = (-0.15, 0.0, math.radians(5.0))
-    stages = (
-        _whole_stages(bt, home, nudged, moved)
-        if not args.single_station
-        else [
-            Stage(
-                f"new {bt} bin → no plan",
-                {"bin_type": bt, "bin_xyz_yaw": home, "dirty": False, "park_offset_xy_yaw": (0.0, 0.0, 0.0)},
-                Expect("replan_required"),
-                after="wait_plan",
-            ),
-            Stage("same bin, clean → plan found, scan", {}, Expect("completed", "clean")),
-            Stage(
-                "parked 10 mm, 0.5° off → adjusted, scan",
-                {"park_offset_xy_yaw": nudged},
-                Expect("completed", "clean", True),
-            ),
-            Stage(
-                "same place, powder on the bin → dirty",
-                {"dirty": True, "powder_amount": 0.6, "seed": 7},
-                Expect("completed", "dirty"),
-            ),
-            # the verdict is not asserted: on the twin the rounds leave dirt the nozzle cannot reach
-            # from this park (docs/washing/README.md); the rounds and their pictures are the story
-            Stage(
-                "powder on the wall → wash, re-inspect (rounds)",
-                {"dirty": True, "powder_amount": 0.15, "seed": 29},
-                Expect("completed"),
-                params={"mode": "wash_and_verify"},
-            ),
-            Stage(
-                "parked 0.15 m back, 5° off → beyond tolerance",
-                {"park_offset_xy_yaw": moved, "dirty": False},
-                Expect("replan_required"),
-            ),
-        ]
-    )
+    stages = _stories(bt, home, nudged, moved, whole=not args.single_station)
 
     def _terminate(signum: int, _frame: object) -> None:
         raise KeyboardInterrupt(f"signal {signum}")  # unwinds the cell: workers stopped, logs closed

@@ -90,24 +90,23 @@ def foreign_mesh(name: str = "foreign_long") -> Any:
             row_spacing=0.07,
             top_rings=3,
         )
-        V, F, S = build_mesh(d)
-        return mesh_from_arrays(V, F, name=d.name, internal=S == FACE_TAG["internal"])
-    d = BinDesign(
-        name="foreign_long",
-        description="long narrow bin with a bulge and an inset opening on two skids",
-        outline="rect",
-        half_x=0.25,
-        half_y=0.55,
-        sections=((0.0, 1.0, 1.0), (-0.25, 1.12, 1.06), (-0.65, 0.85, 0.9)),
-        hole=("inset", 0.07),
-        legs=((0.0, -0.38), (0.0, 0.38)),
-        leg_size=0.09,
-        leg_top_z=-0.65,
-        height=0.9,
-        n_perimeter=72,
-        row_spacing=0.08,
-        top_rings=3,
-    )
+    else:
+        d = BinDesign(
+            name="foreign_long",
+            description="long narrow bin with a bulge and an inset opening on two skids",
+            outline="rect",
+            half_x=0.25,
+            half_y=0.55,
+            sections=((0.0, 1.0, 1.0), (-0.25, 1.12, 1.06), (-0.65, 0.85, 0.9)),
+            hole=("inset", 0.07),
+            legs=((0.0, -0.38), (0.0, 0.38)),
+            leg_size=0.09,
+            leg_top_z=-0.65,
+            height=0.9,
+            n_perimeter=72,
+            row_spacing=0.08,
+            top_rings=3,
+        )
     V, F, S = build_mesh(d)
     return mesh_from_arrays(V, F, name=d.name, internal=S == FACE_TAG["internal"])
 
