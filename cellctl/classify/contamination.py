@@ -23,9 +23,10 @@ family           what it draws
 Optics (:func:`optics`) then vary blur, exposure, white balance, sensor noise and JPEG for
 the clean and the dirty version of a draw alike (same parameters, same noise seed), so that
 the *visible* mask is exactly what contamination changes in the final image: a pixel shows
-contamination when its opacity is ≥ :data:`VISIBLE_ALPHA` and the contamination changes it
-by at least :data:`~cellctl.classify.sample.MIN_CONTRAST` grey levels — judged at the
-classifier's input size (:data:`MODEL_INPUT_PX`), where a hair-thin fibre averages away.
+contamination when its opacity is ≥ :data:`VISIBLE_ALPHA` and the patch around it changes in
+mean colour by ΔE*ab ≥ :data:`MIN_DELTA_E` or in RMS contrast by ≥ :data:`MIN_CONTRAST_L` L*
+— judged at the classifier's input size (:data:`MODEL_INPUT_PX`), where a hair-thin fibre
+averages away.
 Images are labelled by :func:`~cellctl.classify.sample.label_from_mask` on that visible map
 (the twin's rule).
 
@@ -42,7 +43,6 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from cellctl.classify.sample import MIN_CONTRAST
 from cellctl.classify.texture import Look, fbm, steel_image
 from cellctl.errors import ClassifierError
 
@@ -57,12 +57,25 @@ __all__ = [
     "optics",
     "visible_mask",
     "MODEL_INPUT_PX",
+    "MIN_CONTRAST_L",
+    "MIN_DELTA_E",
+    "PATCH_SIGMA",
 ]
 
 VISIBLE_ALPHA = 0.1
 """Opacity from which a contaminated pixel can count as visible (films are thin: 0.3–0.65)."""
-LOWPASS_SIGMA = 1.0
-"""Blur (px at the model input) before the contrast test of :func:`visible_mask` with ``at_px``."""
+PATCH_SIGMA = 2.0
+"""Gaussian window (px at the model input, ~5 px wide: a third of a detector patch) over which
+:func:`visible_mask` compares the dirty and the clean image."""
+MIN_DELTA_E = 5.0
+"""Patch mean colour difference (CIELAB ΔE*ab) from which contamination counts as visible: about
+two just-noticeable differences (JND ≈ 2.3), where an untrained observer calls two colours
+different at a glance; well above the training optics' noise on a patch mean (σ ≤ 5 grey levels
+over ~25 px: < 0.5 ΔE)."""
+MIN_CONTRAST_L = 3.0
+"""Patch RMS-contrast change (L* units) from which appearing or vanishing texture counts as
+visible: the brushed grain's own RMS contrast at the model input is ~3.5 L* (polished ~1.1), so
+a haze must wipe out about all of the grain, or a fibre add as much texture as the grain has."""
 MODEL_INPUT_PX = 128
 """Side of the square the classifiers see; labels judge visibility there (:func:`visible_mask`)."""
 
@@ -338,27 +351,52 @@ def optics(img: F32, o: Optics) -> NDArray[np.uint8]:
 def visible_mask(
     dirty: NDArray[np.uint8], clean: NDArray[np.uint8], alpha: F32, at_px: int | None = None
 ) -> NDArray[np.float32]:
-    """1 where contamination lies (opacity ≥ :data:`VISIBLE_ALPHA`) *and* changes the final
-    image by ≥ ``MIN_CONTRAST`` grey levels (any channel) against the same draw without it.
+    """1 where contamination lies (opacity ≥ :data:`VISIBLE_ALPHA`) *and* visibly changes a
+    patch of the final image against the same draw without it.
+
+    "Visibly" is judged per patch (a Gaussian window of σ = :data:`PATCH_SIGMA` px around each
+    pixel) in CIELAB, by either of two criteria a person looking at the picture would use:
+
+    * the patch's mean colour moves by ΔE*ab ≥ :data:`MIN_DELTA_E` (a colour or brightness
+      change: powder, stains, droplets, streaks);
+    * the patch's RMS contrast in L* changes by ≥ :data:`MIN_CONTRAST_L` (texture that
+      appears, such as a fibre, or that a haze wipes out).
+
+    A single pixel's change is not enough: a thin film that slightly blurs brushed grain moves
+    individual grain-line pixels by more than 12 grey levels while the picture looks the same,
+    and labelling that dirty set the false-clean threshold by invisible "dirt".
 
     Args:
         at_px: judge visibility at this square size (the images and ``alpha`` resized with
-            ``INTER_AREA``, as the classifier squashes its input): a 1-px fibre or a 3-px
-            fingerprint ridge pattern that averages away at the model's input is not
-            "visible" to it, and labelling it dirty would only teach noise. None = as given.
+            ``INTER_AREA``, as the classifier squashes its input): what averages away at the
+            model's input is not visible to it. None = as given.
     """
+    d = np.asarray(dirty)
+    c = np.asarray(clean)
+    a = alpha.astype(np.float32)
     if at_px is not None:
 
         def sq(x: np.ndarray) -> np.ndarray:
             return cv2.resize(x, (at_px, at_px), interpolation=cv2.INTER_AREA)
 
-        # low-pass both: blurring brushed grain moves single pixels by more than the
-        # contrast limit while the image looks the same; what counts is a regional change
-        dirty = cv2.GaussianBlur(sq(dirty).astype(np.float32), (0, 0), LOWPASS_SIGMA)
-        clean = cv2.GaussianBlur(sq(clean).astype(np.float32), (0, 0), LOWPASS_SIGMA)
-        alpha = sq(alpha.astype(np.float32))
-    diff = np.abs(dirty.astype(np.float32) - clean.astype(np.float32)).max(axis=2)
-    return ((alpha >= VISIBLE_ALPHA) & (diff >= MIN_CONTRAST)).astype(np.float32)
+        d, c, a = sq(d), sq(c), sq(a)
+
+    def lab(x: np.ndarray) -> F32:
+        return cv2.cvtColor(x.astype(np.float32) / 255.0, cv2.COLOR_RGB2LAB)
+
+    def win(x: np.ndarray) -> F32:
+        return cv2.GaussianBlur(x, (0, 0), PATCH_SIGMA)
+
+    ld, lc = lab(d), lab(c)
+    md, mc = win(ld), win(lc)
+    delta_e = np.sqrt(((md - mc) ** 2).sum(axis=2))
+
+    def rms(lum: F32, mean: F32) -> F32:
+        return np.sqrt(np.maximum(win(lum * lum) - mean * mean, 0.0))
+
+    d_contrast = np.abs(rms(ld[..., 0], md[..., 0]) - rms(lc[..., 0], mc[..., 0]))
+    seen = (delta_e >= MIN_DELTA_E) | (d_contrast >= MIN_CONTRAST_L)
+    return ((a >= VISIBLE_ALPHA) & seen).astype(np.float32)
 
 
 def closeup_steel(

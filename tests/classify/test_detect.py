@@ -58,6 +58,35 @@ def test_visible_mask_needs_contrast_after_the_optics() -> None:
     assert visible_mask(optics(base, o), optics(base, o), alpha).sum() == 0  # same image: nothing visible
 
 
+def _flat(level: int, size: int = 64) -> np.ndarray:
+    return np.full((size, size, 3), level, np.uint8)
+
+
+def test_visible_mask_counts_a_patch_colour_change_from_min_delta_e() -> None:
+    alpha = np.ones((64, 64), np.float32)
+    # mid grey: 3 grey levels are ~1.2 L* (below MIN_DELTA_E), 20 levels ~7.6 L* (above)
+    assert visible_mask(_flat(123), _flat(120), alpha).sum() == 0
+    assert visible_mask(_flat(140), _flat(120), alpha).all()
+    tinted = _flat(120).copy()
+    tinted[..., 0] += 12  # a reddish cast at the same brightness class: a colour difference
+    assert visible_mask(tinted, _flat(120), alpha).all()
+
+
+def test_visible_mask_ignores_scattered_pixel_changes_but_sees_vanished_texture() -> None:
+    rng = np.random.default_rng(4)
+    alpha = np.ones((64, 64), np.float32)
+    clean = _flat(120)
+    speckled = clean.copy()
+    speckled[::6, ::6] += 25  # single grain-line pixels moved by 25 grey levels: the picture looks the same
+    assert np.abs(speckled.astype(int) - clean.astype(int)).max() >= 12  # the old per-pixel rule said dirty
+    assert visible_mask(speckled, clean, alpha).sum() == 0
+    # strong texture (RMS ~ 10 L*) wiped flat at the same mean: a haze
+    grain = np.clip(120 + rng.normal(0, 25, (64, 64, 1)), 0, 255).astype(np.uint8).repeat(3, axis=2)
+    assert visible_mask(np.full_like(grain, int(grain.mean())), grain, alpha)[8:-8, 8:-8].all()
+    # ...and nothing where the contamination does not lie, however the image changed
+    assert visible_mask(_flat(200), clean, np.zeros((64, 64), np.float32)).sum() == 0
+
+
 def test_held_out_families_are_not_training_families() -> None:
     assert not set(HELD_OUT_FAMILIES) & set(FAMILIES)
     with pytest.raises(ClassifierError, match="unknown"):
