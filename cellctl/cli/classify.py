@@ -106,6 +106,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     dt.add_argument("--epochs", type=int, default=12)
     dt.add_argument("--bank-size", type=int, default=1024)
     dt.add_argument("--target-false-clean", type=float, default=0.01)
+    dt.add_argument(
+        "--init-from",
+        default=None,
+        metavar="DETECT_PT",
+        help="continue fine-tuning from this format-2 detector of the same surface (bank, fusion, threshold refitted)",
+    )
     add_config_arguments(dt)
     dt.set_defaults(func=run_detector_train)
     de = dv.add_parser("eval", help="evaluate a surface's detector on every image of a folder")
@@ -263,6 +269,7 @@ def run_detector_train(args: argparse.Namespace) -> int:
         epochs=args.epochs,
         bank_size=args.bank_size,
         target_false_clean=args.target_false_clean,
+        init_from=args.init_from,
     )
     print(json.dumps({"model_id": card["model_id"], "test": card["metrics"]["test"], "seconds": card["train_seconds"]}))
     return 0

@@ -164,6 +164,19 @@ def test_detector_trains_predicts_and_reloads(contam: Path, tmp_path: Path) -> N
     assert Detector.load(tmp_path / "old.detect.pt").predict([img])[0].heat.shape == (16, 16)
     with pytest.raises(ClassifierError, match="expected 'internal'|for 'external'"):
         Detector.load(out, surface="internal")
+    # continuing from it: 0 epochs keep its backbone and head exactly, bank and threshold refitted
+    cont = tmp_path / "cont" / "external.detect.pt"
+    card2 = train_detector(contam / "train", "external", cont, epochs=0, bank_size=64, init_from=out)
+    assert card2["init_from"]["sha256"] == card["sha256"] and "--init-from" in card2["command"]
+    b2 = torch.load(cont, weights_only=True)
+    assert all(torch.equal(b2["backbone"][k], blob["backbone"][k]) for k in blob["backbone"])
+    assert all(torch.equal(b2["head"][k], blob["head"][k]) for k in blob["head"])
+    with pytest.raises(ClassifierError, match="needs a backbone"):
+        train_detector(
+            contam / "train", "external", tmp_path / "x.detect.pt", epochs=0, init_from=tmp_path / "old.detect.pt"
+        )
+    with pytest.raises(ClassifierError, match="expected 'internal'"):
+        train_detector(contam / "train", "internal", tmp_path / "y.detect.pt", epochs=0, init_from=out)
     card_path = out.with_suffix(".json")
     card_path.write_text(card_path.read_text().replace(card["sha256"], "0" * 64))
     with pytest.raises(ClassifierError, match="other weights"):
