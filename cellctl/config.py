@@ -346,6 +346,14 @@ class BaseConfig(_Model):
 
     backend: Literal["sim", "manual"] = "sim"
     confirm_timeout_s: float = Field(default=300.0, gt=0, le=3600, description="manual: wait for the confirmation")
+    # An AMR docking on its markers repeats to a few mm; its map pose is what carries the bin pose to a
+    # station that cannot see the board (bin_pose_source base_odometry), so its error bounds the cycle's there.
+    localisation_error_m: float = Field(
+        default=0.005, ge=0, le=0.5, description="error of the parked pose the base reports (sim: drawn per park)"
+    )
+    localisation_error_deg: float = Field(
+        default=0.2, ge=0, le=30, description="yaw error of the parked pose the base reports (sim: drawn per park)"
+    )
 
 
 class SimConfig(_Model):

@@ -473,8 +473,11 @@ class StationResult(BaseModel):
 
     station: int = Field(ge=0, description="the station's rank in the whole-bin plan")
     base_pose: PoseMsg | None = Field(default=None, description="planned base pose, bin frame (frame_id 'bin')")
-    bin_pose_source: Literal["measured", "carried_over"] | None = Field(
-        default=None, description="measured from the board here, or the planned station pose (board not visible)"
+    bin_pose_source: Literal["measured", "base_odometry", "carried_over"] | None = Field(
+        default=None,
+        description="measured from the board here; base_odometry: the pose measured at an earlier station carried "
+        "through the base's reported motion (board not visible); carried_over: the planned station pose (board not "
+        "visible, the base reports no pose)",
     )
     plan_ids: dict[str, str] = Field(default_factory=dict, description="surface -> plan used")
     adjusted: dict[str, bool] = Field(default_factory=dict, description="surface -> viewpoints re-expressed")
@@ -559,6 +562,11 @@ class ApproachReply(WireMessage):
     flange_pose: PoseMsg
     camera_pose: PoseMsg
     observation_index: int = 0
+    base_pose: PoseMsg | None = Field(
+        default=None,
+        description="where the mobile base says it is parked: its localisation, frame_id 'map' (T_map_base); "
+        "None: the base reports no pose",
+    )
 
 
 class MoveRequest(WireMessage):

@@ -28,6 +28,7 @@ __all__ = [
     "HOME_JOINTS",
     "Scenario",
     "nominal_T_bin_base",
+    "localised",
     "observation_T_bin_cam",
     "park",
 ]
@@ -107,15 +108,29 @@ def park(
     T_bin_base: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
     """True ``T_world_base`` after parking at ``T_bin_base`` (default: the nominal pose) plus a seeded planar error."""
-    rng = np.random.default_rng([scenario.seed, attempt, 7919])
-    r = error_m * np.sqrt(rng.uniform())
-    a = rng.uniform(0, 2 * np.pi)
-    dyaw = np.radians(error_deg) * rng.uniform(-1, 1)
-    err = transform_from_xyz_rpy([r * np.cos(a), r * np.sin(a), 0.0], [0.0, 0.0, dyaw])
+    err = _planar_error(np.random.default_rng([scenario.seed, attempt, 7919]), error_m, error_deg)
     ox, oy, oyaw = scenario.park_offset_xy_yaw
     offset = transform_from_xyz_rpy([ox, oy, 0.0], [0.0, 0.0, oyaw])
     target = nominal_T_bin_base(bin_type, mesh) if T_bin_base is None else np.asarray(T_bin_base, dtype=float)
     return scenario.T_world_bin(bin_type) @ target @ offset @ err
+
+
+def localised(scenario: Scenario, error_m: float, error_deg: float, attempt: int = 0) -> NDArray[np.float64]:
+    """The parked ``T_world_base`` as the twin's base reports it (its localisation; the world is its map).
+
+    The truth times a planar error drawn once per park (seeded by the scenario's seed and the park
+    attempt, apart from the parking error's draw): uniform in a disc of ``error_m`` and ±``error_deg``
+    of yaw, as :func:`park` draws the parking error.
+    """
+    return scenario.base() @ _planar_error(np.random.default_rng([scenario.seed, attempt, 104729]), error_m, error_deg)
+
+
+def _planar_error(rng: np.random.Generator, error_m: float, error_deg: float) -> NDArray[np.float64]:
+    """A base-frame planar error: uniform in a disc of ``error_m``, yaw uniform in ±``error_deg``."""
+    r = error_m * np.sqrt(rng.uniform())
+    a = rng.uniform(0, 2 * np.pi)
+    dyaw = np.radians(error_deg) * rng.uniform(-1, 1)
+    return transform_from_xyz_rpy([r * np.cos(a), r * np.sin(a), 0.0], [0.0, 0.0, dyaw])
 
 
 def observation_T_bin_cam(bin_type: BinType, index: int) -> NDArray[np.float64]:

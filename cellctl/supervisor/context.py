@@ -137,6 +137,10 @@ class CycleContext:
     bin_poses: dict[int, np.ndarray] = field(default_factory=dict)
     """station → T_base_bin used there (measured, or the planned station pose when carried over)."""
     pose_source: dict[int, str] = field(default_factory=dict)
+    T_map_base: np.ndarray | None = None
+    """The base's reported pose (its localisation, ApproachReply.base_pose) at the current park; None: no report."""
+    T_map_bin: np.ndarray | None = None
+    """The bin in the base's map frame, from the latest pose measured with a base report (base_odometry)."""
     station_coverage: dict[tuple[int | None, str | None], float | None] = field(default_factory=dict)
     coverage_by_surface: dict[str, float | None] | None = None
     station_notes: dict[int, str] = field(default_factory=dict)

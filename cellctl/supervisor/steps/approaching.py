@@ -3,6 +3,8 @@
 In a whole-bin cycle the base parks at the current station's planned pose (bin frame) once the
 stations are known (the first park, before the bin is identified, is the nominal one); at a
 station that cannot see the board the arm stays tucked (identifying carries the pose over).
+Each park keeps the pose the base reports for it (``T_map_base``: the twin's in the approach
+reply, else the Base driver's localisation) for that carrying over.
 
 The base parks through the Base interface (``base.backend``) first: ``manual`` waits here for
 the operator's/PLC's ``base_parked`` command (timeout ``base.confirm_timeout_s``), ``sim``
@@ -12,10 +14,16 @@ leaves the drive to the twin. Then the robot worker is told the base is parked (
 from __future__ import annotations
 
 import threading
+from typing import TYPE_CHECKING
+
+import numpy as np
 
 from cellctl.messages import ApproachReply, ApproachRequest
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
+
+if TYPE_CHECKING:
+    from cellctl.workers.base import Base
 
 
 def approach_request(run: StepRun, observation_index: int, park: bool) -> ApproachRequest:
@@ -31,12 +39,21 @@ def approach_request(run: StepRun, observation_index: int, park: bool) -> Approa
     )
 
 
+def reported_base_pose(reply: ApproachReply, base: Base | None) -> np.ndarray | None:
+    """``T_map_base`` the base reports for this park: the twin's, in the approach reply, else the Base
+    driver's localisation; None when neither reports one."""
+    if reply.base_pose is not None and reply.base_pose.frame_id == "map":
+        return reply.base_pose.matrix()
+    T = base.pose() if base is not None else None
+    return None if T is None else np.asarray(T, dtype=np.float64)
+
+
 class Approaching(Step):
     NAME = "approaching"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "park beside the bin (at the station, first attempt) and move to observation pose k"
     READS = ("observation_index",)
-    WRITES = ("approach",)
+    WRITES = ("approach", "T_map_base")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
@@ -52,6 +69,8 @@ class Approaching(Step):
         req = approach_request(run, ctx.observation_index, first)
         reply, _ = run.call("robot", "approach", req, ApproachReply)
         ctx.approach = reply
+        if first:  # a new park: only this park's report may carry a pose to it
+            ctx.T_map_base = reported_base_pose(reply, ctx.base)
         return "succeeded"
 
     @staticmethod

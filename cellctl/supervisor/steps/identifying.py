@@ -36,7 +36,7 @@ class Identifying(Step):
     OUTCOMES = ("succeeded", "retry", "failed")
     DESCRIPTION = "ChArUco → bin type + T_base_bin; fuses several views if configured; retries from the next pose"
     READS = ("approach", "observation_index", "identify_attempts")
-    WRITES = ("identify_attempts", "observation_index", "identification", "bin_type", "T_base_bin")
+    WRITES = ("identify_attempts", "observation_index", "identification", "bin_type", "T_base_bin", "T_map_bin")
 
     def _view(self, run: StepRun, T_base_cam: np.ndarray) -> Identification:
         ctx = run.ctx
@@ -101,6 +101,8 @@ class Identifying(Step):
             ctx.pose_source[st.station] = "measured"
         ctx.bin_type = bin_type
         ctx.T_base_bin = T_base_bin
+        # where the bin stands in the base's map: what a station without the board is told (base_odometry)
+        ctx.T_map_bin = ctx.T_map_base @ T_base_bin if ctx.T_map_base is not None else None
         from cellctl.recording import foxglove
 
         ctx.log.write_json(topics.BIN_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", T_base_bin))
@@ -110,8 +112,10 @@ class Identifying(Step):
 
     @staticmethod
     def _carry_over(run: StepRun, st) -> str:  # noqa: ANN001 - StationInfo
-        """A station that cannot see the board: the bin pose is the planned station pose (decisions.md)."""
-        from cellctl.geometry.transforms import invert
+        """A station that cannot see the board: the bin pose measured at an earlier station, carried
+        through the base's reported motion since (``base_odometry``); the planned station pose when the
+        base reports no pose (``carried_over``). See decisions.md."""
+        from cellctl.geometry.transforms import invert, pose_error
         from cellctl.recording import foxglove
 
         ctx = run.ctx
@@ -120,9 +124,21 @@ class Identifying(Step):
                 f"station {st.station} cannot see the board ({st.identify_reason}) and no earlier station "
                 "identified the bin"
             )
-        ctx.T_base_bin = invert(st.base_pose.matrix())
+        planned = invert(st.base_pose.matrix())
+        if ctx.T_map_bin is not None and ctx.T_map_base is not None:
+            ctx.T_base_bin = invert(ctx.T_map_base) @ ctx.T_map_bin
+            source = "base_odometry"
+            dt, dr = pose_error(planned, ctx.T_base_bin)
+            how = (
+                f"carried from the last measured station by the base's reported motion "
+                f"({dt * 1000:.1f} mm / {np.degrees(dr):.2f} deg from the planned station pose)"
+            )
+        else:
+            ctx.T_base_bin = planned
+            source = "carried_over"
+            how = "carried over (planned station pose: the base reports no pose)"
         ctx.bin_poses[st.station] = ctx.T_base_bin
-        ctx.pose_source[st.station] = "carried_over"
+        ctx.pose_source[st.station] = source
         ctx.log.write_json(topics.BIN_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", ctx.T_base_bin))
-        run.event("info", f"station {st.station}: board not visible, bin pose carried over (planned station pose)")
+        run.event("info", f"station {st.station}: board not visible, bin pose {how}")
         return "succeeded"

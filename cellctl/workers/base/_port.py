@@ -8,6 +8,9 @@ import time
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numpy as np
+from numpy.typing import NDArray
+
 from cellctl.config import CellConfig
 from cellctl.errors import ConfigError, RobotError
 
@@ -41,6 +44,15 @@ class Base(abc.ABC):
     @abc.abstractmethod
     def stop(self, reason: str) -> None:
         """Stop driving now; a park in progress raises RobotError."""
+
+    def pose(self) -> NDArray[np.float64] | None:
+        """Where the base says it is parked, ``T_map_base`` (4, 4) in its map frame, or None: it reports none.
+
+        A vendor AMR's driver returns its localisation here; the cycle carries the bin pose measured
+        at an earlier station through it to a station that cannot see the board (``base_odometry``).
+        The ``sim`` base's report comes with the robot worker's approach reply (the twin parks it).
+        """
+        return None
 
 
 def _check_station(station: int) -> int:

@@ -4,6 +4,9 @@ Motions follow the :mod:`cellctl.motion` trajectory of the planned path (the sam
 backend sends to the controller) in simulated time × ``robot.speed_scale``; joints are updated
 along the way (published by the worker), and :meth:`SimRobot.stop` interrupts a motion where
 it is.
+
+The twin's mobile base reports where it parked (:class:`TwinBaseReport`): the true park plus
+its localisation error (``base.localisation_error_m``/``_deg``), on every approach reply.
 """
 
 from __future__ import annotations
@@ -15,15 +18,36 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.errors import RobotError
+from cellctl.messages import ApproachReply, ApproachRequest, PoseMsg
+from cellctl.sim import scene
 from cellctl.workers.robot._planned import DRIVE_S, FROZEN_GAP_S, PlannedRobot
 
-__all__ = ["DRIVE_S", "FROZEN_GAP_S", "SimRobot"]
+__all__ = ["DRIVE_S", "FROZEN_GAP_S", "SimRobot", "TwinBaseReport"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
 
 
-class SimRobot(PlannedRobot):
+class TwinBaseReport:
+    """For a twin-backed :class:`PlannedRobot` (put it first in the bases): the twin parks the base,
+    so the twin's base reports its pose, ``ApproachReply.base_pose`` (frame ``map``, the twin's world).
+
+    A station whose board is not visible then gets the bin pose measured at an earlier station
+    carried through the base's reported motion, so only the localisation error is left
+    unmeasured there, not the parking error. Only the ``sim`` base reports: a ``manual`` one is
+    parked by a person, with no localisation to report.
+    """
+
+    def approach(self, req: ApproachRequest) -> ApproachReply:
+        reply = super().approach(req)  # type: ignore[misc]
+        if self.cfg.base.backend != "sim" or not self._parked:  # type: ignore[attr-defined]
+            return reply
+        b = self.cfg.base  # type: ignore[attr-defined]
+        T = scene.localised(self._scenario, b.localisation_error_m, b.localisation_error_deg, self._park_attempt)  # type: ignore[attr-defined]
+        return reply.model_copy(update={"base_pose": PoseMsg.from_matrix(T, "map")})
+
+
+class SimRobot(TwinBaseReport, PlannedRobot):
     """The sim backend of the robot role (see :class:`PlannedRobot` for the arguments)."""
 
     publishes_twin = True
