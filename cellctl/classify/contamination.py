@@ -24,7 +24,8 @@ Optics (:func:`optics`) then vary blur, exposure, white balance, sensor noise an
 the clean and the dirty version of a draw alike (same parameters, same noise seed), so that
 the *visible* mask is exactly what contamination changes in the final image: a pixel shows
 contamination when its opacity is ≥ :data:`VISIBLE_ALPHA` and the patch around it changes in
-mean colour by ΔE*ab ≥ :data:`MIN_DELTA_E` or in RMS contrast by ≥ :data:`MIN_CONTRAST_L` L*
+mean colour by ΔE*ab ≥ :data:`MIN_DELTA_E` or in RMS contrast by ≥ :data:`MIN_CONTRAST_L` L* and
+a factor :data:`CONTRAST_RATIO`
 — judged at the classifier's input size (:data:`MODEL_INPUT_PX`), where a hair-thin fibre
 averages away.
 Images are labelled by :func:`~cellctl.classify.sample.label_from_mask` on that visible map
@@ -57,6 +58,7 @@ __all__ = [
     "optics",
     "visible_mask",
     "MODEL_INPUT_PX",
+    "CONTRAST_RATIO",
     "MIN_CONTRAST_L",
     "MIN_DELTA_E",
     "PATCH_SIGMA",
@@ -73,9 +75,15 @@ two just-noticeable differences (JND ≈ 2.3), where an untrained observer calls
 different at a glance; well above the training optics' noise on a patch mean (σ ≤ 5 grey levels
 over ~25 px: < 0.5 ΔE)."""
 MIN_CONTRAST_L = 3.0
-"""Patch RMS-contrast change (L* units) from which appearing or vanishing texture counts as
-visible: the brushed grain's own RMS contrast at the model input is ~3.5 L* (polished ~1.1), so
-a haze must wipe out about all of the grain, or a fibre add as much texture as the grain has."""
+"""Smallest patch RMS-contrast change (L* units) that counts as visible texture change: about
+the brushed grain's own RMS contrast at the model input (~3.5 L*; polished ~1.1)."""
+CONTRAST_RATIO = 2.0
+"""...and the change must also be by this factor (contrast halved or doubled). Contrast
+discrimination on a visible texture follows Weber's law (a just-noticeable change is ~25 % of
+the texture's own contrast, Legge & Foley 1980), so a fixed L* step is invisible on strong grain:
+a factor 2 is about two such steps, the same margin as :data:`MIN_DELTA_E` over a colour JND.
+Without it, a light film over coarse brushed grain (a σ 1.5 px veil: the grain drops by > 3 L*,
+the picture barely changes) was labelled dirty and set the false-clean threshold."""
 MODEL_INPUT_PX = 128
 """Side of the square the classifiers see; labels judge visibility there (:func:`visible_mask`)."""
 
@@ -359,8 +367,8 @@ def visible_mask(
 
     * the patch's mean colour moves by ΔE*ab ≥ :data:`MIN_DELTA_E` (a colour or brightness
       change: powder, stains, droplets, streaks);
-    * the patch's RMS contrast in L* changes by ≥ :data:`MIN_CONTRAST_L` (texture that
-      appears, such as a fibre, or that a haze wipes out).
+    * the patch's RMS contrast in L* changes by ≥ :data:`MIN_CONTRAST_L` and by a factor
+      ≥ :data:`CONTRAST_RATIO` (texture that appears, such as a fibre, or that a haze wipes out).
 
     A single pixel's change is not enough: a thin film that slightly blurs brushed grain moves
     individual grain-line pixels by more than 12 grey levels while the picture looks the same,
@@ -394,8 +402,10 @@ def visible_mask(
     def rms(lum: F32, mean: F32) -> F32:
         return np.sqrt(np.maximum(win(lum * lum) - mean * mean, 0.0))
 
-    d_contrast = np.abs(rms(ld[..., 0], md[..., 0]) - rms(lc[..., 0], mc[..., 0]))
-    seen = (delta_e >= MIN_DELTA_E) | (d_contrast >= MIN_CONTRAST_L)
+    rd, rc = rms(ld[..., 0], md[..., 0]), rms(lc[..., 0], mc[..., 0])
+    hi, lo = np.maximum(rd, rc), np.minimum(rd, rc)
+    texture = (hi - lo >= MIN_CONTRAST_L) & (hi >= CONTRAST_RATIO * lo)
+    seen = (delta_e >= MIN_DELTA_E) | texture
     return ((a >= VISIBLE_ALPHA) & seen).astype(np.float32)
 
 

@@ -83,10 +83,16 @@ def heat_png(heat: NDArray[np.floating], width: int = 256, height: int = 144) ->
     return buf.tobytes()
 
 
-def _samples(mesh: Any, faces: NDArray[np.int64]) -> NDArray[np.float64]:
+def _samples(mesh: Any, faces: NDArray[np.int64], subdiv: int = 0) -> NDArray[np.float64]:
+    """Points of each face: ``subdiv`` 0 = centroid and three points half-way to the corners;
+    ``subdiv`` k ≥ 1 = the barycentric grid of step 1/k (corners and edges included:
+    (k+1)(k+2)/2 points), so a spot anywhere on a large face lands on a sample."""
     tri = mesh.vertices[mesh.faces[faces]]  # (F, 3, 3)
     c = tri.mean(axis=1)
-    return np.stack([c, *(0.5 * (c + tri[:, k]) for k in range(3))], axis=1)  # (F, 4, 3)
+    if subdiv <= 0:
+        return np.stack([c, *(0.5 * (c + tri[:, k]) for k in range(3))], axis=1)  # (F, 4, 3)
+    w = np.array([(i, j, subdiv - i - j) for i in range(subdiv + 1) for j in range(subdiv + 1 - i)], np.float64)
+    return np.einsum("sk,fkd->fsd", w / subdiv, tri)
 
 
 def project_heat(
@@ -95,6 +101,7 @@ def project_heat(
     intrinsics: Any,
     mesh: Any,
     faces: NDArray[np.int64] | list[int],
+    subdiv: int = 0,
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """Probability per visible face from one view's heat map.
 
@@ -113,7 +120,9 @@ def project_heat(
     if len(faces) == 0:
         return faces, np.zeros(0)
     g = heat.shape[0]
-    pts = _samples(mesh, faces).reshape(-1, 3)
+    per = _samples(mesh, faces, subdiv)
+    ns = per.shape[1]
+    pts = per.reshape(-1, 3)
     T_cam_bin = np.linalg.inv(np.asarray(T_bin_cam, np.float64))
     pc = pts @ T_cam_bin[:3, :3].T + T_cam_bin[:3, 3]
     z = pc[:, 2]
@@ -128,7 +137,7 @@ def project_heat(
     fx, fy = gx - x0, gy - y0
     h = np.asarray(heat, np.float64)
     val = (h[y0, x0] * (1 - fx) + h[y0, x1] * fx) * (1 - fy) + (h[y1, x0] * (1 - fx) + h[y1, x1] * fx) * fy
-    val = np.where(ok, val, -1.0).reshape(len(faces), 4)
+    val = np.where(ok, val, -1.0).reshape(len(faces), ns)
     seen = (val >= 0).any(axis=1)
     return faces[seen], val[seen].max(axis=1)
 
@@ -144,6 +153,10 @@ class FaceFusion:
 
     n_faces: int
     prior: float = 0.1
+    clean_weight: float = 1.0
+    """Weight of a view's clean evidence (negative log-odds): a view that saw a face without
+    resolving a small spot on it (far, grazing) must not cancel the view that did."""
+    max_view_logit: float = MAX_VIEW_LOGIT
     llr: NDArray[np.float64] = field(init=False)
     views: NDArray[np.int32] = field(init=False)
 
@@ -156,7 +169,8 @@ class FaceFusion:
     def add(self, faces: NDArray[np.int64], p: NDArray[np.float64]) -> None:
         """One view's probabilities for ``faces``."""
         q = np.clip(np.asarray(p, np.float64), 1e-6, 1 - 1e-6)
-        self.llr[faces] += np.clip(np.log(q / (1 - q)), -MAX_VIEW_LOGIT, MAX_VIEW_LOGIT)
+        z = np.clip(np.log(q / (1 - q)), -self.max_view_logit, self.max_view_logit)
+        self.llr[faces] += np.where(z < 0, self.clean_weight * z, z)
         self.views[faces] += 1
 
     def probability(self) -> NDArray[np.float64]:
@@ -261,13 +275,21 @@ def face_probabilities(dirt_map: dict[str, Any], n_faces: int) -> NDArray[np.flo
 
 
 def fuse_views(
-    views: list[ViewEvidence], mesh: Any, intrinsics: Any, *, prior: float = 0.1, face_threshold: float = 0.5
+    views: list[ViewEvidence],
+    mesh: Any,
+    intrinsics: Any,
+    *,
+    prior: float = 0.1,
+    face_threshold: float = 0.5,
+    clean_weight: float = 1.0,
+    max_view_logit: float = MAX_VIEW_LOGIT,
+    subdiv: int = 0,
 ) -> FaceMap:
     """All views of a cycle → per-face dirt probability (:class:`FaceFusion`) and dirty faces."""
-    fusion = FaceFusion(mesh.n_faces, prior)
+    fusion = FaceFusion(mesh.n_faces, prior, clean_weight, max_view_logit)
     for v in views:
         if v.heat is not None:
-            faces, p = project_heat(v.heat, v.T_bin_cam, intrinsics, mesh, v.faces)
+            faces, p = project_heat(v.heat, v.T_bin_cam, intrinsics, mesh, v.faces, subdiv)
         else:
             faces = np.asarray(v.faces, np.int64)
             faces = faces[(faces >= 0) & (faces < mesh.n_faces)]

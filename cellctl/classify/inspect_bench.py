@@ -39,7 +39,7 @@ import numpy as np
 
 from cellctl.bench_options import BenchOptions
 
-__all__ = ["KINDS", "bench_inspect"]
+__all__ = ["KINDS", "bench_inspect", "collect_cycles", "score_cycles"]
 
 KINDS = ("clean", "one_spot", "many_spots")
 BENCH_BIN = "case_study"
@@ -89,10 +89,20 @@ def _dirty_faces(field: Any, mesh: Any, threshold: float = 0.5) -> np.ndarray:
 
 def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
     """Run ``opts.n`` cycles (default 200); returns the JSON described in the module doc."""
+    cfg = opts.load_config()
+    run = collect_cycles(opts, cfg)
+    return score_cycles(run, cfg.classifier.verdict, figures_out=opts.out)
+
+
+def collect_cycles(opts: BenchOptions, cfg: Any = None) -> dict[str, Any]:
+    """The detector's side of the bench: every cycle's views (:class:`ViewEvidence`), labels,
+    re-looks and ground truth, before any fusion. :func:`score_cycles` fuses and scores them, so
+    that the fusion and the verdict rule can be compared on the same views (a validation bench
+    with other seeds) without rendering or classifying again."""
     import torch
 
     from cellctl.classify.fusion import load_detectors
-    from cellctl.classify.heatmap import ViewEvidence, fuse_views, relook_pose, verdict
+    from cellctl.classify.heatmap import ViewEvidence, relook_pose
     from cellctl.geometry.camera import CameraModel
     from cellctl.geometry.catalog import load_catalog
     from cellctl.images import encode_image
@@ -105,9 +115,9 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
     from cellctl.surface import SURFACES
 
     torch.set_num_threads(1)  # 2 shared cores: more threads only contend (measured 9 vs 500 ms)
-    cfg = opts.load_config()
+    cfg = cfg if cfg is not None else opts.load_config()
     n = opts.n or 200
-    vc, rc = cfg.classifier.verdict, cfg.classifier.relook
+    rc = cfg.classifier.relook
     dets, problems = load_detectors(cfg.path(cfg.classifier.models_dir))
     if problems:
         from cellctl.errors import ClassifierError
@@ -132,9 +142,7 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
     renderer = SimRenderer(catalog)
     T_world_bin = None
     lat: list[float] = []
-    figures: dict[str, list[str]] = {}
-    tot = {k: 0.0 for k in ("tp", "fp", "fn")}
-    bins: list[dict[str, Any]] = []
+    cycles: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     for i in range(n):
         rng = np.random.default_rng([opts.seed, i, 4711])
@@ -214,11 +222,61 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
             labels.append(d.label)
             if d.uncertain:
                 pending.append((0.0, T2, vp))
-        fm = fuse_views(views, mesh, intr, prior=vc.face_prior, face_threshold=vc.face_threshold)
+        hot = max(shots, key=lambda x: x[0])
+        cycles.append(
+            {
+                "surface": surface,
+                "kind": kind,
+                "gt": gt,
+                "seen_plan": seen_plan,
+                "views": views,
+                "labels": labels,
+                "uncertain": uncertain,
+                "relooks": relooks,
+                # the figures need only the hottest view of a many-spot cycle
+                "hottest": (hot[1], hot[2]) if kind == "many_spots" else None,
+            }
+        )
+        if (i + 1) % 10 == 0:
+            print(f"bench inspect: {i + 1}/{n} cycles, {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return {
+        "cycles": cycles,
+        "mesh": mesh,
+        "intrinsics": intr,
+        "latency_ms": lat,
+        "relook": rc.model_dump(),
+        "setup": {
+            "bin": BENCH_BIN,
+            "seed": opts.seed,
+            "render_px": [intr.width, intr.height],
+            "plans": {
+                s: {"viewpoints": len(p.viewpoints), "coverage": round(float(p.coverage), 4)} for s, p in plans.items()
+            },
+            "models": {s: d.model_id for s, d in dets.items()},
+            "seconds": round(time.perf_counter() - t0, 1),
+            "loadavg_1m": round(os.getloadavg()[0], 2),
+            "torch_threads": 1,
+        },
+    }
+
+
+def score_cycles(run: dict[str, Any], vc: Any, figures_out: Any = None) -> dict[str, Any]:
+    """Fuse each collected cycle's views per face, take the verdict ``vc`` (a
+    :class:`~cellctl.config.VerdictConfig`) and score bins and faces against the truth."""
+    from cellctl.classify.heatmap import fuse_views, verdict
+    from cellctl.surface import SURFACES
+
+    mesh, intr = run["mesh"], run["intrinsics"]
+    figures: dict[str, list[str]] = {}
+    tot = {k: 0.0 for k in ("tp", "fp", "fn")}
+    bins: list[dict[str, Any]] = []
+    for i, c in enumerate(run["cycles"]):
+        surface, kind, gt, labels = c["surface"], c["kind"], c["gt"], c["labels"]
+        fm = fuse_views(c["views"], mesh, intr, **_fusion_kwargs(vc))
         v_faces = verdict(fm, labels, vc.rule, vc.min_dirty_area_cm2)
         v_views = verdict(fm, labels, "views")
         seen = np.zeros(mesh.n_faces, bool)
-        seen[seen_plan] = True
+        seen[c["seen_plan"]] = True
         on = mesh.surface == (0 if surface == "external" else 1)
         gt_seen = gt & seen
         pred = fm.dirty & seen
@@ -234,18 +292,16 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
                 "dirty_unseen_only": bool(gt.any() and not gt_seen.any()),
                 "verdict": v_faces,
                 "verdict_any_view": v_views,
-                "uncertain": uncertain,
-                "relooks": relooks,
-                "views": len(views),
+                "uncertain": c["uncertain"],
+                "relooks": c["relooks"],
+                "views": len(c["views"]),
                 "gt_dirty_area_cm2": round(float(a[gt_seen].sum()) * 1e4, 2),
                 "pred_dirty_area_cm2": round(float(a[pred].sum()) * 1e4, 2),
                 "gt_faces_on_surface": int((gt_seen & on).sum()),
             }
         )
-        if opts.out is not None and kind == "many_spots" and surface not in figures:
-            figures[surface] = _figures(opts.out, surface, i, mesh, fm, gt_seen, shots)
-        if (i + 1) % 10 == 0:
-            print(f"bench inspect: {i + 1}/{n} cycles, {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+        if figures_out is not None and kind == "many_spots" and surface not in figures and c["hottest"] is not None:
+            figures[surface] = _figures(figures_out, surface, i, mesh, fm, gt_seen, c["hottest"])
 
     def rates(key: str) -> dict[str, Any]:
         dirty = [b for b in bins if b["dirty_seen"]]
@@ -273,16 +329,15 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
                     "uncertain_views": sum(b["uncertain"] for b in sel),
                     "relooks": sum(b["relooks"] for b in sel),
                 }
-    lat_a = np.array(lat)
+    lat_a = np.array(run["latency_ms"])
     main = rates("verdict")
-    load = os.getloadavg()
     return {
         **main,
         "face_recall": round(tot["tp"] / (tot["tp"] + tot["fn"]), 5) if tot["tp"] + tot["fn"] > 0 else None,
         "face_precision": round(tot["tp"] / (tot["tp"] + tot["fp"]), 5) if tot["tp"] + tot["fp"] > 0 else None,
         "face_metrics": "area-weighted over all cycles, faces the cycle's plan sees; truth = powder opacity > 0.5 "
         "at any of 10 points of the face",
-        "cycles": n,
+        "cycles": len(run["cycles"]),
         "uncertain_views": int(sum(b["uncertain"] for b in bins)),
         "relooks": int(sum(b["relooks"] for b in bins)),
         "views": int(sum(b["views"] for b in bins)),
@@ -292,24 +347,17 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
         "any_view_rule": rates("verdict_any_view"),
         "per_surface_kind": per,
         "verdict_rule": vc.model_dump(),
-        "relook": rc.model_dump(),
-        "setup": {
-            "bin": BENCH_BIN,
-            "seed": opts.seed,
-            "render_px": [intr.width, intr.height],
-            "plans": {
-                s: {"viewpoints": len(p.viewpoints), "coverage": round(float(p.coverage), 4)} for s, p in plans.items()
-            },
-            "models": {s: d.model_id for s, d in dets.items()},
-            "seconds": round(time.perf_counter() - t0, 1),
-            "loadavg_1m": round(load[0], 2),
-            "torch_threads": 1,
-        },
+        "relook": run["relook"],
+        "setup": run["setup"],
         "figures": figures,
     }
 
 
-def _figures(out: Any, surface: str, cycle: int, mesh: Any, fm: Any, gt_seen: np.ndarray, shots: list) -> list[str]:
+def _fusion_kwargs(vc: Any) -> dict[str, Any]:
+    return {"prior": vc.face_prior, "face_threshold": vc.face_threshold}
+
+
+def _figures(out: Any, surface: str, cycle: int, mesh: Any, fm: Any, gt_seen: np.ndarray, hottest: tuple) -> list[str]:
     """Beside the JSON: the cycle's dirt map (fused probabilities), the truth, and its hottest view
     with its heat map."""
     from pathlib import Path
@@ -328,7 +376,7 @@ def _figures(out: Any, surface: str, cycle: int, mesh: Any, fm: Any, gt_seen: np
     truth = {"seen_dirty": np.flatnonzero(gt_seen).tolist(), "seen_clean": []}
     p = draw_dirt_map(mesh, truth, base.with_name(f"{stem}_truth_{surface}.png"), title=f"cycle {cycle} truth")
     paths.append(p.name)
-    _, img, heat = max(shots, key=lambda x: x[0])
+    img, heat = hottest
     h, w = img.shape[:2]
     hm = cv2.imdecode(np.frombuffer(heat_png(heat, w, h), np.uint8), cv2.IMREAD_COLOR)
     pair = np.hstack([cv2.cvtColor(img, cv2.COLOR_RGB2BGR), hm])

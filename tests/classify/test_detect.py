@@ -83,6 +83,10 @@ def test_visible_mask_ignores_scattered_pixel_changes_but_sees_vanished_texture(
     # strong texture (RMS ~ 10 L*) wiped flat at the same mean: a haze
     grain = np.clip(120 + rng.normal(0, 25, (64, 64, 1)), 0, 255).astype(np.uint8).repeat(3, axis=2)
     assert visible_mask(np.full_like(grain, int(grain.mean())), grain, alpha)[8:-8, 8:-8].all()
+    # a veil that takes 40 % of that grain's contrast (> 3 L*) is not visible: Weber, not a fixed step
+    m = float(grain.mean())
+    veiled = np.clip(m + 0.6 * (grain.astype(np.float32) - m), 0, 255).astype(np.uint8)
+    assert visible_mask(veiled, grain, alpha).mean() < 0.01
     # ...and nothing where the contamination does not lie, however the image changed
     assert visible_mask(_flat(200), clean, np.zeros((64, 64), np.float32)).sum() == 0
 
