@@ -37,6 +37,8 @@ __all__ = [
     "CycleResult",
     "ErrorReply",
     "Event",
+    "FaultCondition",
+    "FaultReport",
     "EventLevel",
     "Intrinsics",
     "JointState",
@@ -431,6 +433,52 @@ class Event(WireMessage):
     text: str
     cycle_id: str | None = None
     stamp: str = Field(default_factory=now_iso)
+
+
+FaultCondition = Literal[
+    "protective_stop",
+    "emergency_stop",
+    "safeguard_stop",
+    "safety_fault",
+    "safety_violation",
+    "reduced_mode",
+    "robot_mode",
+    "lost_connection",
+    "stall",
+    "program_stopped",
+    "other",
+]
+"""What a worker's fault is: the controller's safety state (``*_stop``, ``safety_*``, ``reduced_mode``),
+a robot mode other than RUNNING, the link (``lost_connection``), a controller that stopped answering
+(``stall``: no data, a call that does not return), or its control program stopping during a motion."""
+
+
+class FaultReport(WireMessage):
+    """A worker's fault report on ``cell/<id>/<role>/fault`` (today: the UR robot worker).
+
+    ``active``: published just before the worker withdraws its liveliness token, so the supervisor
+    names the fault as the reason of the loss; ``active`` false: an operator cleared it (the token
+    comes back). Subscribers also accept the first form of the report, an error :class:`Event` with
+    text ``"<role> fault: <detail>"``, from workers of before this message.
+    """
+
+    type: Literal["cellctl/FaultReport"] = "cellctl/FaultReport"
+    v: Literal[1] = 1
+    role: str = Field(pattern=r"^[a-z][a-z_]{0,31}$", description="the reporting worker's role")
+    active: bool = Field(default=True, description="False: cleared by an operator's maintenance")
+    condition: FaultCondition
+    detail: str = Field(min_length=1, description="what the worker saw, e.g. 'protective stop'")
+    robot_mode: str | None = Field(default=None, description="ur: the controller's robot mode, e.g. RUNNING")
+    safety_mode: str | None = Field(default=None, description="ur: the controller's safety mode, e.g. PROTECTIVE_STOP")
+    safety_status_bits: int | None = Field(default=None, ge=0, description="ur: RTDE safety_status_bits")
+    safety_flags: list[str] = Field(default_factory=list, description="ur: the names of the bits set")
+    cycle_id: str | None = None
+    stamp: str = Field(default_factory=now_iso)
+
+    @property
+    def text(self) -> str:
+        """The reason text the supervisor records: ``"<role> fault: <detail>"``."""
+        return f"{self.role} fault: {self.detail}"
 
 
 class CycleOutcome(enum.StrEnum):
@@ -1083,6 +1131,7 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
         Ack,
         Status,
         Event,
+        FaultReport,
         CycleResult,
         ErrorReply,
         JointState,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as _dt
 import itertools
 import threading
+import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -29,6 +30,9 @@ __all__ = ["KEEP_RESULTS", "CycleKeeper"]
 
 KEEP_RESULTS = 50
 """Finished results kept in memory (tests and benches read the last ones)."""
+REASON_GRACE_S = 0.3
+"""How long a cycle's close waits for the fault report of a worker whose token went first (the report
+is sent 10 ms ahead of the withdrawal and normally arrives first; this covers the reordered case)."""
 
 
 class CycleKeeper:
@@ -64,6 +68,8 @@ class CycleKeeper:
         self.results: list[CycleResult] = []
         self._seq = itertools.count(1)
         self._lock = threading.Lock()  # finalize runs on activations and on the dispatcher (shutdown)
+        self._reason_due: tuple[threading.Event, float] | None = None
+        """(set when the report came, monotonic time of the loss) while a fault report is awaited."""
 
     @property
     def open_ctx(self) -> CycleContext | None:
@@ -125,8 +131,31 @@ class CycleKeeper:
         else:
             ctx.reason = ctx.reason or reason
 
+    def expect_reason(self) -> None:
+        """A worker was lost without its fault report yet (dispatcher): the close waits for it a moment."""
+        self._reason_due = (threading.Event(), time.monotonic())
+
+    def reason_arrived(self) -> None:
+        """The awaited fault report came (dispatcher): the reason is in place, the close may go on."""
+        due, self._reason_due = self._reason_due, None
+        if due is not None:
+            due[0].set()
+
+    def correct_reason(self, cycle_id: str, old: str, new: str) -> bool:
+        """Correct a closed cycle's reason where it is still mutable (the results kept in memory);
+        its log and index row are sealed. Returns whether the cycle was found with reason ``old``."""
+        for i, res in enumerate(self.results):
+            if res.cycle_id == cycle_id and res.reason == old:
+                self.results[i] = res.model_copy(update={"reason": new})
+                return True
+        return False
+
     def finalize(self, default_outcome: CycleOutcome, reason: str | None = None) -> CycleResult | None:
         """Close the open cycle: result into the log, log closed, index row closed, result published."""
+        due = self._reason_due
+        if due is not None and threading.current_thread().name != "dispatcher":  # the dispatcher sets it
+            due[0].wait(max(0.0, due[1] + REASON_GRACE_S - time.monotonic()))  # the report corrects the reason
+        self._reason_due = None
         with self._lock:
             ctx = self.open_ctx
             if ctx is None:

@@ -21,10 +21,10 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from cellctl.bus import keys
-from cellctl.bus.codec import decode_as, encode
+from cellctl.bus.codec import decode, encode
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, ProtocolError
-from cellctl.messages import Ack, CycleResult, Event, Status, UnitMode
+from cellctl.messages import Ack, CycleResult, Event, FaultReport, Status, UnitMode
 from cellctl.recording.index import CycleIndex
 from cellctl.supervisor import events
 from cellctl.supervisor.admin import AdminBook
@@ -94,8 +94,10 @@ class Supervisor:
         self._decls: list[Any] = []
         self._faults: dict[str, tuple[float, str]] = {}
         """role -> (monotonic time, text) of its last fault report (``robot fault: …``)."""
-        self._lost: dict[str, tuple[float, str, str]] = {}
-        """role -> (monotonic time, reason, state) of its last token loss in a cycle with no report yet."""
+        self.fault_reports: dict[str, FaultReport] = {}
+        """role -> its last typed fault report (condition, robot mode, safety bits), while active."""
+        self._lost: dict[str, tuple[float, str, str, str | None]] = {}
+        """role -> (monotonic time, reason, state, cycle id) of its last token loss in a cycle with no report yet."""
 
     @property
     def state(self) -> str:
@@ -299,7 +301,11 @@ class Supervisor:
         if fault is not None and now - fault[0] <= FAULT_WINDOW_S:
             reason = f"{fault[1]} ({role} worker unavailable in {self.state})"
         else:
-            self._lost[role] = (now, reason, self.state)
+            ctx = self.cycles.open_ctx
+            self._lost[role] = (now, reason, self.state, ctx.cycle_id if ctx is not None else None)
+            # a fault report may be just behind the loss (Zenoh orders a put and an undeclaration
+            # apart): the cycle's close waits a moment for it, so the sealed record names the fault
+            self.cycles.expect_reason()
         self.last_error = self.admin.stop_reason = reason
         self.cycles.event("error", reason)
         ctx = self.cycles.open_ctx
@@ -312,24 +318,47 @@ class Supervisor:
         self.model.trigger("abort")
 
     def _on_fault_report(self, payload: bytes) -> None:
-        """A worker's ``<role> fault: <text>`` Event: remembered for its token's loss, or, when the
-        loss came first, it replaces that loss's reason (cycle, last error, stop reason)."""
+        """A worker's fault report (:class:`FaultReport`, or the first form: an error Event
+        ``"<role> fault: <text>"``): remembered for its token's loss, or, when the loss came first,
+        it replaces that loss's reason (cycle, last error, stop reason)."""
         try:
-            ev = decode_as(Event, payload)
+            msg = decode(payload)
         except ProtocolError:
             return
-        role, sep, _ = ev.text.partition(" fault: ")
-        if ev.level != "error" or not sep or role not in keys.ROLES:
+        if isinstance(msg, FaultReport):
+            role, text = msg.role, msg.text
+            if role not in keys.ROLES:
+                return
+            if not msg.active:  # cleared by an operator: no reason for a later loss
+                self.fault_reports.pop(role, None)
+                self._faults.pop(role, None)
+                return
+            self.fault_reports[role] = msg
+            if (rec := self.cycles.record) is not None:
+                rec.write_message(keys.worker_fault(self.cell_id, role), msg)
+        elif isinstance(msg, Event):
+            role, sep, _ = msg.text.partition(" fault: ")
+            if msg.level != "error" or not sep or role not in keys.ROLES:
+                return
+            text = msg.text
+        else:
             return
         now = time.monotonic()
-        self._faults[role] = (now, ev.text)
+        self._faults[role] = (now, text)
         lost = self._lost.pop(role, None)
         if lost is None or now - lost[0] > FAULT_WINDOW_S:
             return
-        old, new = lost[1], f"{ev.text} ({role} worker unavailable in {lost[2]})"
+        old, new = lost[1], f"{text} ({role} worker unavailable in {lost[2]})"
         ctx = self.cycles.open_ctx
         if ctx is not None and ctx.reason == old:
             ctx.reason = new
+        elif lost[3] is not None and self.cycles.correct_reason(lost[3], old, new):
+            # closed before the report came: its log and index row are sealed (sha256, hash chain)
+            self.cycles.event(
+                "warning", f"cycle {lost[3]}: the {role} fault report came after the cycle closed; its reason is "
+                f"{new!r} (the cycle's log and index row keep {old!r})",
+            )  # fmt: skip
+        self.cycles.reason_arrived()
         if self.last_error == old:
             self.last_error = new
         if self.admin.stop_reason == old:
