@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from concurrent.futures import Future
 
+import numpy as np
 import pytest
 
 from cellctl.messages import CaptureReply, ClassifyReply, MoveReply, PoseMsg, StationInfo, ViewpointResult
@@ -125,3 +126,46 @@ def test_in_a_whole_bin_cycle_an_uncertain_view_and_its_re_look_are_fused_by_the
     run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.45, uncertain=True, model_id="m"))
     assert Classifying()(run) == "succeeded"
     assert ctx.verdict == "dirty"  # mean logit 1.0 above the threshold estimate 0
+
+
+@pytest.mark.parametrize("first", ["dirty", "uncertain"])
+def test_a_refused_re_look_pose_is_followed_by_the_next_one(cfg, first) -> None:  # noqa: ANN001
+    """Near a rim the first swing can touch the bin: the next re-look pose is tried, at no budget cost."""
+    from cellctl.errors import WorkerFailed
+
+    ctx = _ctx(cfg, whole=True)
+    if first == "uncertain":
+        ctx.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.6, True), 2: _done("clean", 0.1)}
+    cfg.classifier.relook.max_views = 1
+    refused = 0
+
+    def move(req):  # noqa: ANN001, ANN202
+        nonlocal refused
+        if refused < 2:
+            refused += 1
+            raise WorkerFailed("camera pose is unreachable without collision: all 8 IK solutions collide", role="robot")
+        return MoveReply(joints=[0.0] * 6, camera_pose=req.camera_pose), None
+
+    run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.02, model_id="m"))
+    run.script[("robot", "move")] = move
+    assert Classifying()(run) == "succeeded"
+    poses = [m.camera_pose.matrix() for r, op, m in run.calls if (r, op) == ("robot", "move")]
+    assert len(poses) == 3 and not np.allclose(poses[0], poses[1]) and not np.allclose(poses[1], poses[2])
+    relooks = [v for v in ctx.viewpoints if v.relook_of == 1]
+    assert [v.error is None for v in relooks] == [False, False, True]
+    assert ctx.verdict == "clean"  # the third pose's certain-clean view overrules (or outweighs) the first
+
+
+def test_a_view_whose_every_re_look_pose_is_refused_keeps_its_label(cfg) -> None:  # noqa: ANN001
+    from cellctl.errors import WorkerFailed
+
+    ctx = _ctx(cfg, whole=True)
+
+    def move(req):  # noqa: ANN001, ANN202
+        raise WorkerFailed("camera pose is unreachable without collision", role="robot")
+
+    run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.02, model_id="m"))
+    run.script[("robot", "move")] = move
+    assert Classifying()(run) == "succeeded"
+    assert len([1 for r, op, _ in run.calls if (r, op) == ("robot", "move")]) == 4  # the four swings, then stop
+    assert ctx.verdict == "dirty"

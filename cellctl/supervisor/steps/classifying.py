@@ -32,6 +32,9 @@ from cellctl.messages import CaptureReply, CaptureRequest, MoveReply, MoveReques
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 
+RELOOK_POSES = 4
+"""Re-look poses per viewpoint (:func:`~cellctl.classify.heatmap.relook_pose` swings about ±x, ±y)."""
+
 
 def _logit(p: float) -> float:
     q = min(max(p, 1e-6), 1 - 1e-6)
@@ -198,6 +201,7 @@ class Classifying(Step):
         here = (st.station, ctx.surface) if st is not None else (None, None)
         done = 0
         tried: dict[tuple[int | None, str | None, int], int] = {}
+        seen = {view_key(w) for w in ctx.viewpoints if w.relook_of is not None and w.error is None}
         while done < rc.max_views:
             # once one dirty view is confirmed the bin is dirty: more confirmations would only cost moves
             confirm = confirming and not self._confirmed_dirty(ctx.viewpoints)
@@ -205,15 +209,15 @@ class Classifying(Step):
                 v
                 for v in ctx.viewpoints
                 # uncertain, or certain dirty and not yet confirmed (see module doc)
-                if (
-                    v.uncertain or (confirm and v.relook_of is None and v.label == "dirty" and view_key(v) not in tried)
-                )
+                if (v.uncertain or (confirm and v.relook_of is None and v.label == "dirty" and view_key(v) not in seen))
                 and v.camera_pose is not None
                 and v.error is None
                 and v.p_dirty is not None
                 and (v.station, v.surface) == here
-                # the latest view of its viewpoint decides whether to look again
-                and v is [w for w in ctx.viewpoints if view_key(w) == view_key(v)][-1]
+                # a refused re-look pose costs no budget, but each viewpoint has RELOOK_POSES of them
+                and tried.get(view_key(v), 0) < RELOOK_POSES
+                # the latest view of its viewpoint decides whether to look again (a refused move is no view)
+                and v is [w for w in ctx.viewpoints if view_key(w) == view_key(v) and w.error is None][-1]
             ]
             if not pending:
                 break
@@ -223,7 +227,6 @@ class Classifying(Step):
             tried[view_key(v)] = k + 1
             base = next(w for w in ctx.viewpoints if view_key(w) == view_key(v) and w.relook_of is None)
             T = relook_pose(base.camera_pose.matrix(), k, rc.offset_m, rc.glance_deg, rc.depth_m)  # type: ignore[union-attr]
-            done += 1
             try:
                 moved, _ = run.call(
                     "robot",
@@ -242,7 +245,11 @@ class Classifying(Step):
                         surface=v.surface,
                     )
                 )
+                # near a rim a swing can touch the bin where the planned pose did not: the next pose
+                # swings the other way; left unconfirmed, one certain-dirty view would decide the bin
                 continue
+            done += 1
+            seen.add(view_key(v))
             cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
             data = captured_image(cap, image)
             ctx.log.image(topics.CAMERA_IMAGE, data, cap.format, "camera")
