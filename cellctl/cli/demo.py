@@ -190,7 +190,9 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     # whole-bin story: a few minutes on a small machine (module docstring); --set still wins
     whole = ["planner.whole.enabled=true", "planner.seed_pct=3", "robot.speed_scale=10", "robot.settle_s=0.05"]
     whole = [] if args.single_station else whole
-    overrides = [*whole, *args.overrides, *ur, *output_overrides(out)]
+    # the twin renders a powdered bin in 2-6 s, 10.0 s once at load 12 (a demo cycle failed on the 10 s default)
+    slow = ["supervisor.timeouts.capture=30"]
+    overrides = [*slow, *whole, *args.overrides, *ur, *output_overrides(out)]
     cfg = config_from_args(argparse.Namespace(config=args.config, overrides=overrides))
     c = cfg.cell_id
     _say(f"cellctl demo — cell {c!r} on {cfg.bus.listen}, outputs in {out}")
