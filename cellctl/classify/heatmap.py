@@ -163,6 +163,8 @@ class FaceFusion:
     def __post_init__(self) -> None:
         if not 0.0 < self.prior < 1.0:
             raise ClassifierError(f"face prior {self.prior!r} must be in (0, 1)")
+        if not 0.0 < self.clean_weight <= 1.0:
+            raise ClassifierError(f"face fusion clean_weight {self.clean_weight!r} must be in (0, 1]")
         self.llr = np.zeros(self.n_faces)
         self.views = np.zeros(self.n_faces, np.int32)
 

@@ -292,6 +292,30 @@ def test_heat_projects_onto_the_face_it_covers() -> None:
     assert got[0] > 0.9 and got[1] < 0.5
 
 
+def test_a_spot_in_a_corner_of_a_large_face_reaches_it_through_the_sample_grid() -> None:
+    mesh = _square_mesh()
+    T, intr = _camera_above()
+    # face 0 is the triangle (-0.2,-0.2) (0,-0.2) (0,0.2); the image sees y within ±0.11 m. Hot: the
+    # patches around its grid point (-0.15, -0.1) (columns 1-2, rows 14-15), far from its inner samples
+    heat = np.zeros((16, 16))
+    heat[14:16, 1:3] = 0.95
+    _, p4 = project_heat(heat, T, intr, mesh, [0])
+    assert p4[0] < 0.5  # the four inner samples miss it
+    _, pg = project_heat(heat, T, intr, mesh, [0], subdiv=4)
+    assert pg[0] > 0.5
+
+
+def test_clean_weight_keeps_one_view_that_saw_a_spot_from_being_cancelled() -> None:
+    mesh = _square_mesh()
+    T, intr = _camera_above()
+    hot, cold = np.full((16, 16), 0.99), np.full((16, 16), 0.1)
+    views = [ViewEvidence(np.array([0]), T, hot, 0.99)] + [ViewEvidence(np.array([0]), T, cold, 0.1)] * 2
+    assert not fuse_views(views, mesh, intr).dirty[0]
+    assert fuse_views(views, mesh, intr, clean_weight=0.25).dirty[0]
+    with pytest.raises(ClassifierError, match="clean_weight"):
+        FaceFusion(2, clean_weight=0.0)
+
+
 def test_face_fusion_needs_agreeing_views_and_keeps_unseen_faces_at_the_prior() -> None:
     mesh = _square_mesh()
     T, intr = _camera_above()
