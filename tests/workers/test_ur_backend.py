@@ -174,6 +174,11 @@ def test_protective_stop_mid_motion_stops_the_arm_and_needs_the_operator(robot, 
     err, q, goal = _faulted_motion(robot, emu, "protective_stop injected")
     assert "protective stop" in str(err)
     assert robot.fault == "protective stop"
+    rep = robot.fault_report  # the typed report the worker publishes on robot/fault
+    assert rep is not None and rep.active and rep.condition == "protective_stop"
+    assert rep.text == "robot fault: protective stop"
+    assert (rep.robot_mode, rep.safety_mode) == ("RUNNING", "PROTECTIVE_STOP")
+    assert {"protective_stopped", "stopped_due_to_safety"} <= set(rep.safety_flags)
     with pytest.raises(RobotError, match=r"UR fault active \(protective stop\)"):
         robot.move(MoveRequest(joints=goal.tolist()))
     assert robot.state().fault == "protective stop"  # still serving
@@ -217,6 +222,9 @@ def test_safeguard_stop_and_reduced_mode_are_faults(robot, emu, fault, clear, te
 def test_a_lost_or_stalled_controller_stops_the_motion_for_good(robot, emu, fault) -> None:
     err, q, goal = _faulted_motion(robot, emu, fault)
     assert "RTDE" in str(err)
+    assert robot.fault_report is not None and robot.fault_report.condition in (
+        ("lost_connection",) if fault.startswith("drop") else ("stall", "program_stopped", "lost_connection")
+    )
     time.sleep(1.0)
     assert np.abs(np.array(emu.state()["q"]) - q).max() < 1e-9  # not resumed after the link came back
     assert robot.state().fault is not None
@@ -261,3 +269,74 @@ def test_approach_parks_the_twin_base_at_a_whole_bin_station_and_observes_from_t
     q = np.array(emu.state()["q"])
     assert np.abs(q - scene.HOME_JOINTS).max() > 0.05  # the emulated arm went to the observation pose
     assert np.abs(np.array(reply.joints) - q).max() < 1e-3
+
+
+@pytest.mark.slow  # three motions
+def test_a_stop_meant_for_an_earlier_motion_never_stops_a_later_one(robot, emu) -> None:
+    """A stopJ that got the io lock only after a later motion began (a fault's stop behind a stalled
+    call) is dropped; one for the motion in progress stops it."""
+    start = robot.joints
+    robot.move(MoveRequest(joints=(start + 0.2 * WRIST).tolist()))
+    earlier = robot._motion_seq
+    m = _Mover(robot, start)
+    m.start()
+    _wait_moving(emu)
+    robot._stopj(earlier)  # late: dropped
+    m.join(timeout=20)
+    assert m.error is None and np.abs(np.array(emu.state()["q"]) - start).max() < 1e-4
+    m = _Mover(robot, _long_goal(robot))
+    m.start()
+    _wait_moving(emu)
+    robot._stopj(robot._motion_seq)  # the motion in progress: stopped
+    m.join(timeout=20)
+    assert m.error is not None and "short of its goal" in str(m.error)
+    _rest(emu)
+
+
+def test_clear_fault_waits_for_the_interrupted_motion_to_end(robot, emu) -> None:
+    emu.inject("protective_stop injected")
+    deadline = time.monotonic() + 5
+    while robot.fault is None:
+        assert time.monotonic() < deadline, "the protective stop was not noticed"
+        time.sleep(0.01)
+    time.sleep(0.3)
+    _maint(robot, "unlock_protective_stop")
+    robot._busy.acquire()  # the interrupted motion's request is still winding down
+    done = threading.Event()
+    t = threading.Thread(target=lambda: (_maint(robot, "clear_fault"), done.set()), daemon=True)
+    t.start()
+    try:
+        assert not done.wait(0.5) and robot.fault == "protective stop"
+    finally:
+        robot._busy.release()
+    assert done.wait(20) and robot.fault is None and robot.fault_report is None
+
+
+def test_calls_queued_behind_a_wedged_call_never_run() -> None:
+    """Once an interface is given up, what was queued behind the wedged call is dropped: run later on
+    the old interface, ur-rtde would reconnect it and restart the control program under a fresh one."""
+    from cellctl.workers.robot._ur import _CallThread, _Wedged
+
+    calls = _CallThread("test-calls")
+    release, ran = threading.Event(), []
+    errors: list[Exception] = []
+
+    def queued() -> None:
+        try:
+            calls.call(10.0, lambda: ran.append("queued"))
+        except _Wedged as err:
+            errors.append(err)
+
+    blocker = threading.Thread(target=lambda: pytest.raises(_Wedged, calls.call, 0.3, release.wait), daemon=True)
+    blocker.start()
+    time.sleep(0.05)
+    behind = threading.Thread(target=queued, daemon=True)
+    behind.start()
+    blocker.join(5)
+    assert calls.wedged is not None
+    release.set()  # the wedged call returns at last
+    behind.join(5)
+    assert ran == [] and len(errors) == 1 and "given up" in str(errors[0])
+    with pytest.raises(_Wedged):
+        calls.call(1.0, lambda: ran.append("after"))
+    assert ran == []

@@ -49,6 +49,7 @@ def emu(tmp_path_factory):  # noqa: ANN001, ANN201
         free_loopback_host(),
         ["sim.ur_controller.unlock_delay_s=0.3"],
         log_path=tmp_path_factory.mktemp("emu") / "ur-controller.log",
+        verbose=2,  # every command the control script ran, for a failure's story
     ) as e:
         yield e
 
@@ -175,6 +176,13 @@ RECOVERY: dict[str, tuple[str, tuple[str, ...], Callable[[Rig], None]]] = {
     ),
 }
 MOTIONS = ("approaching", "scanning")
+CONDITIONS = {  # fault -> the typed report's condition (FaultReport.condition), one of
+    "protective_stop": ("protective_stop",),
+    "estop": ("emergency_stop",),
+    "safeguard": ("safeguard_stop",),
+    "drop": ("lost_connection",),
+    "stall": ("stall", "lost_connection", "program_stopped"),
+}
 
 
 def _fault_cycle_then_good_cycle(rig: Rig, fault: str, motion: str) -> None:
@@ -197,10 +205,16 @@ def _fault_cycle_then_good_cycle(rig: Rig, fault: str, motion: str) -> None:
     time.sleep(0.5)
     assert np.abs(np.array(rig.emu.state()["q"]) - q).max() < 1e-9
     assert rig.worker.robot.fault is not None and any(t in rig.worker.robot.fault for t in texts)
+    # the typed report reached the supervisor (FaultReport on robot/fault), with the controller's state
+    rig.wait(lambda: "robot" in rig.cell.supervisor.fault_reports, "the fault report", 10)
+    report = rig.cell.supervisor.fault_reports["robot"]
+    assert report.condition in CONDITIONS[fault] and report.detail == rig.worker.robot.fault
+    assert report.robot_mode is not None and report.safety_status_bits is not None
     # the operator's recovery: the condition cleared at the controller, then clear_fault
     recover(rig)
     assert rig.maintenance("clear_fault").fault is None
     rig.wait(lambda: rig.cell.supervisor.status.workers.get("robot", False), "robot worker back", 30)
+    rig.wait(lambda: "robot" not in rig.cell.supervisor.fault_reports, "the cleared report", 10)
     assert rig.plc.command("clear", timeout=10).accepted
     rig.wait(lambda: rig.state() == "Stopped", "Stopped")
     rig.start_cycle()

@@ -357,6 +357,8 @@ class UrController:
 
     def _process(self, cmd: int) -> None:
         o = self._off
+        if cmd != CMD_WATCHDOG and log.isEnabledFor(logging.DEBUG):
+            log.debug("command %d (async %d, arg %.3g)", cmd, self.in_int[o + 1], self.in_double[o])
         if cmd == CMD_MOVEJ or cmd == CMD_MOVE_PATH:
             asynchronous = self.in_int[o + 1] == 1
             if cmd == CMD_MOVEJ:

@@ -46,6 +46,7 @@ class EmulatorProcess:
         overrides: ``--set`` config overrides for the child (``sim.ur_controller.*``).
         config: config file for the child.
         log_path: where the child's stderr goes (default: discarded).
+        verbose: the child's log level: 0 warnings, 1 info (programs started), 2 debug (every command).
 
     Raises:
         ConfigError: the child did not report ready within ``timeout_s``.
@@ -58,10 +59,12 @@ class EmulatorProcess:
         config: Path | str | None = None,
         log_path: Path | None = None,
         timeout_s: float = 60.0,
+        verbose: int = 0,
     ) -> None:
         self.host = host
         self.overrides = list(overrides or [])
-        cmd = [sys.executable, "-m", "cellctl", "sim", "ur-controller", "--host", host]
+        cmd = [sys.executable, "-m", "cellctl", *(["-" + "v" * verbose] if verbose else []), "sim", "ur-controller"]
+        cmd += ["--host", host]
         if config is not None:
             cmd += ["--config", str(config)]
         for o in self.overrides:

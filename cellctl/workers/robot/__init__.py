@@ -22,8 +22,9 @@ worker keeps serving.
 Safety: a motion stops when the supervisor's liveliness token goes away (supervisor crashed,
 or this worker lost its link to the router, e.g. after being frozen), so the arm never keeps
 moving for a supervisor that can no longer stop it. A backend **fault** (ur: protective/emergency/
-safeguard stop, reduced mode, lost RTDE) is published as an error :class:`~cellctl.messages.Event`
-on ``cell/<id>/robot/fault`` (the supervisor takes it as the reason) and then the worker
+safeguard stop, reduced mode, lost RTDE) is published as a :class:`~cellctl.messages.FaultReport`
+(condition, detail, robot and safety mode, safety bits) on ``cell/<id>/robot/fault`` (the
+supervisor takes it as the reason) and then the worker
 **withdraws its liveliness token** until an operator
 clears it, so the supervisor holds or aborts the cycle by ``supervisor.on_worker_lost`` through
 the same contract as a dead worker, while the worker keeps answering ``state`` and ``maintenance``.
@@ -44,7 +45,7 @@ from cellctl.errors import ConfigError
 from cellctl.geometry.robot_model import JOINT_NAMES
 from cellctl.messages import (
     ApproachRequest,
-    Event,
+    FaultReport,
     JointState,
     MoveRequest,
     RobotMaintenanceRequest,
@@ -109,22 +110,21 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
     pub_e = session.declare_publisher(keys.worker_fault(cell, "robot"), express=True)
     with WorkerServer(session, cell, "robot") as server:
 
-        def _fault(reason: str | None) -> None:  # monitor thread, not a Zenoh callback
-            if reason is not None:
+        def _fault(report: FaultReport) -> None:  # monitor thread, not a Zenoh callback
+            pub_e.put(encode(report))
+            if report.active:
                 # the report first: the supervisor names it as the reason of the token's loss. An
                 # undeclaration sent at once overtakes a put (38 of 40 times on loopback); after a few
                 # ms it never did. The arm is already stopped or stopping (stopJ went before).
-                pub_e.put(encode(Event(level="error", text=f"robot fault: {reason}")))
                 time.sleep(FAULT_REPORT_LEAD_S)
                 server.withdraw()  # the supervisor holds/aborts as for a lost worker
             else:
-                pub_e.put(encode(Event(level="warning", text="robot fault cleared by maintenance")))
                 server.announce()
 
         if hasattr(robot, "on_fault"):
             robot.on_fault = _fault  # type: ignore[attr-defined]
-            if getattr(robot, "fault", None) is not None:
-                _fault(robot.fault)  # type: ignore[attr-defined]
+            if getattr(robot, "fault_report", None) is not None:
+                _fault(robot.fault_report)  # type: ignore[attr-defined]
         server.serve("approach", ApproachRequest, lambda r, _: robot.approach(r))
         server.serve("move", MoveRequest, lambda r, _: robot.move(r))
         server.serve("wash", WashRequest, lambda r, _: robot.wash(r))

@@ -43,7 +43,7 @@ from cellctl.config import CellConfig
 from cellctl.errors import RobotError
 from cellctl.geometry import robot_model as rm
 from cellctl.geometry.catalog import Catalog
-from cellctl.messages import RobotMaintenanceReply, RobotMaintenanceRequest, RobotState
+from cellctl.messages import FaultCondition, FaultReport, RobotMaintenanceReply, RobotMaintenanceRequest, RobotState
 from cellctl.workers.robot._planned import PlannedRobot
 
 __all__ = ["UrRobot", "classify_fault", "path_deviation"]
@@ -73,6 +73,42 @@ _FAULT_BITS = (  # safety_status_bits (RTDE guide), most severe first
     (1 << 4, "safeguard stop"),
 )
 _REDUCED = 1 << 1
+_SAFETY_MODES = {
+    1: "NORMAL",
+    2: "REDUCED",
+    3: "PROTECTIVE_STOP",
+    4: "RECOVERY",
+    5: "SAFEGUARD_STOP",
+    6: "SYSTEM_EMERGENCY_STOP",
+    7: "ROBOT_EMERGENCY_STOP",
+    8: "VIOLATION",
+    9: "FAULT",
+    10: "VALIDATE_JOINT_ID",
+    11: "UNDEFINED_SAFETY_MODE",
+    12: "AUTOMATIC_MODE_SAFEGUARD_STOP",
+    13: "SYSTEM_THREE_POSITION_ENABLING_STOP",
+}
+_SAFETY_FLAGS = (  # safety_status_bits, bit -> name (RTDE guide)
+    (0, "normal_mode"),
+    (1, "reduced_mode"),
+    (2, "protective_stopped"),
+    (3, "recovery_mode"),
+    (4, "safeguard_stopped"),
+    (5, "system_emergency_stopped"),
+    (6, "robot_emergency_stopped"),
+    (7, "emergency_stopped"),
+    (8, "violation"),
+    (9, "fault"),
+    (10, "stopped_due_to_safety"),
+)
+_CONDITIONS: dict[str, FaultCondition] = {
+    "emergency stop": "emergency_stop",
+    "safety fault": "safety_fault",
+    "safety violation": "safety_violation",
+    "protective stop": "protective_stop",
+    "safeguard stop": "safeguard_stop",
+    "reduced mode": "reduced_mode",
+}
 _RTDE_VARIABLES = [
     "timestamp",
     "actual_q",
@@ -96,6 +132,11 @@ def classify_fault(safety_bits: int, robot_mode: int, reduced_is_fault: bool) ->
     if robot_mode != _RUNNING:
         return f"robot mode {_ROBOT_MODES.get(robot_mode, robot_mode)} (not RUNNING)"
     return None
+
+
+def _condition_of(name: str) -> FaultCondition:
+    """The typed condition of a :func:`classify_fault` name."""
+    return _CONDITIONS.get(name, "robot_mode")
 
 
 def path_deviation(path: NDArray[np.float64], q: NDArray[np.float64]) -> float:
@@ -127,6 +168,8 @@ class _CallThread:
         self.wedged: str | None = None
         self.busy = False
         """A call is queued or running (a late one that was not fatal may still be)."""
+        self.closed = False
+        """Its interface is given up or replaced: calls still queued are dropped, not run."""
         self._q: queue.SimpleQueue[tuple[Callable[..., Any], tuple[Any, ...], threading.Event, list[Any]] | None]
         self._q = queue.SimpleQueue()
         threading.Thread(target=self._run, name=name, daemon=True).start()
@@ -134,6 +177,13 @@ class _CallThread:
     def _run(self) -> None:
         while (item := self._q.get()) is not None:
             fn, args, done, box = item
+            if self.closed:
+                # a call queued behind one that wedged (or behind the interface's replacement) must not
+                # run later on the old interface: ur-rtde would reconnect it inside the call and restart
+                # the control program under the fresh interface's motion
+                box.append((False, _Wedged(f"{getattr(fn, '__name__', 'call')} dropped: the interface was given up")))
+                done.set()
+                continue
             try:
                 box.append((True, fn(*args)))
             except Exception as err:  # handed to the caller
@@ -148,8 +198,8 @@ class _CallThread:
             _Wedged: the interface was given up, or (``fatal``) this call overran: it is given up now.
             _Late: a call that is not ``fatal`` overran (it may still finish; nothing is given up).
         """
-        if self.wedged is not None:
-            raise _Wedged(self.wedged)
+        if self.wedged is not None or self.closed:
+            raise _Wedged(self.wedged or "the interface was replaced")
         done: threading.Event = threading.Event()
         box: list[Any] = []
         self.busy = True
@@ -159,6 +209,7 @@ class _CallThread:
             if not fatal:
                 raise _Late(late)
             self.wedged = late
+            self.close()
             raise _Wedged(self.wedged)
         ok, value = box[0]
         if ok:
@@ -166,6 +217,7 @@ class _CallThread:
         raise value
 
     def close(self) -> None:
+        self.closed = True
         self._q.put(None)
 
 
@@ -201,8 +253,9 @@ class UrRobot(PlannedRobot):
         cfg: cell config (``robot.ur`` for the controller; ``sim`` for the cell layout).
         catalog: an already loaded catalog.
         on_change: called after the joints or the scenario changed.
-        on_fault: called with the fault's text when one is latched, and with None when the
-            operator cleared it (the worker withdraws/redeclares its liveliness token).
+        on_fault: called with the :class:`~cellctl.messages.FaultReport` of a fault when one is
+            latched (``active``), and when the operator cleared it (not ``active``); the worker
+            publishes it and withdraws/redeclares its liveliness token.
 
     Raises:
         RobotError: the controller is unreachable, not a UR10e, in local control, not RUNNING
@@ -214,7 +267,7 @@ class UrRobot(PlannedRobot):
         cfg: CellConfig,
         catalog: Catalog | None = None,
         on_change: Callable[[], None] | None = None,
-        on_fault: Callable[[str | None], None] | None = None,
+        on_fault: Callable[[FaultReport], None] | None = None,
     ) -> None:
         self.io = threading.Lock()
         """The one lock around every ur-rtde call (its interfaces are not thread-safe)."""
@@ -225,6 +278,11 @@ class UrRobot(PlannedRobot):
         self._d: Any = None
         self._calls = _CallThread("ur-control-calls")
         self._fault: str | None = None
+        self.fault_report: FaultReport | None = None
+        """The latched fault, typed (condition, robot and safety mode, safety bits), until cleared."""
+        self._last_state: dict[str, Any] | None = None
+        self._motion_seq = 0
+        """Counts motions sent: a stop meant for one motion never reaches a later one."""
         self._q_meas: NDArray[np.float64] | None = None
         self._tcp: NDArray[np.float64] | None = None
         self._ts = -1.0
@@ -240,6 +298,8 @@ class UrRobot(PlannedRobot):
         self._monitor_stop = threading.Event()
         self._monitor = threading.Thread(target=self._watch, name="ur-safety-monitor", daemon=True)
         self._monitor.start()
+        self._kicker = threading.Thread(target=self._kick_loop, name="ur-watchdog-kick", daemon=True)
+        self._kicker.start()
 
     def _accel_fraction(self) -> float:
         return self.ur.accel_fraction
@@ -330,6 +390,7 @@ class UrRobot(PlannedRobot):
         Raises:
             RuntimeError: ur-rtde's error, :class:`_Wedged` (overrun, or given up before) or :class:`_Late`.
         """
+        t0 = time.monotonic()
         try:
             return self._calls.call(timeout_s, fn, *args, fatal=fatal)
         except _Wedged:
@@ -338,6 +399,10 @@ class UrRobot(PlannedRobot):
                 log.error("UR control interface given up: %s", self._calls.wedged)
                 threading.Thread(target=_dispose, args=(c,), name="ur-dispose", daemon=True).start()
             raise
+        finally:
+            dt = time.monotonic() - t0
+            if dt > 0.25:
+                log.info("UR %s took %.2f s", getattr(fn, "__name__", "call"), dt)
 
     def _linked(self) -> bool:
         """The control interface is there, not given up, and its link is up (cache reads)."""
@@ -353,6 +418,7 @@ class UrRobot(PlannedRobot):
         if hasattr(self, "_monitor_stop"):
             self._monitor_stop.set()
             self._monitor.join(timeout=1.0)
+            self._kicker.join(timeout=1.0)
         self._stopj()
         with self.io:
             if self._linked():
@@ -380,6 +446,7 @@ class UrRobot(PlannedRobot):
             "tcp": np.array(r.getActualTCPPose(), dtype=np.float64),
             "bits": int(r.getSafetyStatusBits()),
             "mode": int(r.getRobotMode()),
+            "safety_mode": int(r.getSafetyMode()),
             "runtime": int(r.getRuntimeState()),
             "slider": float(r.getTargetSpeedFraction()),
         }
@@ -388,7 +455,18 @@ class UrRobot(PlannedRobot):
             self._tcp = st["tcp"]
         self._runtime = st["runtime"]
         self.speed_slider = st["slider"]
+        self._last_state = st
         return st
+
+    def _joints_now(self) -> NDArray[np.float64]:
+        """The joints as the receive interface holds them now (a cache read; no :attr:`io`)."""
+        r = self._r
+        if r is not None:
+            try:
+                self._read_state(r)
+            except RuntimeError:  # a lost link: the monitor names it; the last sample stands
+                pass
+        return self._read_joints()
 
     def _read_joints(self) -> NDArray[np.float64]:
         q = self._q_meas
@@ -426,11 +504,13 @@ class UrRobot(PlannedRobot):
         return self._fault
 
     def _watch(self) -> None:
+        """The safety monitor: reads the RTDE state (cache reads, never a control call, so nothing
+        it waits for can delay it) and latches the first fault it sees."""
         period = 1.0 / self.ur.faults.monitor_hz
         stale = self.ur.faults.data_stale_ms / 1e3
         not_playing_since: float | None = None
         while not self._monitor_stop.wait(period):
-            reason: str | None = None
+            found: tuple[FaultCondition, str] | None = None
             r = self._r
             if r is None:
                 continue
@@ -438,60 +518,93 @@ class UrRobot(PlannedRobot):
             try:
                 st = self._read_state(r)
             except RuntimeError as err:
-                st, reason = None, f"lost RTDE connection to {self.ur.host}: {err}"
-            # the kick only when the lock is free: a control call holding it (a path being sent)
-            # restarts the program, and with it the watchdog; a kick in flight is not queued behind
-            if st is not None and st["connected"] and self._runtime == _PLAYING and self.io.acquire(blocking=False):
-                try:
-                    if self._linked() and not self._calls.busy:
-                        self._send(_T_KICK, self._c.kickWatchdog, fatal=False)
-                except _Late as err:
-                    log.warning("UR watchdog kick late: %s", err)
-                except _Wedged as err:
-                    st = None
-                    reason = f"lost RTDE connection to {self.ur.host}: the control interface stopped answering ({err})"
-                except RuntimeError as err:
-                    st, reason = None, f"lost RTDE connection to {self.ur.host}: {err}"
-                finally:
-                    self.io.release()
+                st, found = None, ("lost_connection", f"lost RTDE connection to {self.ur.host}: {err}")
+            if self._calls.wedged is not None and self._c is None and found is None:
+                found = ("stall", f"lost RTDE connection to {self.ur.host}: the control interface stopped answering "
+                         f"({self._calls.wedged})")  # fmt: skip
             now = time.monotonic()
-            if st is not None:
+            if st is not None and found is None:
                 if st["ts"] != self._ts:
                     self._ts, self._data_t = st["ts"], now
                 if not st["connected"]:
-                    reason = f"lost RTDE connection to {self.ur.host}"
+                    found = ("lost_connection", f"lost RTDE connection to {self.ur.host}")
                 elif now - self._data_t > stale:
-                    reason = f"no RTDE data for {1e3 * (now - self._data_t):.0f} ms (controller stalled or link lost)"
+                    found = ("stall", f"no RTDE data for {1e3 * (now - self._data_t):.0f} ms "
+                             "(controller stalled or link lost)")  # fmt: skip
                 else:
-                    reason = classify_fault(st["bits"], st["mode"], self.ur.faults.reduced_mode)
+                    name = classify_fault(st["bits"], st["mode"], self.ur.faults.reduced_mode)
+                    if name is not None:
+                        found = (_condition_of(name), name)
                     # this connection's samples may still show the program restart moveJ(path) does:
                     # only a stop that lasts beyond a few RTDE periods is one
                     if not (self._moving and st["runtime"] != _PLAYING):
                         not_playing_since = None
                     elif not_playing_since is None:
                         not_playing_since = now
-                    elif reason is None and now - not_playing_since > 0.05:
-                        reason = "the control program stopped during a motion (RTDE watchdog or controller)"
-            if reason is not None and self._fault is None:
-                self._latch(reason)
+                    elif found is None and now - not_playing_since > 0.05:
+                        found = ("program_stopped", "the control program stopped during a motion (RTDE watchdog or "
+                                 "controller)")  # fmt: skip
+            if found is not None and self._fault is None:
+                self._latch(found[1], found[0])
             if st is not None and self._moving:
                 self._changed()
 
-    def _latch(self, reason: str) -> None:
+    def _kick_loop(self) -> None:
+        """Kick the controller's RTDE watchdog while the control program runs.
+
+        Its own thread, not the safety monitor's: a kick waits for the control script's ready
+        state (for as long as a stalled controller stalls), and the monitor must keep looking
+        meanwhile. Only when :attr:`io` is free: a control call holding it (a path being sent)
+        restarts the program, and with it the watchdog.
+        """
+        period = 1.0 / min(max(10.0 * self.ur.faults.watchdog_hz, 10.0), self.ur.faults.monitor_hz)
+        while not self._monitor_stop.wait(period):
+            if self._runtime != _PLAYING or not self.io.acquire(timeout=period):
+                continue
+            try:
+                if self._linked() and not self._calls.busy:
+                    self._send(_T_KICK, self._c.kickWatchdog, fatal=False)
+            except _Late as err:
+                log.warning("UR watchdog kick late: %s", err)
+            except RuntimeError as err:  # _Wedged: the monitor names it (the interface is given up)
+                log.warning("UR watchdog kick failed: %s", err)
+            finally:
+                self.io.release()
+
+    def _latch(self, reason: str, condition: FaultCondition) -> None:
         self._fault = reason
+        self.fault_report = self._report(condition, reason, active=True)
         self.fault_log.append((time.monotonic(), reason))
         log.error("UR fault: %s", reason)
         self.stop(f"UR fault: {reason}")
         # stopJ first, but not behind a control call that a stalled controller holds (the report
-        # must not wait for the stall to end; the stopJ follows as soon as the lock is free)
-        t = threading.Thread(target=self._stopj, name="ur-fault-stopj", daemon=True)
+        # must not wait for the stall to end; the stopJ follows as soon as the lock is free, and
+        # only if no later motion began meanwhile)
+        t = threading.Thread(target=self._stopj, args=(self._motion_seq,), name="ur-fault-stopj", daemon=True)
         t.start()
         t.join(0.5)
         if self.on_fault is not None:
             try:
-                self.on_fault(reason)
+                self.on_fault(self.fault_report)
             except Exception:
                 log.exception("on_fault callback failed")
+
+    def _report(self, condition: FaultCondition, detail: str, active: bool) -> FaultReport:
+        """The typed report of a fault, with the controller's last known modes and safety bits."""
+        st = self._last_state
+        if st is None:
+            return FaultReport(role="robot", active=active, condition=condition, detail=detail)
+        bits = int(st["bits"])
+        return FaultReport(
+            role="robot",
+            active=active,
+            condition=condition,
+            detail=detail,
+            robot_mode=_ROBOT_MODES.get(int(st["mode"]), str(st["mode"])),
+            safety_mode=_SAFETY_MODES.get(int(st["safety_mode"]), str(st["safety_mode"])),
+            safety_status_bits=bits,
+            safety_flags=[name for bit, name in _SAFETY_FLAGS if bits & (1 << bit)],
+        )
 
     def _reupload(self) -> None:
         """Send the control program again and wait until it runs (caller holds :attr:`io`).
@@ -507,9 +620,16 @@ class UrRobot(PlannedRobot):
             time.sleep(0.005)
         self._send(_T_CMD, self._c.setWatchdog, self.ur.faults.watchdog_hz)
 
-    def _stopj(self) -> None:
-        """stopJ, unless the link is down (then the controller's RTDE watchdog stops the arm)."""
+    def _stopj(self, motion: int | None = None) -> None:
+        """stopJ, unless the link is down (then the controller's RTDE watchdog stops the arm).
+
+        ``motion``: the motion (:attr:`_motion_seq`) this stop is for; a stop that only got the lock
+        after a later motion began is dropped (it would stop the operator's next, good motion).
+        """
         with self.io:
+            if motion is not None and motion != self._motion_seq:
+                log.debug("stopJ for motion %d dropped: motion %d began since", motion, self._motion_seq)
+                return
             if self._linked():
                 try:
                     self._send(_T_CMD, self._c.stopJ, self.ur.stop_decel, False)
@@ -520,7 +640,7 @@ class UrRobot(PlannedRobot):
         super().stop(reason)
         if self._moving and not reason.startswith("UR fault"):
             # the supervisor-token rule: stop the arm now, not when the motion loop next looks
-            threading.Thread(target=self._stopj, name="ur-stopj", daemon=True).start()
+            threading.Thread(target=self._stopj, args=(self._motion_seq,), name="ur-stopj", daemon=True).start()
 
     # --- motion -----------------------------------------------------------------------------
 
@@ -547,14 +667,19 @@ class UrRobot(PlannedRobot):
             return 0.0
         try:
             with self.io:
+                self._motion_seq += 1
+                motion = self._motion_seq
                 if not self._c.isProgramRunning():
                     self._reupload()  # e.g. the watchdog stopped it while the worker was idle
                 ok = self._send(_T_PATH, self._c.moveJ, entries, True)
                 if ok:  # moveJ(path) restarted the program: its watchdog with it
                     self._send(_T_CMD, self._c.setWatchdog, self.ur.faults.watchdog_hz)
+                log.debug("motion %d sent (%d entries, %.2f s): %s", motion, len(entries), traj.duration, ok)
         except _Wedged as err:
             if self._fault is None:
-                self._latch(f"lost RTDE connection to {self.ur.host}: the control interface stopped answering ({err})")
+                self._latch(
+                    f"lost RTDE connection to {self.ur.host}: the control interface stopped answering ({err})", "stall"
+                )
             raise RobotError(f"motion not started: UR fault ({self._fault})") from None
         except RuntimeError as err:
             raise RobotError(f"the UR controller refused the motion: {err}") from None
@@ -589,23 +714,41 @@ class UrRobot(PlannedRobot):
                 q = self.joints
                 self.tracking.append(path_deviation(path, q))
                 if not running:
+                    # "finished" comes on the control interface (500 Hz); the joints the monitor last
+                    # polled from the receive interface (125 Hz) can be tens of ms older under load, i.e.
+                    # a few mrad before the goal: judge the end on joints read now, and again while
+                    # waiting, not on that sample (the false "ended short" after a stall's recovery)
+                    polled = float(np.abs(q - path[-1]).max())
+                    q = self._joints_now()
                     err = float(np.abs(q - path[-1]).max())
                     if err <= self.ur.joint_tolerance_rad:
+                        if polled > self.ur.joint_tolerance_rad:
+                            log.info("motion %d: 'finished' before the polled joints (%.4f rad off)", motion, polled)
                         self._check_tcp()
                         return now - t0
-                    if now - t0 > 0.5:  # the RTDE sample may lag the controller's finish by a period
+                    if now - t0 > 0.5:
                         # a safety stop ends the program in the same sample the monitor reads its bits
                         # from: give it a few polls to latch, so the error names the fault
-                        deadline = now + 15 * period
+                        deadline = now + max(15 * period, 0.3)
                         while self._fault is None and time.monotonic() < deadline:
                             time.sleep(period)
+                            q = self._joints_now()
+                            if float(np.abs(q - path[-1]).max()) <= self.ur.joint_tolerance_rad and self._fault is None:
+                                log.info(
+                                    "motion %d: 'finished' came %.0f ms before joints at the goal (%.4f rad off)",
+                                    motion, 1e3 * (time.monotonic() - now), err,
+                                )  # fmt: skip
+                                self._check_tcp()
+                                return now - t0
+                            err = float(np.abs(q - path[-1]).max())
                         if self._fault is not None:
                             raise RobotError(f"motion aborted: UR fault ({self._fault}) at {np.round(q, 4).tolist()}")
                         raise RobotError(f"the motion ended {err:.4f} rad short of its goal (stopped)")
                 if now - t0 > traj.duration / slow + 5.0:
                     raise RobotError(f"the motion did not finish within {traj.duration / slow + 5.0:.1f} s")
-        except RobotError:
-            self._stopj()  # never leave an arm moving behind a failed motion
+        except RobotError as err:
+            log.debug("motion %d failed: %s", motion, err)
+            self._stopj(motion)  # never leave an arm moving behind a failed motion
             raise
         finally:
             self._moving = False
@@ -643,6 +786,17 @@ class UrRobot(PlannedRobot):
         return RobotMaintenanceReply(action=req.action, detail=detail, fault=self._fault)
 
     def _clear_fault(self, req: RobotMaintenanceRequest) -> RobotMaintenanceReply:
+        # the motion the fault interrupted must have ended (its loop and its stopJ) before the fault
+        # goes: a loop still running would read the cleared fault as "no fault", and its late stopJ
+        # would land in the operator's next motion. Held throughout: no motion starts mid-clear.
+        if not self._busy.acquire(timeout=_T_CMD + _T_PATH):
+            raise RobotError("cannot clear the fault yet: the interrupted motion is still being stopped; try again")
+        try:
+            return self._clear_fault_idle(req)
+        finally:
+            self._busy.release()
+
+    def _clear_fault_idle(self, req: RobotMaintenanceRequest) -> RobotMaintenanceReply:
         with self.io:
             reconnect = not self._linked() or self._r is None
             if not reconnect:
@@ -675,9 +829,11 @@ class UrRobot(PlannedRobot):
                 raise RobotError(f"cannot clear the fault: the control program does not answer ({err})") from None
             self._data_t = time.monotonic()
         was, self._fault = self._fault, None
+        report, self.fault_report = self.fault_report, None
         self._stop.clear()
-        if self.on_fault is not None:
-            self.on_fault(None)
+        log.info("UR fault cleared by %s (%s)", req.user, was or "no fault")
+        if self.on_fault is not None and report is not None:
+            self.on_fault(report.model_copy(update={"active": False, "detail": f"cleared by maintenance ({was})"}))
         return RobotMaintenanceReply(action=req.action, detail=f"cleared ({was or 'no fault'})", fault=None)
 
 
