@@ -2,10 +2,11 @@
 
 from cellctl.gateway.opcua.config import DEFAULT_ENDPOINT, OpcuaConfig, load_gateway_config
 from cellctl.gateway.opcua.server import APPLICATION_URI, OpcuaGateway
-from cellctl.gateway.opcua.space import CELLCTL_NS, METHODS, PACKML_NS, VARIABLES
+from cellctl.gateway.opcua.space import BASE_PARKED_METHOD, CELLCTL_NS, METHODS, PACKML_NS, VARIABLES
 
 __all__ = [
     "APPLICATION_URI",
+    "BASE_PARKED_METHOD",
     "CELLCTL_NS",
     "DEFAULT_ENDPOINT",
     "METHODS",

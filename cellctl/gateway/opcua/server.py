@@ -39,7 +39,15 @@ from cellctl.config import CellConfig
 from cellctl.errors import CellError, ConfigError, ProtocolError, WorkerTimeout, WorkerUnavailable
 from cellctl.gateway.opcua.config import OpcuaConfig
 from cellctl.gateway.opcua.link import CellLink
-from cellctl.gateway.opcua.space import CELLCTL_NS, METHODS, PACKML_NS, VARIABLES, CellSpace, build_cell_space
+from cellctl.gateway.opcua.space import (
+    BASE_PARKED_METHOD,
+    CELLCTL_NS,
+    METHODS,
+    PACKML_NS,
+    VARIABLES,
+    CellSpace,
+    build_cell_space,
+)
 from cellctl.messages import Ack, Command, CycleResult, Event, PackMLCommand, Status, UnitMode
 from cellctl.supervisor.definition import PackMLState
 from cellctl.surface import SURFACES
@@ -288,7 +296,7 @@ class OpcuaGateway:
         self._cc = await server.register_namespace(CELLCTL_NS)
         for cell in self.cells:
             self._spaces[cell] = await build_cell_space(
-                server, cell, self._pk, self._cc, self._method, self._set_unit_mode_method
+                server, cell, self._pk, self._cc, self._method, self._set_unit_mode_method, self._base_parked_method
             )
             self._locks[cell] = asyncio.Lock()
         hooks: dict[ua.NodeId, WriteHook] = {}
@@ -525,22 +533,44 @@ class OpcuaGateway:
 
         return call
 
+    def _one_int32(self, cell: str, name: str, parent: ua.NodeId, args: tuple[Any, ...], what: str) -> Any:
+        """The single Int32 argument of method ``name`` on the cell object, or the refusing result."""
+        if parent != self._spaces[cell].obj.nodeid:
+            return self._result(ua.StatusCode(S.BadMethodInvalid), f"{name} is a method of {cell}")
+        if len(args) != 1:
+            code = S.BadArgumentsMissing if not args else S.BadTooManyArguments
+            return self._result(ua.StatusCode(code), f"{name} takes one Int32 ({what})")
+        arg = args[0]
+        if not isinstance(arg, ua.Variant) or arg.VariantType != ua.VariantType.Int32 or arg.is_array:
+            return self._result(ua.StatusCode(S.BadTypeMismatch), f"{name} takes an Int32 ({what})")
+        return int(arg.Value)
+
     def _set_unit_mode_method(self, cell: str) -> Callable[..., Awaitable[ua.CallMethodResult]]:
         async def call(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
-            if parent != self._spaces[cell].obj.nodeid:
-                return self._result(ua.StatusCode(S.BadMethodInvalid), f"SetUnitMode is a method of {cell}")
-            if len(args) != 1:
-                code = S.BadArgumentsMissing if not args else S.BadTooManyArguments
-                return self._result(ua.StatusCode(code), f"SetUnitMode takes one Int32 ({_mode_list()})")
-            arg = args[0]
-            if not isinstance(arg, ua.Variant) or arg.VariantType != ua.VariantType.Int32 or arg.is_array:
-                return self._result(ua.StatusCode(S.BadTypeMismatch), f"SetUnitMode takes an Int32 ({_mode_list()})")
-            if arg.Value not in {m.value for m in UnitMode}:
+            value = self._one_int32(cell, "SetUnitMode", parent, args, _mode_list())
+            if not isinstance(value, int):
+                return value
+            if value not in {m.value for m in UnitMode}:
                 return self._result(
-                    ua.StatusCode(S.BadOutOfRange), f"unit mode {arg.Value} is unknown; expected one of {_mode_list()}"
+                    ua.StatusCode(S.BadOutOfRange), f"unit mode {value} is unknown; expected one of {_mode_list()}"
                 )
             async with self._locks[cell]:
-                return self._result(*await self._send(cell, _CALLER.get(), unit_mode_code=int(arg.Value)))
+                return self._result(*await self._send(cell, _CALLER.get(), unit_mode_code=value))
+
+        return call
+
+    def _base_parked_method(self, cell: str) -> Callable[..., Awaitable[ua.CallMethodResult]]:
+        """``ConfirmBaseParked(Station)``: the ``base_parked`` Command; the daemon refuses it (Reason)
+        unless the cycle waits for the base at that station."""
+
+        async def call(parent: ua.NodeId, *args: ua.Variant) -> ua.CallMethodResult:
+            value = self._one_int32(cell, BASE_PARKED_METHOD, parent, args, "the station, >= 0")
+            if not isinstance(value, int):
+                return value
+            if value < 0:
+                return self._result(ua.StatusCode(S.BadOutOfRange), f"station {value} is negative; expected >= 0")
+            async with self._locks[cell]:
+                return self._result(*await self._send(cell, _CALLER.get(), base_parked=value))
 
         return call
 

@@ -17,6 +17,7 @@ from cellctl.bus.keys import ROLES
 from cellctl.messages import PackMLCommand
 
 __all__ = [
+    "BASE_PARKED_METHOD",
     "CELLCTL_NS",
     "METHODS",
     "PACKML_NS",
@@ -53,6 +54,10 @@ METHODS: dict[str, PackMLCommand] = {
     "ToComplete": PackMLCommand.complete,  # OPC 30050 6.7.9 names the Complete command's method ToComplete
 }
 """Method BrowseName on ``BaseStateMachine`` → the PackML command it sends."""
+
+BASE_PARKED_METHOD = "ConfirmBaseParked"
+"""Method on the cell object: a manual base (``base.backend: manual``) is parked at station k — the
+``base_parked`` Command a PLC or operator sends (a cellctl addition, not OPC 30050)."""
 
 V = ua.VariantType
 
@@ -128,13 +133,16 @@ def _is_array(spec: VarSpec) -> bool:
     return isinstance(spec.initial, list)
 
 
-async def build_cell_space(server: Server, cell: str, pk: int, cc: int, methods: Any, set_unit_mode: Any) -> CellSpace:
+async def build_cell_space(
+    server: Server, cell: str, pk: int, cc: int, methods: Any, set_unit_mode: Any, confirm_base_parked: Any
+) -> CellSpace:
     """Create the cell object under Objects with every variable and method.
 
     Args:
         pk, cc: namespace indexes of the PackML and cellctl namespaces.
         methods: ``methods(cell, name)`` → the coroutine serving method ``name`` of ``BaseStateMachine``.
         set_unit_mode: the coroutine serving ``SetUnitMode``.
+        confirm_base_parked: the coroutine serving ``ConfirmBaseParked`` (a manual base's park confirmation).
     """
     objects = server.nodes.objects
     obj = await objects.add_object(ua.NodeId(cell, cc), ua.QualifiedName(cell, cc))
@@ -186,5 +194,14 @@ async def build_cell_space(server: Server, cell: str, pk: int, cc: int, methods:
     mode_arg.Description = ua.LocalizedText("1 Production, 2 Maintenance, 3 Manual")
     space.methods["SetUnitMode"] = await obj.add_method(
         ua.NodeId(f"{cell}/SetUnitMode", cc), _qname("SetUnitMode", pk, cc), set_unit_mode(cell), [mode_arg], [reason]
+    )
+    station_arg = ua.Argument(Name="Station", DataType=ua.NodeId(ua.ObjectIds.Int32), ValueRank=-1)
+    station_arg.Description = ua.LocalizedText("the station (>= 0) the base was parked at, as the cycle awaits it")
+    space.methods[BASE_PARKED_METHOD] = await obj.add_method(
+        ua.NodeId(f"{cell}/{BASE_PARKED_METHOD}", cc),
+        _qname(BASE_PARKED_METHOD, pk, cc),
+        confirm_base_parked(cell),
+        [station_arg],
+        [reason],
     )
     return space
