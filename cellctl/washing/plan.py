@@ -37,7 +37,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -65,6 +65,10 @@ class WashParams:
         threshold: face probability that is washed.
         margin_m: dilation of the dirty faces.
         n_roll: rolls about the jet tried by reachability (the jet is round: any roll sprays alike).
+        residue_rolls: rolls of the second cover pass, which replans every station for only the
+            target points the first pass left short of their passes (0: no second pass).
+        cpu_budget_s: the second pass tries no further station once the plan has used this
+            much CPU time (keeps a round's planning within its 10 s when much dirt is out of reach).
         margin: collision clearance, m.
         max_stations: most base poses one wash plan uses.
         seed: seeds the tour's ant colony.
@@ -74,6 +78,8 @@ class WashParams:
     threshold: float = 0.5
     margin_m: float = 0.02
     n_roll: int = 4
+    residue_rolls: int = 12
+    cpu_budget_s: float = 7.0
     max_stations: int = 8
     margin: float = 0.005
     seed: int = 0
@@ -221,6 +227,7 @@ class _Line:
     facet: int
     points: NDArray[np.float64]  # (K, 3) surface points along the line, in sweep order
     faces: NDArray[np.int64]  # (K,) nearest facet face of each
+    extra: bool = False  # a residue candidate tilted off its point's normal: no internal-rule jet of its own
 
 
 def _raster(mesh: BinMesh, fc: Facet, k: int, spacing: float) -> list[_Line]:
@@ -336,6 +343,15 @@ def plan_wash(
     wp_pts = np.concatenate([ln.points for ln in lines])
     wp_faces = np.concatenate([ln.faces for ln in lines])
     tried: set[int] = set()
+
+    def take(st: list[tuple[Sweep, NDArray[np.int64], bool]], k: int) -> None:
+        """Keep station ``k``'s sweeps and count their passes on the points under them."""
+        for sw, pts_under, free in st:
+            sweeps.append(Sweep(sw.region, sw.surface, sw.T_bin_noz, sw.q, sw.faces, sw.passes, station=k))
+            transits.append(free)
+            need[pts_under] = np.maximum(0, need[pts_under] - sw.passes)
+            point_passes[pts_under] += sw.passes
+
     while need.any() and len(used) < p.max_stations and len(tried) < len(poses):
         live = need[fpts[wp_faces]].any(axis=1)
         near = [
@@ -351,11 +367,35 @@ def plan_wash(
         if not st:
             continue
         used.append(k)
-        for sw, pts_under, free in st:
-            sweeps.append(Sweep(sw.region, sw.surface, sw.T_bin_noz, sw.q, sw.faces, sw.passes, station=k))
-            transits.append(free)
-            need[pts_under] = np.maximum(0, need[pts_under] - sw.passes)
-            point_passes[pts_under] += sw.passes
+        take(st, k)
+    if need.any() and p.residue_rolls > 0:
+        # second cover pass on the residue: the first pass aims each raster waypoint along its
+        # facet's mean normal and fixes one arm shape per station for the bulk of them; a face
+        # it left short (at a facet's edge, on a curved wall, under a spot that misses a
+        # corner) gets its own short sweep aimed along its own normal, and reachability picks
+        # the shape and rolls that suit those few waypoints alone
+        t = time.perf_counter()
+        rp = replace(p, n_roll=max(p.n_roll, p.residue_rolls))
+        r_facets, r_lines = _residue_lines(mesh, facets, fpts, need, targets)
+        r_seen = _Seen(sum(len(ln.points) for ln in r_lines))
+        r_pts = np.concatenate([ln.points for ln in r_lines]) if r_lines else np.zeros((0, 3))
+        near = [int((np.linalg.norm(r_pts - T[:3, 3], axis=1) <= MAX_REACH_M).sum()) for T in poses]
+        before = int((need > 0).sum())
+        for k in sorted(range(len(poses)), key=lambda k: -near[k]):
+            if not need.any() or time.process_time() - cpu0 > p.cpu_budget_s:
+                break
+            if near[k] <= 0 or (k not in used and len(used) >= p.max_stations):
+                continue
+            counts["residue_stations"] += 1
+            st = _station(
+                mesh, r_facets, r_lines, poses[k], need, fpts, nozzle, robot, rp, q0, rays, r_seen, {}, counts
+            )
+            if st and k not in used:
+                used.append(k)
+            take(st, k)
+        counts["residue_points"] = before
+        counts["residue_points_left"] = int((need > 0).sum())
+        _add(times, "residue", t)
     passes = point_passes[fpts].min(axis=1)
     covered = targets & (passes > 0)
     seed_faces = np.concatenate([ln.faces for ln in lines])
@@ -436,6 +476,7 @@ def _station(
     seed_faces = np.concatenate([lines[i].faces for i in live])
     nrm = np.concatenate([np.repeat(facets[lines[i].facet].normal[None], len(lines[i].points), 0) for i in live])
     line_of = np.concatenate([np.full(len(lines[i].points), i) for i in live])
+    extra = np.concatenate([np.full(len(lines[i].points), lines[i].extra) for i in live])
     # only waypoints whose spot can reach a point still short of passes (later stations get few)
     from scipy.spatial import cKDTree
 
@@ -444,12 +485,14 @@ def _station(
     pos[fpts[:, 1:].reshape(-1)] = mesh.vertices[mesh.faces].reshape(-1, 3)
     d, _ = cKDTree(pos[need > 0]).query(pts, distance_upper_bound=nozzle.footprint_m)
     useful = np.isfinite(d)
-    pts, seed_faces, nrm, line_of, wp_all = (x[useful] for x in (pts, seed_faces, nrm, line_of, wp_all))
+    pts, seed_faces, nrm, line_of, wp_all, extra = (
+        x[useful] for x in (pts, seed_faces, nrm, line_of, wp_all, extra)
+    )
     if len(pts) == 0:
         return []
     tool = nozzle.robot_with_nozzle(robot)
     world = PlanningWorld(mesh, tool, T_bin_base, margin=p.margin)
-    vp = _nozzle_poses(mesh, pts, nrm, seed_faces, nozzle)
+    vp = _nozzle_poses(mesh, pts, nrm, seed_faces, nozzle, ~extra)
     keep = height_filter(vp, mesh, float(max(rm.CAMERA_BOX_SIZE)))
     # the distance filter on the flange, not the tip: the lance puts the tip out of the arm's reach otherwise
     flange = Viewpoints(vp.T @ invert(nozzle.T_flange_nozzle()), vp.seed, vp.rank, vp.seed_face, vp.seed_point)
@@ -571,6 +614,56 @@ def _station(
     return out
 
 
+RESIDUE_TILTS_DEG = (0.0, 30.0, 50.0)
+"""Jet tilts off a residue point's normal the second cover pass tries (50°: inside the default 60° incidence limit)."""
+RESIDUE_AZIMUTHS = 6
+
+
+def _residue_lines(
+    mesh: BinMesh, facets: list[Facet], fpts: NDArray[np.int64], need: NDArray[np.int64], targets: NDArray[np.bool_]
+) -> tuple[list[Facet], list[_Line]]:
+    """Extra candidates for the target points still short of passes: one single-waypoint line
+    per point and jet direction, aimed at the point (pulled a fifth of the way into a target face
+    it belongs to, off the edge) along the mean normal of its target faces and that normal
+    tilted by :data:`RESIDUE_TILTS_DEG` at :data:`RESIDUE_AZIMUTHS` azimuths: the first pass's
+    jet follows a facet's mean normal, which a corner on a crease or a face deep inside a
+    narrow opening needs at another angle."""
+    region_of = np.full(mesh.n_faces, -1)
+    for fc in facets:
+        region_of[fc.faces] = fc.region
+    out_f: list[Facet] = []
+    out_l: list[_Line] = []
+    tri = mesh.vertices[mesh.faces]
+    pos = np.concatenate([mesh.centroids[:, None], tri], axis=1)  # (F, 4, 3) as fpts
+    tf = np.flatnonzero(targets)
+    short = need[fpts[tf]] > 0  # (T, 4)
+    done: set[int] = set()
+    for row, col in zip(*np.nonzero(short), strict=True):
+        pid = int(fpts[tf[row], col])
+        if pid in done:
+            continue
+        done.add(pid)
+        owners = tf[(fpts[tf] == pid).any(axis=1)]
+        f = int(owners[0])
+        nm = (mesh.normals[owners] * mesh.areas[owners, None]).sum(axis=0)
+        nm = nm / max(float(np.linalg.norm(nm)), 1e-12)
+        pt = 0.8 * pos[f, col] + 0.2 * mesh.centroids[f]
+        helper = np.array([0.0, 0.0, 1.0]) if abs(nm[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        e1 = np.cross(nm, helper)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(nm, e1)
+        dirs = [nm]
+        for tilt in RESIDUE_TILTS_DEG[1:]:
+            t = np.deg2rad(tilt)
+            for k in range(RESIDUE_AZIMUTHS):
+                az = 2 * np.pi * k / RESIDUE_AZIMUTHS
+                dirs.append(np.cos(t) * nm + np.sin(t) * (np.cos(az) * e1 + np.sin(az) * e2))
+        for j, d in enumerate(dirs):
+            out_l.append(_Line(len(out_f), pt[None], np.array([f], np.int64), extra=j > 0))
+            out_f.append(Facet(int(region_of[f]), int(mesh.surface[f]), np.array([f], np.int64), d))
+    return out_f, out_l
+
+
 def _face_points(mesh: BinMesh) -> NDArray[np.int64]:
     """(F, 4) point ids of each face: its centroid (id = face id), then its corners (welded by position)."""
     key = np.round(mesh.vertices / 1e-5).astype(np.int64)
@@ -579,7 +672,12 @@ def _face_points(mesh: BinMesh) -> NDArray[np.int64]:
 
 
 def _nozzle_poses(
-    mesh: BinMesh, pts: NDArray[np.float64], nrm: NDArray[np.float64], faces: NDArray[np.int64], nozzle: NozzleModel
+    mesh: BinMesh,
+    pts: NDArray[np.float64],
+    nrm: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    nozzle: NozzleModel,
+    opening_rule: NDArray[np.bool_] | None = None,
 ) -> Any:
     """Candidate nozzle poses per waypoint, in preference order: the jet along −normal at each
     stand-off (the external viewpoint rule), then — inside the bin — the jet from the top
@@ -589,7 +687,10 @@ def _nozzle_poses(
 
     d = nozzle.distances
     a = generate_viewpoints(pts, nrm, faces, "external", d)
-    inside = np.flatnonzero(mesh.surface[faces] == INTERNAL)
+    inside_ok = mesh.surface[faces] == INTERNAL
+    if opening_rule is not None:
+        inside_ok &= opening_rule
+    inside = np.flatnonzero(inside_ok)
     if len(inside) == 0:
         return a
     top = (0.0, 0.0, float(mesh.vertices[:, 2].max()) + OPENING_RISE_M)

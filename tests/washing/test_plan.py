@@ -112,3 +112,20 @@ def test_dilation_adds_nearby_faces_of_the_same_surface_only(bin_case) -> None: 
     assert set(mesh.surface[wide].tolist()) == {EXTERNAL}
     d = np.linalg.norm(mesh.centroids[wide & ~dirty] - np.array([0.2, -0.37, -0.15]), axis=1)
     assert d.max() < 0.04 * 1.8 + 0.08 + 0.08  # clump reach + margin + a triangle
+
+
+def test_the_residue_pass_covers_faces_the_first_pass_left_short(bin_case) -> None:  # noqa: ANN001
+    """Seeded powder all over the bin, one station: the second cover pass (the residue's own jet
+    directions, arm shape and rolls) sprays target faces the first pass left short, and only adds
+    sweeps; without it those faces stay uncovered."""
+    mesh, T = bin_case
+    field = PowderField.sample(mesh, 0.3, 860361905)
+    dm = {"seen_dirty": np.flatnonzero(field.dirty_faces(mesh)).tolist()}
+    robot = default_robot_model()
+    first = plan_wash(mesh, dm, [T], NozzleModel(), robot, WashParams(residue_rolls=0))
+    both = plan_wash(mesh, dm, [T], NozzleModel(), robot, WashParams(cpu_budget_s=float("inf")))
+    a = mesh.areas
+    assert a[both.covered].sum() > 1.2 * a[first.covered].sum()
+    assert not (first.covered & ~both.covered).any() and len(both.sweeps) > len(first.sweeps)
+    assert both.counts["residue_points_left"] < both.counts["residue_points"]
+    assert "residue_points" not in first.counts
