@@ -121,6 +121,20 @@ class CycleContext:
     wash_next_sweep: int = 0
     wash_next_view: int = 0
     wash: WashResult | None = None
+    # wash_and_verify in a whole-bin cycle: a round washes from, then re-inspects from, each station
+    # it needs (steps/washing.py WashStation); single-station cycles use the one entry None
+    wash_phase: str = "wash"
+    """``wash`` (running the sweeps station by station) or ``verify`` (re-inspecting) within a round."""
+    wash_queue: list[int | None] = field(default_factory=list)
+    """Stations still to wash from this round, in order (the head is the one washed or parked for now)."""
+    verify_queue: list[int | None] = field(default_factory=list)
+    """Stations still to re-inspect from this round, in order."""
+    wash_parked: int | None = None
+    """The station the base is parked at while washing and re-inspecting (None: single-station)."""
+    wash_scan_poses: dict[int, np.ndarray] = field(default_factory=dict)
+    """station → T_base_bin the scan's plans were adjusted to (a re-park measures a new one)."""
+    wash_station_sweeps: dict[int | None, list[Any]] = field(default_factory=dict)
+    """station → this round's PlannedSweeps to run there (absent: plan them at the station's new park)."""
     # --- whole-bin cycle (planner.whole.enabled): the station loop's place and what each station gave
     station_index: int = 0
     """Position in ``station_order`` of the station the cycle is at (Hold/Suspend resume here)."""

@@ -26,7 +26,7 @@ from cellctl.messages import (
 from cellctl.sim.ground_truth import PowderField
 from cellctl.sim.scene import HOME_JOINTS, nominal_T_bin_base
 from cellctl.supervisor.steps.verifying import Verifying, merge_dirt_maps
-from cellctl.supervisor.steps.washing import WashCheck, Washing
+from cellctl.supervisor.steps.washing import WashCheck, Washing, WashStation
 from cellctl.surface import EXTERNAL
 from cellctl.washing.service import MeshCache, wash_plan_reply
 from tests.fakes.workers import CAM_POSE, INTRINSICS, _png
@@ -108,12 +108,14 @@ def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(
     assert WashCheck()(run) == "wash"
     plan = ctx.wash_plan
     assert plan.sweeps and not plan.unwashable and len(plan.dirty) == dirty.sum() and plan.reason is None
+    assert ctx.wash_queue == [None] and WashStation()(run) == "wash"  # single-station: no parking
     assert Washing()(run) == "succeeded"
     washes = [m for r, o, m in run.calls if o == "wash"]
     assert len(washes) == len(plan.sweeps)  # one request per sweep: a Hold resumes at the next
     assert [len(w.sweeps) for w in washes] == [1] * len(washes)
     assert washes[0].sweeps[0].joints == plan.sweeps[0].joints and washes[0].sweeps[0].passes == 2
     assert ctx.wash_run["sweeps_run"] == len(plan.sweeps) - 1 and len(ctx.wash_run["refused"]) == 1
+    assert WashStation()(run) == "verify" and ctx.verify_queue == [None]
     assert Verifying()(run) == "succeeded"
     moves = [m for r, o, m in run.calls if o == "move"]
     assert [list(m.joints) for m in moves] == [[0.1] * 6]  # only the viewpoint that sees the washed faces
@@ -203,13 +205,111 @@ def test_merging_keeps_unseen_faces_and_replaces_seen_ones(case) -> None:  # noq
     assert sorted(merged["seen_clean"]) == [1, 4, 5]
 
 
-def test_a_whole_bin_cycle_is_not_washed_and_says_why(cfg, case) -> None:  # noqa: ANN001
-    dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
-    ctx = _ctx(cfg.model_copy(update={"planner": cfg.planner.model_copy(update={"whole": cfg.planner.whole.model_copy(
-        update={"enabled": True})})}), case, dirty)  # fmt: skip
+def _whole_ctx(cfg, case, dirty_a, dirty_b):  # noqa: ANN001, ANN202
+    """A whole-bin cycle at its end: station 0 (the nominal park) and station 1 (the far side, the
+    bin turned half round), the base standing at station 1; each station's external plan has one
+    viewpoint that sees its own dirty spot."""
+    from cellctl.geometry.transforms import transform_from_xyz_rpy
+    from cellctl.messages import PoseMsg, StationInfo
+
+    cat, mesh, T_a = case
+    whole = cfg.planner.whole.model_copy(update={"enabled": True})
+    cfg = cfg.model_copy(update={"planner": cfg.planner.model_copy(update={"whole": whole})})
+    T_b = T_a @ transform_from_xyz_rpy((0, 0, 0), (0, 0, np.pi))  # the base on the other side of the bin
+    poses = {0: T_a, 1: T_b}
+    stations = [
+        StationInfo(station=k, base_pose=PoseMsg.from_matrix(invert(T), "bin"), observation_index=0,
+                    plans={"external": f"st{k}"}, viewpoints={"external": 1})
+        for k, T in poses.items()
+    ]  # fmt: skip
+    plans = {
+        (k, "external"): PlanLookupReply(
+            hit=True,
+            plan_id=f"st{k}",
+            viewpoints=[PlannedViewpoint(index=0, camera_pose=CAM_POSE, joints=[0.1 * (k + 1)] * 6, faces=faces)],
+            mesh_faces=mesh.n_faces,
+        )
+        for k, faces in ((0, np.flatnonzero(dirty_a).tolist()), (1, np.flatnonzero(dirty_b).tolist()))
+    }
+    dirty = dirty_a | dirty_b
+    dm = {"seen_dirty": np.flatnonzero(dirty).tolist(), "seen_clean": []}
+    return context(
+        cfg, params=WASH, catalog=cat, bin_type="case_study", T_base_bin=T_b, dirt_map=dm, plan=plans[(1, "external")],
+        stations=stations, station_order=[0, 1], station_index=2, bin_poses=dict(poses), plans=plans,
+    )  # fmt: skip
+
+
+def test_a_whole_bin_round_washes_and_re_inspects_station_by_station_parking_again_where_needed(cfg, case) -> None:  # noqa: ANN001
+    from cellctl.geometry.transforms import transform_from_xyz_rpy
+
+    _, mesh, T_a = case
+    dirty_a = _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0))  # faces station 0
+    dirty_b = _dirty(mesh, (-0.2, 0.37, -0.15), (0, 1.0, 0))  # the mirror spot: faces station 1
+    ctx = _whole_ctx(cfg, case, dirty_a, dirty_b)
     run = ScriptedRun(ctx, _script(cfg))
-    assert WashCheck()(run) == "done" and run.calls == []
-    assert ctx.wash.verdict is None and "single-station cycles" in ctx.wash.reason
+    assert WashCheck()(run) == "wash"
+    # the round's plan covers both spots, each from its own station: the base's station first
+    (req,) = [m for _, o, m in run.calls if o == "wash_plan"]
+    assert len(req.stations) == 2 and np.allclose(req.stations[0].matrix(), invert(ctx.bin_poses[1]))
+    assert ctx.wash_queue == [1, 0] and not ctx.wash_plan.unwashable
+    assert WashStation()(run) == "wash" and Washing()(run) == "succeeded" and ctx.wash_queue == [0]
+    n_first = ctx.wash_run["sweeps_run"]
+    assert n_first == len(ctx.wash_station_sweeps[1])
+    # station 0: park there; identifying measures the bin 1 cm and 0.5° off the scan's park
+    assert WashStation()(run) == "park"
+    assert ctx.current_station().station == 0 and ctx.approach is None and ctx.wash_parked == 0
+    ctx.bin_poses[0] = transform_from_xyz_rpy((0.01, 0.0, 0.0), (0, 0, np.radians(0.5))) @ T_a
+    ctx.T_base_bin = ctx.bin_poses[0]
+    assert WashStation()(run) == "wash" and Washing()(run) == "succeeded" and ctx.wash_queue == []
+    replans = [m for _, o, m in run.calls if o == "wash_plan"][1:]
+    assert len(replans) == 1 and np.allclose(replans[0].stations[0].matrix(), invert(ctx.bin_poses[0]))
+    assert set(replans[0].dirt_map["seen_dirty"]) >= set(np.flatnonzero(dirty_a).tolist())
+    assert ctx.wash_run["sweeps_run"] > n_first and ctx.wash_run["replanned"][0]["station"] == 0
+    # re-inspection: station 0 first (the base stands there), its view carried into the new park
+    assert WashStation()(run) == "verify" and ctx.verify_queue == [0, 1]
+    assert Verifying()(run) == "next"
+    (m0,) = [m for _, o, m in run.calls if o == "move"]
+    assert m0.joints is None and np.allclose(
+        m0.camera_pose.matrix(), ctx.bin_poses[0] @ invert(T_a) @ CAM_POSE.matrix(), atol=1e-6
+    )
+    assert WashStation()(run) == "park" and ctx.wash_parked == 1  # back to station 1 (its pose measured again)
+    assert WashStation()(run) == "verify" and Verifying()(run) == "succeeded"
+    moves = [m for _, o, m in run.calls if o == "move"]
+    assert len(moves) == 2 and list(moves[1].joints) == [0.2] * 6  # station 1's park is unchanged: its joints
+    assert [(v.station, v.surface, v.wash_round) for v in ctx.viewpoints] == [(0, "external", 1), (1, "external", 1)]
+    (rec,) = ctx.wash_rounds
+    assert rec.dirty_faces_before == (dirty_a | dirty_b).sum() and rec.dirty_faces_after == 0
+    assert WashCheck()(run) == "done" and ctx.wash.verdict == "clean"
+
+
+def test_a_dirty_view_is_laid_on_what_the_round_did_not_wash(cfg, case) -> None:  # noqa: ANN001
+    """Coarse map: a re-inspection view that is still dirty marks the faces it sees that were dirty and
+    got no sweep, not the washed ones; a view that sees only washed faces marks them dirty again."""
+    _, mesh, _ = case
+    ctx = _ctx(cfg, case, _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0)))
+    n = mesh.n_faces
+    before = np.zeros(n, bool)
+    before[[1, 2, 3]] = True
+    washed = np.zeros(n, bool)
+    washed[[1, 2]] = True
+    ctx.plan = PlanLookupReply(
+        hit=True,
+        plan_id="p",
+        viewpoints=[
+            PlannedViewpoint(index=0, camera_pose=CAM_POSE, joints=[0.1] * 6, faces=[1, 2, 3, 9]),
+            PlannedViewpoint(index=1, camera_pose=CAM_POSE, joints=[0.2] * 6, faces=[1, 4]),
+        ],
+        mesh_faces=n,
+    )
+    from cellctl.messages import ViewpointResult
+
+    def view(i: int) -> ViewpointResult:
+        return ViewpointResult(index=i, camera_pose=CAM_POSE, label="dirty", p_dirty=0.9, wash_round=1)
+
+    dm = Verifying._dirt_map(ctx, mesh, [view(0)], before, washed)
+    assert dm["seen_dirty"] == [3] and dm["seen_clean"] == [1, 2, 9]  # face 3 got no sweep: the dirt is there
+    dm = Verifying._dirt_map(ctx, mesh, [view(1)], before, washed)
+    assert dm["seen_dirty"] == [1, 4]  # nothing unwashed in view: the wash did not explain it
 
 
 def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) -> None:  # noqa: ANN001

@@ -10,7 +10,7 @@ from cellctl.supervisor.steps.replanning import Replanning
 from cellctl.supervisor.steps.reporting import Reporting
 from cellctl.supervisor.steps.scanning import Scanning
 from cellctl.supervisor.steps.verifying import Verifying
-from cellctl.supervisor.steps.washing import WashCheck, Washing
+from cellctl.supervisor.steps.washing import WashCheck, Washing, WashStation
 
 STEPS: dict[str, type[Step]] = {
     s.NAME: s
@@ -24,6 +24,7 @@ STEPS: dict[str, type[Step]] = {
         NextStation,
         Reporting,
         WashCheck,
+        WashStation,
         Washing,
         Verifying,
     )

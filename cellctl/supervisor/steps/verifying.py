@@ -7,6 +7,19 @@ plan order (move → capture → classify, each a :class:`~cellctl.messages.View
 the wash saw powder that is gone); faces they do not see keep theirs. The merged map becomes
 the cycle's dirt map, the round is recorded (:data:`~cellctl.bus.topics.WASH_ROUND`, the
 CycleResult's ``wash.rounds``) and ``wash_check`` decides again.
+
+A whole-bin cycle re-inspects station by station (``wash_station`` parks the base): at each,
+the viewpoints of that station's plans (both surfaces) that see the faces to look at, each
+classified by its surface's network. Where the base parked again since the scan, a view goes
+to its planned camera pose relative to the bin, carried into the new park (the bin pose
+measured there), not to the planned joints.
+
+With whole-image classifiers (no heat map, the coarse map) a dirty re-inspection view is laid
+on what the round did not wash: it marks dirty the faces it sees that were dirty before the
+round and got no sweep, when it sees any; only a view that sees nothing but washed or clean
+faces marks them all dirty again. Without this, one unwashable spot in a view would keep every
+washed face of that view dirty round after round; a bin with such a spot still ends ``dirty``,
+by that spot's faces.
 """
 
 from __future__ import annotations
@@ -22,15 +35,16 @@ from cellctl.messages import (
     CaptureRequest,
     MoveReply,
     MoveRequest,
+    PoseMsg,
     ViewpointResult,
     WashResult,
     WashRound,
 )
-from cellctl.supervisor.context import StepRun
+from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import Step
 from cellctl.supervisor.steps.washing import face_mask, picture_dir, wash_mesh
 
-__all__ = ["Verifying", "merge_dirt_maps"]
+__all__ = ["Verifying", "merge_dirt_maps", "verify_stations"]
 
 
 def _face_state(dirt_map: dict[str, Any], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -60,31 +74,71 @@ def merge_dirt_maps(old: dict[str, Any], new: dict[str, Any], mesh: Any) -> dict
     return fm.as_json()
 
 
+def washed_faces(ctx: CycleContext, n: int) -> np.ndarray:
+    """(F,) faces the round's sweeps that ran sprayed to their passes (every station's)."""
+    return face_mask(list(ctx.wash_run.get("washed", [])), n)
+
+
+def look_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:  # noqa: ANN401
+    """(F,) what the round re-inspects: its targets and every face its jet sprayed, dilated by the splash."""
+    from cellctl.washing.targets import dilate
+
+    wplan = ctx.wash_plan
+    assert wplan is not None
+    n = mesh.n_faces
+    sprayed = face_mask(wplan.targets, n) | face_mask(wplan.washed, n) | washed_faces(ctx, n)
+    return dilate(mesh, sprayed, ctx.cfg.wash.splash_m)
+
+
+def views_at(ctx: CycleContext, mesh: Any, rank: int | None) -> list[tuple[str, Any]]:  # noqa: ANN401
+    """(surface, PlannedViewpoint) of station ``rank``'s plans that see a face to look at, in plan order."""
+    look = look_faces(ctx, mesh)
+    n = mesh.n_faces
+    if rank is None:
+        assert ctx.plan is not None
+        pairs = [(ctx.surface, vp) for vp in ctx.plan.viewpoints]
+    else:
+        pairs = [(surf, vp) for (st, surf), p in ctx.plans.items() if st == rank for vp in p.viewpoints]
+    return [(s, vp) for s, vp in pairs if any(0 <= f < n and look[f] for f in vp.faces)]
+
+
+def verify_stations(ctx: CycleContext) -> list[int | None]:
+    """The stations the round re-inspects from, in the order walked (the base's station first)."""
+    from cellctl.supervisor.steps.washing import wash_ranks
+
+    mesh = wash_mesh(ctx)
+    return [r for r in wash_ranks(ctx) if views_at(ctx, mesh, r)]
+
+
 class Verifying(Step):
     NAME = "verifying"
-    OUTCOMES = ("succeeded", "failed")
+    OUTCOMES = ("succeeded", "next", "failed")
     DESCRIPTION = "re-inspect the washed regions and their splash neighbours; merge into the dirt map; record the round"
-    READS = ("wash_plan", "plan", "dirt_map")
-    WRITES = ("dirt_map", "viewpoints", "wash_rounds", "wash", "wash_plan", "wash_next_view")
+    READS = ("wash_plan", "plan", "dirt_map", "verify_queue")
+    WRITES = ("dirt_map", "viewpoints", "wash_rounds", "wash", "wash_plan", "wash_next_view", "verify_queue")
 
     def execute(self, run: StepRun) -> str:
-        from cellctl.washing.targets import dilate
-
         ctx = run.ctx
         wplan, iplan = ctx.wash_plan, ctx.plan
         assert wplan is not None and iplan is not None  # READS
         mesh = wash_mesh(ctx)
         r = len(ctx.wash_rounds) + 1
         n = mesh.n_faces
-        washed, covered = face_mask(wplan.washed, n), face_mask(wplan.covered, n)
-        look = dilate(mesh, face_mask(wplan.targets, n) | washed, ctx.cfg.wash.splash_m)
-        views = [vp for vp in iplan.viewpoints if any(0 <= f < mesh.n_faces and look[f] for f in vp.faces)]
-        for k in range(ctx.wash_next_view, len(views)):
-            self._look(run, views[k], r)
-            ctx.wash_next_view = k + 1
+        if ctx.verify_queue:
+            rank = ctx.verify_queue[0]
+            views = views_at(ctx, mesh, rank)
+            for k in range(ctx.wash_next_view, len(views)):
+                surf, vp = views[k]
+                self._look(run, vp, r, surf, rank)
+                ctx.wash_next_view = k + 1
+            ctx.verify_queue.pop(0)
+            ctx.wash_next_view = 0
+            if ctx.verify_queue:
+                return "next"
+        washed, covered = face_mask(wplan.washed, n) | washed_faces(ctx, n), face_mask(wplan.covered, n)
         mine = [v for v in ctx.viewpoints if v.wash_round == r]
-        new_map = self._dirt_map(ctx, mesh, mine)
         before = face_mask(wplan.dirty, n)
+        new_map = self._dirt_map(ctx, mesh, mine, before, washed_faces(ctx, n))
         ctx.dirt_map = merge_dirt_maps(ctx.dirt_map or {}, new_map, mesh)
         # the heat maps are in the MCAP (topics.HEATMAP); the CycleResult keeps the fused face_p
         ctx.viewpoints = [v.model_copy(update={"heatmap": None}) if v.wash_round == r else v for v in ctx.viewpoints]
@@ -114,7 +168,7 @@ class Verifying(Step):
             reinspected_views=len(mine),
             dirty_faces_after=int(after.sum()),
             dirty_m2_after=round(float(a[after].sum()), 6),
-            plan_s=wplan.plan_s,
+            plan_s=wplan.plan_s + sum(float(x.get("plan_s", 0.0)) for x in stats.get("replanned", [])),
             plan_cpu_s=wplan.cpu_s,
             pictures=pictures,
         )
@@ -131,21 +185,28 @@ class Verifying(Step):
         return "succeeded"
 
     @staticmethod
-    def _look(run: StepRun, vp: Any, r: int) -> None:  # noqa: ANN401 - PlannedViewpoint
+    def _look(run: StepRun, vp: Any, r: int, surface: str, rank: int | None) -> None:  # noqa: ANN401
+        from cellctl.geometry.transforms import invert
         from cellctl.supervisor.steps.board_mask import mask_board
         from cellctl.supervisor.steps.classifying import record_heat, with_reply
         from cellctl.supervisor.steps.identifying import captured_image
         from cellctl.supervisor.steps.scanning import classify_image
 
         ctx = run.ctx
+        where = {"station": rank, "surface": surface} if rank is not None else {}
+        settle = ctx.cfg.robot.settle_s
+        move = MoveRequest(joints=vp.joints, settle_s=settle)
+        T_then, T_now = ctx.wash_scan_poses.get(rank), ctx.bin_poses.get(rank)  # type: ignore[arg-type]
+        if T_then is not None and T_now is not None and not np.allclose(T_then, T_now, atol=1e-9):
+            # parked again since the scan: the same view of the bin, from the new park
+            T = T_now @ invert(T_then) @ vp.camera_pose.matrix()
+            move = MoveRequest(camera_pose=PoseMsg.from_matrix(T, vp.camera_pose.frame_id), settle_s=settle)
         try:
-            moved, _ = run.call(
-                "robot", "move", MoveRequest(joints=vp.joints, settle_s=ctx.cfg.robot.settle_s), MoveReply
-            )
+            moved, _ = run.call("robot", "move", move, MoveReply)
         except WorkerFailed as err:
             run.checkpoint()
             ctx.viewpoints.append(
-                ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err), wash_round=r)
+                ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err), wash_round=r, **where)
             )
             return
         cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
@@ -155,29 +216,56 @@ class Verifying(Step):
         bt = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
         if bt is not None and ctx.T_base_bin is not None:
             img = mask_board(data, bt, ctx.T_base_bin, moved.camera_pose.matrix(), cap.intrinsics)
-        reply = classify_image(run, vp.index, img, "png" if img is not data else cap.format, ctx.surface)
+        reply = classify_image(run, vp.index, img, "png" if img is not data else cap.format, surface)
         record_heat(run, reply)
         ctx.viewpoints.append(
-            with_reply(ViewpointResult(index=vp.index, camera_pose=moved.camera_pose, wash_round=r), reply)
+            with_reply(ViewpointResult(index=vp.index, camera_pose=moved.camera_pose, wash_round=r, **where), reply)
         )
 
     @staticmethod
-    def _dirt_map(ctx: Any, mesh: Any, views: list[ViewpointResult]) -> dict[str, Any]:  # noqa: ANN401
-        """The re-inspection's own map: heat maps fused per face, else each view's label on its faces."""
-        from cellctl.supervisor.steps.reporting import dirt_map, view_evidence
+    def _dirt_map(
+        ctx: Any,  # noqa: ANN401
+        mesh: Any,  # noqa: ANN401
+        views: list[ViewpointResult],
+        before: np.ndarray,
+        washed: np.ndarray,
+    ) -> dict[str, Any]:
+        """The re-inspection's own map: heat maps fused per face, else each view's label laid on its faces
+        (a dirty view on the faces it sees that were dirty and not washed, when it sees any)."""
+        from cellctl.supervisor.steps.reporting import _faces_by_view, view_evidence
 
+        whole = ctx.whole and bool(ctx.station_order)
+        plans = ctx.plans if whole else None
         if any(v.heatmap for v in views):
             from cellctl.classify.heatmap import fuse_views
             from cellctl.geometry.camera import CameraModel
 
             vc = ctx.cfg.classifier.verdict
             fm = fuse_views(
-                view_evidence(ctx.plan, views, ctx.T_base_bin),
+                view_evidence(ctx.plan, views, ctx.T_base_bin, plans, ctx.bin_poses if whole else None),
                 mesh,
                 CameraModel.from_config(ctx.cfg.camera),
                 prior=vc.face_prior,
                 face_threshold=vc.face_threshold,
             )
             return fm.as_json()
-        out, _ = dirt_map(ctx.plan, views, mesh, ctx.surface)
-        return out
+        from cellctl.supervisor.steps.classifying import view_key
+
+        n = mesh.n_faces
+        faces_by = _faces_by_view(ctx.plan, plans)
+        seen: set[int] = set()
+        dirty: set[int] = set()
+        for v in views:
+            if v.error is not None or v.label is None:
+                continue
+            f = {int(x) for x in faces_by.get(view_key(v), []) if 0 <= int(x) < n}
+            seen |= f
+            if v.label == "dirty":
+                unwashed = {x for x in f if before[x] and not washed[x]}
+                dirty |= unwashed or f
+        return {
+            "faces_total": n,
+            "seen_dirty": sorted(dirty),
+            "seen_clean": sorted(seen - dirty),
+            "unseen_count": n - len(seen),
+        }

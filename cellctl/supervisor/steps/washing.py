@@ -9,6 +9,16 @@ stack) and ``washing`` runs it: one robot ``wash`` request per sweep, so a Hold 
 the next sweep and a sweep the robot refuses costs only its faces. ``verifying``
 (:mod:`cellctl.supervisor.steps.verifying`) re-inspects what was washed and loops back here.
 
+**Whole-bin cycles** (``planner.whole.enabled``): the round's plan is asked for every station the
+scan used, each with the bin pose its plans were adjusted to, and each sweep belongs to one of
+them. ``wash_station`` then walks the stations the round needs — the one the base stands at first,
+then the others — parking at each (``wash_approaching`` → ``wash_identifying``: the station's bin
+pose measured again, or carried over as the scan did), and ``washing`` runs that station's sweeps
+(replanned for its share of the faces at the pose measured now when the base parked again). The
+re-inspection goes the same way, station by station, with each station's own plans' viewpoints.
+The place in the walk (``wash_queue``, ``verify_queue``, ``wash_next_sweep``, ``wash_next_view``)
+is on the blackboard, so a Hold resumes at the station and sweep or view where it stopped.
+
 Every other mode passes ``wash_check`` straight through (outcome ``done``). Per round the plan
 goes to the cycle log (:data:`~cellctl.bus.topics.WASH_PLAN`) and the pictures (dirt map
 before, wash path on the mesh, dirt map after) beside the cycle's MCAP, in ``<cycle_id>.wash/``.
@@ -38,7 +48,7 @@ from cellctl.messages import (
 from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import Step
 
-__all__ = ["WashCheck", "Washing", "face_mask", "picture_dir"]
+__all__ = ["WashCheck", "WashStation", "Washing", "face_mask", "picture_dir"]
 
 
 def picture_dir(ctx: CycleContext) -> Path | None:
@@ -54,7 +64,7 @@ def face_mask(ids: list[int], n_faces: int) -> np.ndarray:
     return out
 
 
-def _plan_view(plan: WashPlanReply, n_faces: int, T_bin_base: np.ndarray) -> Any:  # noqa: ANN401
+def _plan_view(plan: WashPlanReply, n_faces: int, T_bin_base: list[np.ndarray]) -> Any:  # noqa: ANN401
     """What :func:`cellctl.washing.pictures.draw_wash_path` reads of a plan, from the planner's reply."""
     return SimpleNamespace(
         dirty=face_mask(plan.dirty, n_faces),
@@ -62,7 +72,7 @@ def _plan_view(plan: WashPlanReply, n_faces: int, T_bin_base: np.ndarray) -> Any
         washed=face_mask(plan.washed, n_faces),
         unwashable=[SimpleNamespace(faces=np.asarray(u.faces, np.int64), area_m2=u.area_m2) for u in plan.unwashable],
         sweeps=plan.sweeps,
-        stations=[T_bin_base],
+        stations=T_bin_base,
     )
 
 
@@ -82,6 +92,37 @@ def wash_mesh(ctx: CycleContext) -> Any:  # noqa: ANN401 - BinMesh
     return ctx.catalog.load_mesh(ctx.bin_type)
 
 
+def wash_ranks(ctx: CycleContext) -> list[int | None]:
+    """The stations a round may wash from, in the order it walks them: the one the base stands at,
+    then the others back along the scan's visiting order (a single-station cycle: ``[None]``)."""
+    if not ctx.whole or not ctx.wash_scan_poses:
+        return [None]
+    here = ctx.wash_parked
+    rest = [r for r in reversed(ctx.station_order) if r in ctx.wash_scan_poses and r != here]
+    return ([here] if here in ctx.wash_scan_poses else []) + rest
+
+
+def park_at(run: StepRun, rank: int | None, why: str) -> bool:
+    """Make the base stand at station ``rank`` for washing/re-inspection: True when it already
+    does; else sets the station loop's place there for ``wash_approaching`` → ``wash_identifying``
+    (the new park's bin pose is measured again, or carried over) and returns False."""
+    ctx = run.ctx
+    if rank is None or rank == ctx.wash_parked:
+        return True
+    ctx.station_index = ctx.station_order.index(rank)
+    ctx.surface_index = 0
+    st = ctx.current_station()
+    assert st is not None
+    ctx.approach = None  # the base drives: park at the station
+    ctx.observation_index = st.observation_index or 0
+    ctx.identify_attempts = 0
+    ctx.wash_parked = rank
+    # sweeps planned at the scan's park of this station would miss by the new park's error
+    ctx.wash_station_sweeps.pop(rank, None)
+    run.event("info", f"wash round {len(ctx.wash_rounds) + 1}: parking at station {rank} to {why}")
+    return False
+
+
 def _dirty_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:  # noqa: ANN401
     from cellctl.washing.targets import dirty_from_map
 
@@ -94,7 +135,17 @@ class WashCheck(Step):
     OUTCOMES = ("done", "wash", "failed")
     DESCRIPTION = "wash_and_verify: clean, dirty (rounds spent / unwashable), or plan the next round's wash"
     READS = ("mode", "dirt_map")
-    WRITES = ("wash_plan", "wash", "verdict")
+    WRITES = (
+        "wash_plan",
+        "wash",
+        "verdict",
+        "wash_queue",
+        "verify_queue",
+        "wash_phase",
+        "wash_scan_poses",
+        "wash_parked",
+        "wash_station_sweeps",
+    )
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
@@ -104,10 +155,12 @@ class WashCheck(Step):
         done = len(ctx.wash_rounds)
         if ctx.dirt_map is None:
             return self._end(run, None, "no dirt map: the wash needs the cycle's dirt map (nothing was inspected)")
-        if ctx.whole:
-            # the rounds wash and re-inspect from one park; a whole-bin cycle ends at its last station
-            why = "not washed: wash_and_verify runs in single-station cycles (planner.whole.enabled is true)"
-            return self._end(run, None, why)
+        if ctx.whole and not ctx.wash_scan_poses:
+            if not ctx.bin_poses:
+                return self._end(run, None, "not washed: the whole-bin cycle measured no station's bin pose")
+            # the poses the scan's plans were adjusted to; the base stands at the last station scanned
+            ctx.wash_scan_poses = dict(ctx.bin_poses)
+            ctx.wash_parked = [r for r in ctx.station_order if r in ctx.bin_poses][-1]
         mesh = wash_mesh(ctx)
         dirty = _dirty_faces(ctx, mesh)
         if not dirty.any():
@@ -125,7 +178,17 @@ class WashCheck(Step):
         ctx.wash_plan = plan
         ctx.wash_next_sweep = 0
         ctx.wash_next_view = 0
-        ctx.wash_run = {"sweeps_run": 0, "passes_run": 0, "refused": [], "pictures": []}
+        ctx.wash_run = {"sweeps_run": 0, "passes_run": 0, "refused": [], "pictures": [], "replanned": []}
+        ranks = wash_ranks(ctx)
+        ctx.wash_run["ranks"] = ranks  # the plan's station k is ranks[k] (the base moves on this round)
+        ctx.wash_station_sweeps = {}
+        for k, rank in enumerate(ranks):
+            mine = [sw for sw in plan.sweeps if sw.station == k]
+            if mine:
+                ctx.wash_station_sweeps[rank] = mine
+        ctx.wash_queue = [r for r in ranks if r in ctx.wash_station_sweeps]
+        ctx.verify_queue = []
+        ctx.wash_phase = "wash"
         n_unw = len(plan.unwashable)
         run.event(
             "info",
@@ -143,10 +206,12 @@ class WashCheck(Step):
         wc = ctx.cfg.wash
         state, _ = run.call("robot", "state", RobotStateRequest(), RobotState)
         assert ctx.T_base_bin is not None and ctx.bin_type is not None  # wash_mesh checked them
+        # single-station: the base stays where the cycle parked it, the one station is the measured
+        # pose; whole-bin: every station scanned, at the pose its plans were adjusted to
+        poses = [ctx.T_base_bin] if not ctx.whole else [ctx.wash_scan_poses[r] for r in wash_ranks(ctx)]
         req = WashPlanRequest(
             bin_type=ctx.bin_type,
-            # the base stays where the cycle parked it: the one station is the measured pose
-            stations=[PoseMsg.from_matrix(invert(ctx.T_base_bin), "bin")],
+            stations=[PoseMsg.from_matrix(invert(T), "bin") for T in poses],
             q_start=state.joints,
             dirt_map=ctx.dirt_map,
             threshold=wc.threshold,
@@ -168,7 +233,8 @@ class WashCheck(Step):
 
         assert ctx.T_base_bin is not None
         name = ctx.bin_type or "bin"
-        view = _plan_view(plan, mesh.n_faces, invert(ctx.T_base_bin))
+        poses = [ctx.T_base_bin] if not ctx.whole else [ctx.wash_scan_poses[r] for r in wash_ranks(ctx)]
+        view = _plan_view(plan, mesh.n_faces, [invert(T) for T in poses])
         before = draw_dirt_map(mesh, ctx.dirt_map or {}, folder / f"r{r}_before.png", f"{name} round {r}: before")
         path = draw_wash_path(mesh, view, _spot_passes(plan), folder / f"r{r}_path.png", f"{name} round {r}:")
         ctx.wash_run["pictures"] = [before.name, path.name]  # in <cycle_id>.wash/: a replay's names match
@@ -204,12 +270,44 @@ class WashCheck(Step):
         return "done"
 
 
+class WashStation(Step):
+    NAME = "wash_station"
+    OUTCOMES = ("wash", "verify", "park")
+    DESCRIPTION = "walk the round's stations: park at the next one to wash or re-inspect from, then wash or verify"
+    READS = ("wash_plan", "wash_queue", "verify_queue", "wash_phase")
+    WRITES = (
+        "wash_phase",
+        "verify_queue",
+        "wash_parked",
+        "station_index",
+        "surface_index",
+        "approach",
+        "observation_index",
+        "identify_attempts",
+        "wash_station_sweeps",
+    )
+
+    def execute(self, run: StepRun) -> str:
+        from cellctl.supervisor.steps.verifying import verify_stations
+
+        ctx = run.ctx
+        if ctx.wash_phase == "wash":
+            if ctx.wash_queue:
+                return "wash" if park_at(run, ctx.wash_queue[0], "wash from it") else "park"
+            ctx.wash_phase = "verify"
+            ctx.verify_queue = verify_stations(ctx)
+            ctx.wash_next_view = 0
+        if ctx.verify_queue and not park_at(run, ctx.verify_queue[0], "re-inspect from it"):
+            return "park"
+        return "verify"
+
+
 class Washing(Step):
     NAME = "washing"
     OUTCOMES = ("succeeded", "failed")
-    DESCRIPTION = "run the round's wash sweeps on the robot, one request per sweep (a Hold resumes at the next)"
-    READS = ("wash_plan",)
-    WRITES = ("wash_next_sweep", "wash_run")
+    DESCRIPTION = "run the station's wash sweeps on the robot, one request per sweep (a Hold resumes at the next)"
+    READS = ("wash_plan", "wash_queue")
+    WRITES = ("wash_next_sweep", "wash_run", "wash_queue", "wash_station_sweeps")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
@@ -217,8 +315,14 @@ class Washing(Step):
         assert plan is not None  # READS wash_plan
         r = len(ctx.wash_rounds) + 1
         stats = ctx.wash_run
-        for i in range(ctx.wash_next_sweep, len(plan.sweeps)):
-            sw = plan.sweeps[i]
+        rank = ctx.wash_queue[0] if ctx.wash_queue else None
+        sweeps = ctx.wash_station_sweeps.get(rank)
+        if sweeps is None:
+            sweeps = self._replan(run, rank, r)
+            ctx.wash_station_sweeps[rank] = sweeps
+        where = f" at station {rank}" if rank is not None else ""
+        for i in range(ctx.wash_next_sweep, len(sweeps)):
+            sw = sweeps[i]
             req = WashRequest(
                 sweeps=[WashSweep(joints=sw.joints, passes=sw.passes, region=sw.region)],
                 round=r,
@@ -236,18 +340,67 @@ class Washing(Step):
             except WorkerFailed as err:
                 run.checkpoint()  # a Hold/Stop interrupts the sweep: not a refusal, resume it
                 # one refused sweep (newly in collision at the measured pose) costs its faces, not the round
-                stats["refused"].append({"sweep": i, "reason": str(err)[:300]})
+                stats["refused"].append({"sweep": i, "station": rank, "reason": str(err)[:300]})
                 ctx.wash_next_sweep = i + 1
                 continue
             stats["sweeps_run"] += reply.sweeps_run
             stats["passes_run"] += reply.passes_run
+            stats["washed"] = sorted(set(stats.get("washed", [])) | set(sw.faces))
             ctx.wash_next_sweep = i + 1
-        if stats["sweeps_run"] == 0:
-            first = stats["refused"][0]["reason"] if stats["refused"] else "none planned"
-            raise WorkerFailed(f"robot ran none of the {len(plan.sweeps)} wash sweeps (first: {first})", role="robot")
+        ctx.wash_next_sweep = 0
+        if ctx.wash_queue:
+            ctx.wash_queue.pop(0)
         run.event(
             "info",
-            f"wash round {r}: {stats['sweeps_run']}/{len(plan.sweeps)} sweeps, {stats['passes_run']} passes run"
-            + (f", {len(stats['refused'])} refused" if stats["refused"] else ""),
+            f"wash round {r}{where}: {len(sweeps)} sweeps; {stats['sweeps_run']} sweeps, {stats['passes_run']} "
+            "passes run so far" + (f", {len(stats['refused'])} refused" if stats["refused"] else ""),
         )
+        if not ctx.wash_queue and stats["sweeps_run"] == 0:
+            first = stats["refused"][0]["reason"] if stats["refused"] else "none planned"
+            n = sum(len(v) for v in ctx.wash_station_sweeps.values())
+            raise WorkerFailed(f"robot ran none of the {n} wash sweeps (first: {first})", role="robot")
         return "succeeded"
+
+    @staticmethod
+    def _replan(run: StepRun, rank: int | None, r: int) -> list[Any]:
+        """The base parked again at ``rank``: plan that station's share of the round (the target faces
+        its sweeps of the round's plan sprayed) at the bin pose measured at this park."""
+        from cellctl.geometry.transforms import invert
+
+        ctx = run.ctx
+        plan = ctx.wash_plan
+        assert plan is not None and rank is not None and ctx.bin_type is not None
+        k = ctx.wash_run["ranks"].index(rank)
+        # its share: the round's target faces under its sweeps' spot paths (within a footprint)
+        mesh = wash_mesh(ctx)
+        spots = [np.asarray(sw.spots, np.float64).reshape(-1, 3) for sw in plan.sweeps if sw.station == k]
+        targets = np.asarray(plan.targets, np.int64)
+        share: list[int] = []
+        if spots and len(targets):
+            P = np.concatenate(spots)
+            d = np.linalg.norm(mesh.centroids[targets][:, None, :] - P[None, :, :], axis=2).min(axis=1)
+            share = targets[d <= ctx.cfg.nozzle.footprint_m].tolist()
+        state, _ = run.call("robot", "state", RobotStateRequest(), RobotState)
+        req = WashPlanRequest(
+            bin_type=ctx.bin_type,
+            stations=[PoseMsg.from_matrix(invert(ctx.bin_poses[rank]), "bin")],
+            q_start=state.joints,
+            dirt_map={"seen_dirty": share},
+            threshold=ctx.cfg.wash.threshold,
+            margin_m=0.0,  # the share is of the round's targets: dilated already
+            seed=ctx.params.seed,
+            round=r,
+        )
+        reply, _ = run.call("planner", "wash_plan", req, WashPlanReply)
+        ctx.log.write_json(
+            topics.WASH_PLAN, "cellctl.WashPlan", {"round": r, "station": rank, "replanned": True, **reply.summary}
+        )
+        ctx.wash_run.setdefault("replanned", []).append(
+            {"station": rank, "faces": len(share), "sweeps": len(reply.sweeps), "plan_s": reply.plan_s}
+        )
+        run.event(
+            "info",
+            f"wash round {r}: station {rank} parked again: its {len(share)} faces replanned at the measured pose "
+            f"({len(reply.sweeps)} sweeps, {reply.plan_s:.1f} s)",
+        )
+        return list(reply.sweeps)
