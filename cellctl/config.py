@@ -315,6 +315,13 @@ class WholeBinConfig(_Model):
     inner_park_distance_m: float = Field(
         default=0.35, gt=0, le=3, description="inner ring: base origin beyond the bin's extent (reach into deep bins)"
     )
+    odometry_error_m: float = Field(
+        default=0.01,
+        ge=0,
+        le=0.2,
+        description="a station without the board: extra clearance of its configurations from the bin, for the "
+        "error of the pose the base's odometry carries there (two base.localisation_error reports); 0: none",
+    )
 
 
 class PlannerConfig(_Model):

@@ -104,6 +104,11 @@ class WholeParams:
     exact_time_limit_s: float = 5.0
     view_min_gain_pct: float = 0.15
     """A viewpoint must add this % of its surface's upper bound to Greedy Area's set (0: all)."""
+    odometry_m: float = 0.0
+    """Bin-pose error left at a station that cannot see the board (the cycle carries the pose measured
+    at an earlier station through the base's reported motion: two localisation reports, the yaw's
+    lever): the extra clearance its configurations keep from the bin (0: none; a cell's config:
+    ``planner.whole.odometry_error_m``, 10 mm)."""
 
     @classmethod
     def from_config(
@@ -137,6 +142,7 @@ class WholeParams:
                 accel_fraction=accel_fraction,
             ),
             view_min_gain_pct=whole.view_min_gain_pct,
+            odometry_m=whole.odometry_error_m,
         )
 
     def check(self) -> None:
@@ -996,6 +1002,14 @@ def plan_whole(
         ev.identify, why = _identification(bin_type, world, robot, T_base_bin, q_home, step)
         ev.setups["identify_reason"] = why
         accept = robust_acceptor(mesh, robot, c.T_bin_base, p0)
+        if ev.identify is None and params.odometry_m > 0:
+            # No board here: the cycle adjusts the plan to the pose carried by the base's odometry,
+            # whose error it cannot see, so every configuration (and each one the robustness check
+            # re-solves for a parking error) keeps that much more clearance. The plan keeps the
+            # margin it is checked with at lookup.
+            odo = replace(p0, margin=p0.margin + params.odometry_m)
+            world = PlanningWorld(mesh, robot, c.T_bin_base, margin=odo.margin)
+            accept = robust_acceptor(mesh, robot, c.T_bin_base, odo)
         ev.accept = accept
         for surf, (filt, sf, rng) in shared.items():
             p = replace(p0, surface=surf)

@@ -9,6 +9,7 @@ a report it falls back to the planned station pose (``carried_over``).
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from cellctl.geometry.transforms import invert, pose_error, transform_from_xyz_rpy
 from cellctl.messages import ApproachReply, ApproachRequest, PoseMsg, StationInfo
@@ -141,3 +142,35 @@ def test_a_measured_station_keeps_the_bin_in_the_map_frame(cfg, monkeypatch) -> 
     monkeypatch.setattr(Identifying, "_view", lambda self, run, T: Ident())
     assert Identifying()(ScriptedRun(ctx, {})) == "succeeded"
     assert np.allclose(ctx.T_map_bin, T_map_base @ T_base_bin)
+
+
+@pytest.mark.slow  # two whole-bin plans of a box: ~20 CPU s
+def test_the_planner_keeps_more_clearance_where_the_board_is_not_visible(cfg) -> None:  # noqa: ANN001
+    """A station without the board (here: a mesh without a catalog board, so every station) keeps
+    ``odometry_m`` more clearance in every planned configuration; the plan keeps its own margin."""
+    from cellctl.planning.collision import PlanningWorld
+    from cellctl.planning.plan import PlanParams
+    from cellctl.planning.robot import RobotModel
+    from cellctl.planning.shapes import open_box_bin
+    from cellctl.planning.stations import StationParams
+    from cellctl.planning.whole import WholeParams, plan_whole
+
+    box, model = open_box_bin(), RobotModel.from_config(cfg)
+    fast = PlanParams(seed_pct=4.0, seed=3, sa_iterations=500, n_roll=8)
+    extra = 0.03  # large, so the check bites on a box's internal views
+
+    def clearances(odometry_m: float) -> list[bool]:
+        wp = plan_whole(box, WholeParams(plan=fast, stations=StationParams(candidates=4), odometry_m=odometry_m), model)
+        out = []
+        for st in wp.stations:
+            assert st.identify_T_bin_cam is None  # no board: the carried pose
+            world = PlanningWorld(box, model, st.T_bin_base, margin=fast.margin + extra)
+            for plan in st.plans.values():
+                assert plan.params.margin == fast.margin  # what the lookup's adjustment checks
+                Q = np.array([v.q for v in plan.viewpoints])
+                out += list(world.robot_free(Q)) if len(Q) else []
+        return out
+
+    kept = clearances(extra)
+    assert kept and all(kept)
+    assert not all(clearances(0.0))  # without it some configuration is closer than that

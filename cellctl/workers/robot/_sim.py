@@ -35,12 +35,14 @@ class TwinBaseReport:
     A station whose board is not visible then gets the bin pose measured at an earlier station
     carried through the base's reported motion, so only the localisation error is left
     unmeasured there, not the parking error. Only the ``sim`` base reports: a ``manual`` one is
-    parked by a person, with no localisation to report.
+    parked by a person, with no localisation to report; a worker without the twin (a real
+    controller) knows nothing of the base (a vendor base reports through :meth:`Base.pose`).
     """
 
     def approach(self, req: ApproachRequest) -> ApproachReply:
         reply = super().approach(req)  # type: ignore[misc]
-        if self.cfg.base.backend != "sim" or not self._parked:  # type: ignore[attr-defined]
+        twin = getattr(self, "publishes_twin", False)  # a real controller's worker knows nothing of the base
+        if not twin or self.cfg.base.backend != "sim" or not self._parked:  # type: ignore[attr-defined]
             return reply
         b = self.cfg.base  # type: ignore[attr-defined]
         T = scene.localised(self._scenario, b.localisation_error_m, b.localisation_error_deg, self._park_attempt)  # type: ignore[attr-defined]
