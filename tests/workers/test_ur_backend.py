@@ -340,3 +340,31 @@ def test_calls_queued_behind_a_wedged_call_never_run() -> None:
     with pytest.raises(_Wedged):
         calls.call(1.0, lambda: ran.append("after"))
     assert ran == []
+
+
+@pytest.mark.slow  # two motions
+def test_a_motion_ends_on_fresh_joints_when_the_polled_ones_lag(robot, emu) -> None:
+    """ur-rtde's 'finished' (control interface, 500 Hz) can overtake the joints the safety monitor last
+    polled (receive interface, 125 Hz) on a loaded machine: the end is judged on joints read then, not on
+    that sample (the 'ended 0.02 rad short of its goal (stopped)' after a stall's recovery)."""
+    start = robot.joints
+    goal = start + (-1.0 if start[5] > 0 else 1.0) * WRIST
+    duration = robot.trajectory(np.array([start, goal])).duration
+    lag = threading.Event()
+    polled = robot._read_state
+
+    def lagging(r=None):  # noqa: ANN001, ANN202 - the monitor's poll sees nothing new while ``lag`` is set
+        if lag.is_set() and threading.current_thread().name == "ur-safety-monitor" and robot._last_state is not None:
+            return robot._last_state
+        return polled(r)
+
+    robot._read_state = lagging
+    m = _Mover(robot, goal)
+    m.start()
+    _wait_moving(emu)
+    time.sleep(max(duration - 0.25, 0.0))
+    lag.set()  # the last quarter second of the motion: the polled joints stay where they were
+    m.join(timeout=20)
+    lag.clear()
+    assert m.error is None, m.error
+    assert np.abs(np.array(emu.state()["q"]) - goal).max() < 1e-4
