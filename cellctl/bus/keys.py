@@ -25,6 +25,7 @@ __all__ = [
     "planner_jobs",
     "planner_jobs_any",
     "planner_lookup_any",
+    "planner_wash_plan_any",
     "pool_alive",
     "pool_claim",
     "pool_done",
@@ -144,6 +145,11 @@ def planner_jobs_any() -> str:
 def planner_lookup_any() -> str:
     """The plan-cache lookup of every cell: pool workers answer for all cells (one shared cache)."""
     return "cell/*/planner/lookup"
+
+
+def planner_wash_plan_any() -> str:
+    """Wash planning for every cell: pool workers plan any cell's wash (``cell/*/planner/wash_plan``)."""
+    return "cell/*/planner/wash_plan"
 
 
 def cell_from_key(key: str) -> str:

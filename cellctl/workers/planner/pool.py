@@ -19,6 +19,9 @@ Claim protocol: **one queue owner + pull claims + leases held by the claimant's 
 * The worker reports the result on ``pool/planner/done`` (:class:`PoolDone`, retried until the
   queue answers). A result for a job that was already done (a worker that came back after its
   lease was given away) is counted in ``planned_twice``, never recorded as a second job.
+* Pool workers also plan any cell's wash rounds (``cell/*/planner/wash_plan``, the same
+  :func:`cellctl.washing.service.wash_plan_reply` as a cell's own planner worker; one worker
+  answers each request, the bus's best-matching query target).
 * Pool workers answer the plan-cache lookups of every cell (``cell/*/planner/lookup``) from
   one plans folder, so a plan made for cell A's bin type is found by cell B when the bin
   stands at the same pose (within the tolerance) before the same robot model, and not
@@ -435,6 +438,17 @@ def run_pool_worker(cfg: Any, stop_event: threading.Event, instance: str | None 
         service = PlannerService(cfg, name, publish)
         server = WorkerServer(session, cfg.cell_id, "planner", instance=name)
         server.serve("lookup", PlanLookupRequest, service.on_lookup, key=keys.planner_lookup_any())
+        from cellctl.messages import WashPlanRequest
+        from cellctl.washing.service import MeshCache, wash_plan_reply
+
+        # any cell's wash rounds, beside the jobs: a wash plan is seconds, asked for mid-cycle
+        meshes = MeshCache(cfg)
+        server.serve(
+            "wash_plan",
+            WashPlanRequest,
+            lambda r, _: wash_plan_reply(cfg, meshes, r),
+            key=keys.planner_wash_plan_any(),
+        )
         token = session.liveliness().declare_token(keys.pool_alive(name))
         log.info("pool worker %s claiming on %s", name, keys.pool_claim())
         try:
