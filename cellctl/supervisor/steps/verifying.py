@@ -40,11 +40,11 @@ from cellctl.messages import (
     WashResult,
     WashRound,
 )
-from cellctl.supervisor.context import CycleContext, StepRun
+from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
-from cellctl.supervisor.steps.washing import face_mask, picture_dir, wash_mesh
+from cellctl.supervisor.steps.washing import face_mask, picture_dir, views_at, wash_mesh, washed_faces
 
-__all__ = ["Verifying", "merge_dirt_maps", "verify_stations"]
+__all__ = ["Verifying", "merge_dirt_maps"]
 
 
 def _face_state(dirt_map: dict[str, Any], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -72,42 +72,6 @@ def merge_dirt_maps(old: dict[str, Any], new: dict[str, Any], mesh: Any) -> dict
     dirty = np.where(s1, d1, d0)
     fm = FaceMap(p=np.where(s1, p1, p0), seen=s0 | s1, dirty=dirty, dirty_area_m2=float(mesh.areas[dirty].sum()))
     return fm.as_json()
-
-
-def washed_faces(ctx: CycleContext, n: int) -> np.ndarray:
-    """(F,) faces the round's sweeps that ran sprayed to their passes (every station's)."""
-    return face_mask(list(ctx.wash_run.get("washed", [])), n)
-
-
-def look_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:  # noqa: ANN401
-    """(F,) what the round re-inspects: its targets and every face its jet sprayed, dilated by the splash."""
-    from cellctl.washing.targets import dilate
-
-    wplan = ctx.wash_plan
-    assert wplan is not None
-    n = mesh.n_faces
-    sprayed = face_mask(wplan.targets, n) | face_mask(wplan.washed, n) | washed_faces(ctx, n)
-    return dilate(mesh, sprayed, ctx.cfg.wash.splash_m)
-
-
-def views_at(ctx: CycleContext, mesh: Any, rank: int | None) -> list[tuple[str, Any]]:  # noqa: ANN401
-    """(surface, PlannedViewpoint) of station ``rank``'s plans that see a face to look at, in plan order."""
-    look = look_faces(ctx, mesh)
-    n = mesh.n_faces
-    if rank is None:
-        assert ctx.plan is not None
-        pairs = [(ctx.surface, vp) for vp in ctx.plan.viewpoints]
-    else:
-        pairs = [(surf, vp) for (st, surf), p in ctx.plans.items() if st == rank for vp in p.viewpoints]
-    return [(s, vp) for s, vp in pairs if any(0 <= f < n and look[f] for f in vp.faces)]
-
-
-def verify_stations(ctx: CycleContext) -> list[int | None]:
-    """The stations the round re-inspects from, in the order walked (the base's station first)."""
-    from cellctl.supervisor.steps.washing import wash_ranks
-
-    mesh = wash_mesh(ctx)
-    return [r for r in wash_ranks(ctx) if views_at(ctx, mesh, r)]
 
 
 class Verifying(Step):

@@ -48,7 +48,7 @@ from cellctl.messages import (
 from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import Step
 
-__all__ = ["WashCheck", "WashStation", "Washing", "face_mask", "picture_dir"]
+__all__ = ["WashCheck", "WashStation", "Washing", "face_mask", "picture_dir", "verify_stations", "views_at"]
 
 
 def picture_dir(ctx: CycleContext) -> Path | None:
@@ -121,6 +121,40 @@ def park_at(run: StepRun, rank: int | None, why: str) -> bool:
     ctx.wash_station_sweeps.pop(rank, None)
     run.event("info", f"wash round {len(ctx.wash_rounds) + 1}: parking at station {rank} to {why}")
     return False
+
+
+def washed_faces(ctx: CycleContext, n: int) -> np.ndarray:
+    """(F,) faces the round's sweeps that ran sprayed to their passes (every station's)."""
+    return face_mask(list(ctx.wash_run.get("washed", [])), n)
+
+
+def look_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:  # noqa: ANN401
+    """(F,) what the round re-inspects: its targets and every face its jet sprayed, dilated by the splash."""
+    from cellctl.washing.targets import dilate
+
+    wplan = ctx.wash_plan
+    assert wplan is not None
+    n = mesh.n_faces
+    sprayed = face_mask(wplan.targets, n) | face_mask(wplan.washed, n) | washed_faces(ctx, n)
+    return dilate(mesh, sprayed, ctx.cfg.wash.splash_m)
+
+
+def views_at(ctx: CycleContext, mesh: Any, rank: int | None) -> list[tuple[str, Any]]:  # noqa: ANN401
+    """(surface, PlannedViewpoint) of station ``rank``'s plans that see a face to look at, in plan order."""
+    look = look_faces(ctx, mesh)
+    n = mesh.n_faces
+    if rank is None:
+        assert ctx.plan is not None
+        pairs = [(ctx.surface, vp) for vp in ctx.plan.viewpoints]
+    else:
+        pairs = [(surf, vp) for (st, surf), p in ctx.plans.items() if st == rank for vp in p.viewpoints]
+    return [(s, vp) for s, vp in pairs if any(0 <= f < n and look[f] for f in vp.faces)]
+
+
+def verify_stations(ctx: CycleContext) -> list[int | None]:
+    """The stations the round re-inspects from, in the order walked (the base's station first)."""
+    mesh = wash_mesh(ctx)
+    return [r for r in wash_ranks(ctx) if views_at(ctx, mesh, r)]
 
 
 def _dirty_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:  # noqa: ANN401
@@ -288,8 +322,6 @@ class WashStation(Step):
     )
 
     def execute(self, run: StepRun) -> str:
-        from cellctl.supervisor.steps.verifying import verify_stations
-
         ctx = run.ctx
         if ctx.wash_phase == "wash":
             if ctx.wash_queue:
