@@ -283,6 +283,8 @@ class UrRobot(PlannedRobot):
         self._last_state: dict[str, Any] | None = None
         self._motion_seq = 0
         """Counts motions sent: a stop meant for one motion never reaches a later one."""
+        self._fault_motion = -1
+        """The motion the latched fault's stopJ is for."""
         self._q_meas: NDArray[np.float64] | None = None
         self._tcp: NDArray[np.float64] | None = None
         self._ts = -1.0
@@ -577,12 +579,14 @@ class UrRobot(PlannedRobot):
         self.fault_log.append((time.monotonic(), reason))
         log.error("UR fault: %s", reason)
         self.stop(f"UR fault: {reason}")
-        # stopJ first, but not behind a control call that a stalled controller holds (the report
-        # must not wait for the stall to end; the stopJ follows as soon as the lock is free, and
-        # only if no later motion began meanwhile)
-        t = threading.Thread(target=self._stopj, args=(self._motion_seq,), name="ur-fault-stopj", daemon=True)
+        # stopJ first, but the report does not wait for it: behind a control call that a stalled
+        # controller holds it waits for the stall to end, and on a loaded machine its round trip alone
+        # took most of the 100 ms the supervisor has to reach its safe state (the stopJ follows as soon
+        # as the lock is free, and only if no later motion began meanwhile)
+        self._fault_motion = self._motion_seq
+        t = threading.Thread(target=self._stopj, args=(self._fault_motion,), name="ur-fault-stopj", daemon=True)
         t.start()
-        t.join(0.5)
+        t.join(0.01)
         if self.on_fault is not None:
             try:
                 self.on_fault(self.fault_report)
@@ -748,7 +752,8 @@ class UrRobot(PlannedRobot):
                     raise RobotError(f"the motion did not finish within {traj.duration / slow + 5.0:.1f} s")
         except RobotError as err:
             log.debug("motion %d failed: %s", motion, err)
-            self._stopj(motion)  # never leave an arm moving behind a failed motion
+            if self._fault is None or self._fault_motion != motion:  # else the latch's stopJ is this motion's
+                self._stopj(motion)  # never leave an arm moving behind a failed motion
             raise
         finally:
             self._moving = False
