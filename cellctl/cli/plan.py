@@ -178,7 +178,7 @@ def run_whole(args: argparse.Namespace, cfg: Any) -> int:
     )
     if plan_params.mode != "fast":
         raise PlanningError("--whole plans in fast mode only (paper mode's RRT* budget per query × stations)")
-    params = WholeParams.from_config(pc.whole, plan_params, cfg.robot.speed_fraction)
+    params = WholeParams.for_cell(cfg, plan_params)  # the arm's own speed and acceleration fractions
     from cellctl.geometry.robot_model import _quiet_stdout
 
     with _quiet_stdout():  # ur-analytic-ik's C++ warnings on fd 1 would corrupt --json

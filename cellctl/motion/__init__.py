@@ -8,6 +8,7 @@ from cellctl.motion._trajectory import (
     JointLimits,
     Segment,
     Trajectory,
+    arm_fractions,
     time_parametrize,
 )
 
@@ -18,5 +19,6 @@ __all__ = [
     "JointLimits",
     "Segment",
     "Trajectory",
+    "arm_fractions",
     "time_parametrize",
 ]

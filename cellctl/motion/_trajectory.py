@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -36,6 +37,7 @@ __all__ = [
     "JointLimits",
     "Segment",
     "Trajectory",
+    "arm_fractions",
     "time_parametrize",
 ]
 
@@ -76,6 +78,18 @@ class JointLimits:
 
 UR10E = JointLimits(np.asarray(rm.MAX_JOINT_SPEED, dtype=np.float64), UR10E_JOINT_ACCEL)
 """The UR10e's joint speed limits (120/120/180/180/180/180 °/s) and :data:`UR10E_JOINT_ACCEL`."""
+
+
+def arm_fractions(robot_cfg: Any) -> tuple[float, float]:
+    """``(speed_fraction, accel_fraction)`` of :data:`UR10E` the configured arm moves with.
+
+    ``robot_cfg`` is the config's ``robot`` section: ``speed_fraction`` on every backend; the UR
+    backend also applies ``robot.ur.accel_fraction``, the sim arm the full accelerations (as
+    the robot workers' own ``_accel_fraction``). The one place planners and benches take the
+    motion limits from, so a modelled cycle moves as the arm will.
+    """
+    accel = float(robot_cfg.ur.accel_fraction) if robot_cfg.backend == "ur" else 1.0
+    return float(robot_cfg.speed_fraction), accel
 
 
 @dataclass(frozen=True)

@@ -189,9 +189,7 @@ def _whole_task(task: tuple[str, int, str, tuple[str, ...], Any]) -> tuple[str, 
         bt = load_catalog(cfg.path(cfg.catalog)).get(name)
     print(f"bench whole-bin: {name} seed {seed}", file=sys.stderr)
     plan_params = PlanParams(seed_pct=cfg.planner.seed_pct, seed=seed, camera=CameraModel.from_config(cfg.camera))
-    # the arm's own accelerations: the UR backend's fraction of them, the sim arm's full ones
-    accel = cfg.robot.ur.accel_fraction if cfg.robot.backend == "ur" else 1.0
-    params = WholeParams.from_config(cfg.planner.whole, plan_params, cfg.robot.speed_fraction, accel)
+    params = WholeParams.for_cell(cfg, plan_params)  # the arm's own speed and acceleration fractions
     from cellctl.geometry.robot_model import _quiet_stdout
 
     with _quiet_stdout():  # ur-analytic-ik's C++ warnings on fd 1 would corrupt the bench's JSON

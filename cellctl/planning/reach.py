@@ -103,8 +103,7 @@ def candidates(
     """
     Qs, rs = [], []
     T = T_base_bin @ T_bin_cam
-    for a in rolls:
-        S = robot.ik_cam(T @ _rz(a))
+    for a, S in zip(rolls, robot.ik_cam_many(np.array([T @ _rz(a) for a in rolls])), strict=True):
         if len(S):
             Qs.append(S)
             rs.append(np.full(len(S), a))
@@ -200,10 +199,18 @@ def reachability(
                 preferred = int(np.argmax([len(np.unique(o[b == k])) for k in range(8)]))
                 sel = b == preferred
                 centre = np.median(Qf[sel], axis=0) if sel.any() else q_ref
-        if preferred is not None:
+        if preferred is not None and centre is not None:
             # once the arm shape is fixed only its solutions can be kept (below): check only those
             shape = (br >> 1) == (preferred >> 1)
             Qc, rc, own, br = Qc[shape], rc[shape], own[shape], br[shape]
+            for i, k in _lazy_first(Qc, rc, own, br, idx, preferred, centre, world, accept).items():
+                Qi, ri = k
+                if verify is None or verify(i, Qi):
+                    resolved[int(vp.seed[i])] = (i, Qi, float(ri))
+            done += len(idx)
+            if progress:
+                progress(done, total)
+            continue
         free = world.robot_free(Qc)
         Qc, rc, own, br = Qc[free], rc[free], own[free], br[free]
         if preferred is None and len(Qc):
@@ -246,6 +253,61 @@ def reachability(
     roll = np.array([it[2] for it in items])
     T = np.array([vp.T[i] @ _rz(a) for i, a in zip(index, roll, strict=True)]).reshape(-1, 4, 4)
     return Reached(index=index, T=T, q=q, roll=roll, checks=world.checks - checks0, tried=tried)
+
+
+def _lazy_first(
+    Qc: NDArray[np.float64],
+    rc: NDArray[np.float64],
+    own: NDArray[np.int64],
+    br: NDArray[np.int64],
+    idx: list[int],
+    preferred: int,
+    centre: NDArray[np.float64],
+    world: PlanningWorld,
+    accept: Callable[[int, NDArray[np.float64]], bool] | None,
+) -> dict[int, tuple[NDArray[np.float64], float]]:
+    """Per viewpoint, its first free solution (in preference order) that ``accept`` takes.
+
+    The answer of checking every candidate for collisions and offering the first
+    :data:`MAX_ACCEPT_TRIES` free ones in order, but the collision checks go in rounds over
+    the next few candidates of each viewpoint still open: most viewpoints' preferred solution
+    is free and accepted, so most of the other candidates are never checked.
+    """
+    order: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+    for i in idx:
+        m = own == i
+        if not m.any():
+            continue
+        Qi, ri, bi = Qc[m], rc[m], br[m]
+        key = np.linalg.norm(Qi - centre, axis=1) + 100.0 * (bi != preferred)
+        s = np.argsort(key, kind="stable")
+        order[i] = (Qi[s], ri[s])
+    pos = dict.fromkeys(order, 0)
+    offered = dict.fromkeys(order, 0)
+    out: dict[int, tuple[NDArray[np.float64], float]] = {}
+    batch = 2
+    while pos:
+        ids = list(pos)
+        parts = [order[i][0][pos[i] : pos[i] + batch] for i in ids]
+        free = world.robot_free(np.concatenate(parts))
+        offers: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+        at = 0
+        for i, part in zip(ids, parts, strict=True):
+            f = free[at : at + len(part)]
+            at += len(part)
+            sl = np.flatnonzero(f)[: MAX_ACCEPT_TRIES - offered[i]] + pos[i]
+            offers[i] = (order[i][0][sl], order[i][1][sl])
+            offered[i] += len(sl)
+            pos[i] += len(part)
+        first = _first_accepted(offers, accept)
+        for i in ids:
+            k = first.get(i)
+            if k is not None:
+                out[i] = (offers[i][0][k], float(offers[i][1][k]))
+            if k is not None or offered[i] >= MAX_ACCEPT_TRIES or pos[i] >= len(order[i][0]):
+                del pos[i]
+        batch *= 2
+    return out
 
 
 def _first_accepted(
@@ -298,8 +360,9 @@ class _RobustAcceptor:
         ok = np.ones(len(Q), dtype=bool)
         for Ei, w in zip(self.inv_errors, self.worlds, strict=True):
             best = np.zeros_like(Q)
-            for n in np.flatnonzero(ok):
-                S = self.robot.ik_cam(Ei @ T_base_cam[n])
+            live = np.flatnonzero(ok)
+            sols = self.robot.ik_cam_many(Ei @ T_base_cam[live]) if len(live) else []
+            for n, S in zip(live, sols, strict=True):
                 if len(S) == 0:
                     ok[n] = False
                     continue

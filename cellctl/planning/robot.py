@@ -88,6 +88,24 @@ class RobotModel:
         S = S[np.all(np.isfinite(S), axis=1)]
         return S[self.within_limits(S)]
 
+    def ik_cam_many(self, T_base_cam: ArrayLike) -> list[NDArray[np.float64]]:
+        """:meth:`ik_cam` for poses (N, 4, 4): one matrix product and one limits test for all
+        (the per-pose Python overhead was as large as the analytic IK itself)."""
+        from ur_analytic_ik import ur10e
+
+        Ts = np.asarray(T_base_cam, dtype=np.float64).reshape(-1, 4, 4) @ invert(self.T_flange_cam)
+        raws = [ur10e.inverse_kinematics(np.ascontiguousarray(T)) for T in Ts]
+        n = [len(r) if r is not None else 0 for r in raws]
+        if sum(n) == 0:
+            return [np.zeros((0, 6)) for _ in raws]
+        S = np.concatenate([np.asarray(r, dtype=np.float64).reshape(-1, 6) for r, k in zip(raws, n, strict=True) if k])
+        ok = np.all(np.isfinite(S), axis=1) & self.within_limits(S)
+        out, at = [], 0
+        for k in n:
+            out.append(S[at : at + k][ok[at : at + k]] if k else np.zeros((0, 6)))
+            at += k
+        return out
+
     def within_limits(self, q: ArrayLike) -> NDArray[np.bool_]:
         """(N,) True where configuration i is within the joint limits."""
         Q = np.atleast_2d(np.asarray(q, dtype=np.float64))

@@ -237,6 +237,7 @@ def choose_stations(
     areas: dict[str, NDArray[np.float64]],
     bounds: dict[str, float],
     sp: StationParams,
+    best_per_size: list[tuple[int, ...]] | None = None,
 ) -> tuple[list[int], dict[str, float]]:
     """The fewest stations whose union sees (almost) what all of them see, on both surfaces.
 
@@ -246,6 +247,8 @@ def choose_stations(
         areas: per surface, (m_surface,) face areas, m².
         bounds: per surface, the upper bound's area (m²) that fractions are taken of.
         sp: station parameters (``max_stations``, ``min_gain_pct``).
+        best_per_size: if given, filled with the best subset of every size tried (the one the
+            gain rule refused included): what a caller choosing on estimates evaluates in full.
 
     Returns:
         ``(chosen station positions in ``seen``, score per subset size tried)``: exhaustive
@@ -273,6 +276,8 @@ def choose_stations(
         cand = max(itertools.combinations(range(n), size), key=lambda sub: (float(fractions(sub).sum()), -sum(sub)))
         f = fractions(cand)
         tried[str(size)] = float(f.sum())
+        if best_per_size is not None:
+            best_per_size.append(cand)
         if best and not (f - best_f > sp.min_gain_pct / 100.0).any():
             break
         best, best_f = cand, f

@@ -82,3 +82,13 @@ def test_custom_limits_bind() -> None:
     lim = JointLimits(np.full(6, 0.1), np.full(6, 0.1))
     tr = time_parametrize([np.zeros(6), np.full(6, 1.0)], lim, 1.0)
     assert tr.duration == pytest.approx(1.0 / 0.1 + 0.1 / 0.1)
+
+
+def test_arm_fractions_are_the_backends_own() -> None:
+    from cellctl.config import CellConfig
+    from cellctl.motion import arm_fractions
+
+    cfg = CellConfig()
+    assert arm_fractions(cfg.robot) == (cfg.robot.speed_fraction, 1.0)  # the sim arm: full accelerations
+    ur = cfg.robot.model_copy(update={"backend": "ur", "ur": cfg.robot.ur.model_copy(update={"accel_fraction": 0.4})})
+    assert arm_fractions(ur) == (cfg.robot.speed_fraction, 0.4)

@@ -88,6 +88,26 @@ def test_station_parameters_refuse_an_inner_ring_outside_the_outer_one():
         StationParams(inner_candidates=4, max_stations=13).check()
 
 
+def test_whole_params_from_a_cell_take_the_arms_motion_limits_and_refuse_bad_options():
+    from cellctl.config import CellConfig
+
+    cfg = CellConfig()
+    cfg = cfg.model_copy(
+        update={
+            "robot": cfg.robot.model_copy(
+                update={"backend": "ur", "ur": cfg.robot.ur.model_copy(update={"accel_fraction": 0.3})}
+            )
+        }
+    )
+    wp = WholeParams.for_cell(cfg, PlanParams())
+    assert (wp.timing.speed_fraction, wp.timing.accel_fraction) == (cfg.robot.speed_fraction, 0.3)
+    assert wp.timing.settle_s == cfg.planner.whole.settle_s
+    with pytest.raises(PlanningError, match=r"estimate_thin 0 must be in 1..20"):
+        WholeParams(estimate_thin=0).check()
+    with pytest.raises(PlanningError, match=r"chains 'some' must be 'all' or 'needed'"):
+        WholeParams(chains="some").check()
+
+
 def test_the_batched_parking_robustness_test_answers_as_one_at_a_time(box, robot, T_bin_base):
     from cellctl.planning.reach import _first_accepted, robust_acceptor
 

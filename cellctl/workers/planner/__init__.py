@@ -367,7 +367,7 @@ class PlannerService:
         from cellctl.planning.whole import WholeParams, plan_whole, write_whole
 
         bin_type = load_catalog(self.cfg.path(self.cfg.catalog), verify_meshes=False).get(req.bin_type)
-        wp = WholeParams.from_config(self.cfg.planner.whole, params, self.cfg.robot.speed_fraction)
+        wp = WholeParams.for_cell(self.cfg, params)  # the arm's own speed and acceleration fractions
         plan = plan_whole(mesh, wp, self.robot, bin_type=bin_type, progress=progress, job_id=job_id)
         write_whole(plan, self.plans_dir)
         return plan
