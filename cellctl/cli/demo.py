@@ -50,6 +50,8 @@ class Expect:
     outcome: str
     verdict: str | None = None
     adjusted: bool | None = None
+    washed: bool = False
+    """wash_and_verify: the verdict must come from at least one wash round (not a scan that saw nothing)."""
 
 
 @dataclass
@@ -149,7 +151,15 @@ def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool) -> 
             {"park_offset_xy_yaw": nudged},
             Expect("completed", "clean", True),
         )
-        return [new_bin, adjusted, dirty, beyond]
+        # five small clumps, each on faces a nozzle reaches from two or more of the candidate
+        # stations (picked by that, docs/washing/README.md): washed from the stations, re-inspected clean
+        wash = Stage(
+            "powder the nozzle reaches → wash, re-inspect → clean",
+            {"dirty": True, "powder_amount": 0.01, "seed": 18},
+            Expect("completed", "clean", washed=True),
+            params={"mode": "wash_and_verify"},
+        )
+        return [new_bin, adjusted, dirty, wash, beyond]
     return [
         new_bin,
         Stage("same bin, clean → plan found, scan", {}, Expect("completed", "clean")),
@@ -262,6 +272,8 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
                 problems.append(f"expected verdict {exp.verdict}")
             if exp.adjusted is not None and res.plan_adjusted != exp.adjusted:
                 problems.append(f"expected plan_adjusted={exp.adjusted}, got {res.plan_adjusted}")
+            if exp.washed and (res.wash is None or not res.wash.rounds):
+                problems.append("expected a wash round: the scan found nothing to wash")
             row.ok = not problems
             row.note = "; ".join(problems) or (res.reason or "")[:60]
             failures += bool(problems)
