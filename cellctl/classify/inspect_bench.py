@@ -94,11 +94,16 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
     return score_cycles(run, cfg.classifier.verdict, figures_out=opts.out)
 
 
-def collect_cycles(opts: BenchOptions, cfg: Any = None) -> dict[str, Any]:
+def collect_cycles(opts: BenchOptions, cfg: Any = None, first: int = 0) -> dict[str, Any]:
     """The detector's side of the bench: every cycle's views (:class:`ViewEvidence`), labels,
     re-looks and ground truth, before any fusion. :func:`score_cycles` fuses and scores them, so
     that the fusion and the verdict rule can be compared on the same views (a validation bench
-    with other seeds) without rendering or classifying again."""
+    with other seeds) without rendering or classifying again.
+
+    Args:
+        first: first cycle index (cycles ``first..n-1``): each cycle draws from its own
+            ``(seed, index)`` stream, so runs over consecutive ranges concatenate to one run.
+    """
     import torch
 
     from cellctl.classify.fusion import load_detectors
@@ -144,7 +149,7 @@ def collect_cycles(opts: BenchOptions, cfg: Any = None) -> dict[str, Any]:
     lat: list[float] = []
     cycles: list[dict[str, Any]] = []
     t0 = time.perf_counter()
-    for i in range(n):
+    for i in range(first, n):
         rng = np.random.default_rng([opts.seed, i, 4711])
         surface = SURFACES[i % 2]
         kind = KINDS[(i // 2) % 3]

@@ -390,3 +390,47 @@ def test_worker_and_cli_answer_with_the_detector(contam: Path, tmp_path: Path, c
     assert rc == 0 and len(lines) == 1
     assert lines[0]["image"].endswith("a.png") and lines[0]["label"] in ("clean", "dirty")
     assert {"p_dirty", "uncertain", "model_id", "p_supervised", "anomaly_z"} <= set(lines[0])
+
+
+def test_bench_inspect_scores_collected_cycles_against_the_truth() -> None:
+    from cellctl.classify.inspect_bench import score_cycles
+    from cellctl.config import VerdictConfig
+
+    mesh = _square_mesh()
+    T, intr = _camera_above()
+    hot = np.zeros((16, 16))
+    hot[:, :8] = 0.99
+    cold = np.full((16, 16), 0.01)
+
+    def cycle(kind: str, heat: np.ndarray, gt: list[bool]) -> dict:
+        views = [ViewEvidence(np.array([0, 1]), T, heat, float(heat.max()))] * 2
+        return {
+            "surface": "external",
+            "kind": kind,
+            "gt": np.array(gt),
+            "seen_plan": np.array([0, 1]),
+            "views": views,
+            "labels": ["dirty" if heat.max() > 0.5 else "clean"] * 2,
+            "uncertain": 0,
+            "relooks": 0,
+            "hottest": None,
+        }
+
+    run = {
+        "cycles": [
+            cycle("clean", cold, [False, False]),
+            cycle("one_spot", hot, [True, False]),  # found
+            cycle("one_spot", cold, [False, True]),  # missed: a false clean
+            cycle("clean", hot, [False, False]),  # a false dirty
+        ],
+        "mesh": mesh,
+        "intrinsics": intr,
+        "latency_ms": [5.0, 7.0],
+        "relook": {},
+        "setup": {},
+    }
+    rep = score_cycles(run, VerdictConfig(rule="faces"))
+    assert (rep["false_clean_bins"], rep["dirty_seen_bins"]) == (1, 2)
+    assert (rep["false_dirty_bins"], rep["clean_bins"]) == (1, 2)
+    assert rep["face_recall"] == pytest.approx(0.5) and rep["face_precision"] == pytest.approx(0.5)
+    assert rep["any_view_rule"]["false_dirty_bins"] == 1 and rep["cycles"] == 4
