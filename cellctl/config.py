@@ -259,6 +259,11 @@ class ClassifierConfig(_Model):
     )
     verdict: VerdictConfig = Field(default_factory=VerdictConfig)
     relook: RelookConfig = Field(default_factory=RelookConfig)
+    mask_cabin: list[Literal["external", "internal"]] = Field(
+        default_factory=lambda: ["internal"],
+        description="surfaces whose views have the pixels off the bin (the cabin past the rim) filled before "
+        "classification: the internal model learned the cavity, and called the lit cabin past the rim dirty",
+    )
     models_dir: Path = Path("models/classifier")
     imagenet_weights: Path | None = Field(default=None, description="optional local torchvision ResNet18 state_dict")
     variant: Literal["fp32", "fused"] = Field(

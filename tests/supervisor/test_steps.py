@@ -189,3 +189,57 @@ def test_reporting_maps_dirt_and_coverage_and_completes(cfg) -> None:  # noqa: A
     assert ctx.dirt_map == {"faces_total": 10, "seen_dirty": [2, 3], "seen_clean": [0, 1], "unseen_count": 6}
     assert ctx.coverage == pytest.approx(0.4)
     assert ctx.outcome == CycleOutcome.completed
+
+
+def test_the_cabin_past_the_bin_is_filled_for_the_classifier_and_the_bin_is_not(cfg) -> None:  # noqa: ANN001
+    """An internal view that also sees the lit cabin past the rim: the off-bin pixels get the bin's median colour."""
+    import cv2
+
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.geometry.transforms import transform_from_xyz_rpy
+    from cellctl.messages import Intrinsics
+    from cellctl.supervisor.steps.scanning import cabin_pixels, mask_cabin
+
+    mesh = load_catalog(cfg.path(cfg.catalog)).load_mesh("case_study")
+    intr = Intrinsics(width=320, height=240, fx=250.0, fy=250.0, cx=160.0, cy=120.0)
+    T_base_bin = np.eye(4)
+    # 1.5 m above the rim, looking straight down: the bin in the middle, the cabin floor around it
+    T_base_cam = transform_from_xyz_rpy((0.0, 0.0, 1.5), (np.pi, 0.0, 0.0))
+    off = cabin_pixels(mesh, T_base_bin, T_base_cam, intr, scale=1.0)
+    assert off[0, 0] and off[-1, -1] and not off[120, 160]  # corners past the bin, centre on it
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    img[off] = 250  # bright cabin
+    out = cv2.imdecode(
+        np.frombuffer(mask_cabin(cv2.imencode(".png", img)[1].tobytes(), mesh, T_base_bin, T_base_cam, intr), np.uint8),
+        cv2.IMREAD_COLOR,
+    )
+    on = ~cv2.resize(
+        cabin_pixels(mesh, T_base_bin, T_base_cam, intr).astype(np.uint8), (320, 240), interpolation=cv2.INTER_NEAREST
+    ).astype(bool)
+    assert np.array_equal(out[on], img[on])  # the bin as captured
+    assert np.allclose(out[~on], np.median(img[on], axis=0), atol=1)  # the cabin: the bin's median colour
+    # a camera inside the cavity (faces reach behind it: clipped, not dropped) sees only bin: unchanged
+    inside = transform_from_xyz_rpy((0.0, 0.0, -0.1), (np.pi, 0.0, 0.0))
+    png = cv2.imencode(".png", img)[1].tobytes()
+    assert not cabin_pixels(mesh, T_base_bin, inside, intr).any()
+    assert mask_cabin(png, mesh, T_base_bin, inside, intr) is png
+
+
+def test_only_the_configured_surfaces_get_the_cabin_mask(cfg) -> None:  # noqa: ANN001
+    import cv2
+
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.geometry.transforms import transform_from_xyz_rpy
+    from cellctl.supervisor.steps.board_mask import mask_board
+    from cellctl.supervisor.steps.scanning import classifier_input
+
+    cat = load_catalog(cfg.path(cfg.catalog))
+    T_cam = transform_from_xyz_rpy((0.0, 0.0, 1.5), (np.pi, 0.0, 0.0))
+    png = cv2.imencode(".png", np.random.default_rng(1).integers(0, 255, (48, 64, 3), dtype=np.uint8))[1].tobytes()
+    board = mask_board(png, cat.get("case_study"), np.eye(4), T_cam, INTRINSICS)  # the board mask, always
+    for surface, masked in (("internal", True), ("external", False)):
+        ctx = context(cfg, catalog=cat, bin_type="case_study", T_base_bin=np.eye(4))
+        ctx.params = ctx.params.model_copy(update={"surface": surface})
+        image, fmt = classifier_input(ScriptedRun(ctx, {}), png, "png", T_cam, INTRINSICS)
+        assert (image != board) == masked and fmt == "png", surface

@@ -190,11 +190,9 @@ class Classifying(Step):
         if rc.max_views <= 0:
             return 0
         from cellctl.classify.heatmap import relook_pose
-        from cellctl.supervisor.steps.board_mask import mask_board
         from cellctl.supervisor.steps.identifying import captured_image
-        from cellctl.supervisor.steps.scanning import classify_image
+        from cellctl.supervisor.steps.scanning import classifier_input, classify_image
 
-        bin_type = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
         confirming = self._confirming(ctx)
         st = ctx.current_station()
         # a re-look moves the arm by a camera pose in this base frame: only this station's views, this surface
@@ -253,10 +251,8 @@ class Classifying(Step):
             cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
             data = captured_image(cap, image)
             ctx.log.image(topics.CAMERA_IMAGE, data, cap.format, "camera")
-            img = data
-            if bin_type is not None and ctx.T_base_bin is not None:
-                img = mask_board(data, bin_type, ctx.T_base_bin, moved.camera_pose.matrix(), cap.intrinsics)
-            reply = classify_image(run, v.index, img, "png" if img is not data else cap.format, ctx.surface)
+            img, fmt = classifier_input(run, data, cap.format, moved.camera_pose.matrix(), cap.intrinsics)
+            reply = classify_image(run, v.index, img, fmt, ctx.surface)
             record_heat(run, reply)
             ctx.viewpoints.append(
                 with_reply(

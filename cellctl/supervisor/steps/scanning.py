@@ -23,6 +23,85 @@ from cellctl.supervisor.steps._base import Step
 from cellctl.supervisor.steps.board_mask import mask_board
 from cellctl.supervisor.steps.identifying import captured_image
 
+NEAR_M = 0.02
+"""Faces are clipped at this distance in front of the camera before they are drawn."""
+
+
+def _clip_near(P: np.ndarray) -> np.ndarray:
+    """Polygon ``P`` (k, 3), camera frame, clipped to z >= NEAR_M (Sutherland–Hodgman, one plane)."""
+    out = []
+    for a, b in zip(P, np.roll(P, -1, axis=0), strict=True):
+        if a[2] >= NEAR_M:
+            out.append(a)
+        if (a[2] >= NEAR_M) != (b[2] >= NEAR_M):
+            out.append(a + (b - a) * (NEAR_M - a[2]) / (b[2] - a[2]))
+    return np.array(out).reshape(-1, 3)
+
+
+def cabin_pixels(mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, scale: float = 0.25) -> np.ndarray:  # noqa: ANN001
+    """(H, W) bool at ``scale``: the pixels no face of the bin covers (the cabin past it)."""
+    import cv2
+
+    from cellctl.geometry.transforms import invert
+
+    w, h = max(1, round(intr.width * scale)), max(1, round(intr.height * scale))
+    K = intr.K() * np.array([[scale], [scale], [1.0]])
+    T = invert(T_base_cam) @ np.asarray(T_base_bin)
+    V = mesh.vertices @ T[:3, :3].T + T[:3, 3]
+    tri = V[mesh.faces]  # (F, 3, 3)
+    near = tri[:, :, 2] >= NEAR_M
+
+    def pixels(P: np.ndarray) -> np.ndarray:
+        return np.round(P[:, :2] / P[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]).astype(np.int32)
+
+    on = np.zeros((h, w), np.uint8)
+    front = np.flatnonzero(near.all(axis=1))
+    uv = tri[front, :, :2] / tri[front, :, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    lo, hi = uv.min(axis=1), uv.max(axis=1)
+    inside = (hi[:, 0] >= 0) & (lo[:, 0] < w) & (hi[:, 1] >= 0) & (lo[:, 1] < h)
+    for f in front[inside]:  # coverage only: no depth order needed
+        cv2.fillConvexPoly(on, pixels(tri[f]), 1)
+    for f in np.flatnonzero(near.any(axis=1) & ~near.all(axis=1)):  # a face reaching behind the camera
+        P = _clip_near(tri[f])
+        if len(P) >= 3:
+            cv2.fillConvexPoly(on, np.clip(pixels(P), -(1 << 20), 1 << 20), 1)
+    return on == 0
+
+
+def mask_cabin(png: bytes, mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr) -> bytes:  # noqa: ANN001
+    """The image with the pixels off the bin filled with the median colour of the bin's, or the same
+    bytes when the view is all bin or all cabin. Like the board mask: the recorded image stays
+    untouched."""
+    import cv2
+
+    from cellctl.errors import CellError
+    from cellctl.images import decode_image
+
+    off = cabin_pixels(mesh, T_base_bin, T_base_cam, intr)
+    if not off.any() or off.all():
+        return png
+    try:
+        img = decode_image(png, "to mask", order="bgr")
+    except CellError:
+        return png  # the classifier refuses what it cannot decode
+    off = cv2.resize(off.astype(np.uint8), (img.shape[1], img.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
+    img[off] = np.median(img[~off], axis=0)
+    ok, out = cv2.imencode(".png", img)
+    return out.tobytes() if ok else png
+
+
+def classifier_input(run: StepRun, data: bytes, fmt: str, T_base_cam: np.ndarray, intr) -> tuple[bytes, str]:  # noqa: ANN001
+    """What the classifier gets for a captured view: the board filled in, and for the surfaces of
+    ``classifier.mask_cabin`` the cabin past the bin too (the recorded image stays as captured)."""
+    ctx = run.ctx
+    if ctx.catalog is None or not ctx.bin_type or ctx.T_base_bin is None:
+        return data, fmt
+    bt = ctx.catalog.get(ctx.bin_type)
+    image = mask_board(data, bt, ctx.T_base_bin, T_base_cam, intr)
+    if ctx.surface in ctx.cfg.classifier.mask_cabin:
+        image = mask_cabin(image, ctx.catalog.load_mesh(ctx.bin_type), ctx.T_base_bin, T_base_cam, intr)
+    return (image, "png") if image is not data else (data, fmt)
+
 
 def classify_image(run: StepRun, index: int, image: bytes, fmt: str, surface: str) -> ClassifyReply:
     reply, _ = run.call(
@@ -47,7 +126,6 @@ class Scanning(Step):
         settle = ctx.cfg.robot.settle_s
         perturb = ctx.params.perturb_m if collect else 0.0
         seed = ctx.params.seed
-        bin_type = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
         # classifications run on past a Hold (the scanning activation is cancelled, the cycle is not)
         background = run.detached("classify_background")
         st = ctx.current_station()
@@ -103,11 +181,9 @@ class Scanning(Step):
                 store_image(ctx.cfg, ctx.params.as_params(), surface, ctx.cycle_id, vp.index, data)
                 result = result.model_copy(update={"label": ctx.params.label})
             else:
-                image = data
-                if bin_type is not None and ctx.T_base_bin is not None:
-                    image = mask_board(data, bin_type, ctx.T_base_bin, moved.camera_pose.matrix(), cap.intrinsics)
+                image, fmt = classifier_input(run, data, cap.format, moved.camera_pose.matrix(), cap.intrinsics)
                 ctx.classifications[len(ctx.viewpoints)] = ctx.pool.submit(
-                    classify_image, background, vp.index, image, "png" if image is not data else cap.format, surface
+                    classify_image, background, vp.index, image, fmt, surface
                 )
             ctx.viewpoints.append(result)
             ctx.next_viewpoint = k + 1
