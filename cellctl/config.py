@@ -259,7 +259,7 @@ class ClassifierConfig(_Model):
     )
     verdict: VerdictConfig = Field(default_factory=VerdictConfig)
     relook: RelookConfig = Field(default_factory=RelookConfig)
-    mask_cabin: list[Literal["external", "internal"]] = Field(
+    mask_cabin: list[Surface] = Field(
         default_factory=lambda: ["internal"],
         description="surfaces whose views have the pixels off the bin (the cabin past the rim) filled before "
         "classification: the internal model learned the cavity, and called the lit cabin past the rim dirty",
