@@ -43,7 +43,19 @@ from cellctl.config import CellConfig
 from cellctl.errors import RobotError
 from cellctl.geometry import robot_model as rm
 from cellctl.geometry.catalog import Catalog
-from cellctl.messages import FaultCondition, FaultReport, RobotMaintenanceReply, RobotMaintenanceRequest, RobotState
+from cellctl.messages import (
+    ApproachReply,
+    ApproachRequest,
+    FaultCondition,
+    FaultReport,
+    MoveReply,
+    MoveRequest,
+    RobotMaintenanceReply,
+    RobotMaintenanceRequest,
+    RobotState,
+    WashReply,
+    WashRequest,
+)
 from cellctl.workers.robot._planned import PlannedRobot
 
 __all__ = ["UrRobot", "classify_fault", "path_deviation"]
@@ -647,6 +659,20 @@ class UrRobot(PlannedRobot):
             threading.Thread(target=self._stopj, args=(self._motion_seq,), name="ur-stopj", daemon=True).start()
 
     # --- motion -----------------------------------------------------------------------------
+
+    def approach(self, req: ApproachRequest) -> ApproachReply:
+        self._refuse_if_faulted("approach")  # at once, not after planning under the motion lock
+        return super().approach(req)
+
+    def move(self, req: MoveRequest) -> MoveReply:
+        # at once: planning first held the motion lock for seconds while faulted, and a scenario change
+        # (the next bin) sent meanwhile was refused "busy" (the UR demo's end after a fault)
+        self._refuse_if_faulted("move")
+        return super().move(req)
+
+    def wash(self, req: WashRequest) -> WashReply:
+        self._refuse_if_faulted("wash")
+        return super().wash(req)
 
     def _refuse_if_faulted(self, what: str) -> None:
         if self._fault is not None:
