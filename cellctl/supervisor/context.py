@@ -135,6 +135,9 @@ class CycleContext:
     """station → T_base_bin the scan's plans were adjusted to (a re-park measures a new one)."""
     wash_station_sweeps: dict[int | None, list[Any]] = field(default_factory=dict)
     """station → this round's PlannedSweeps to run there (absent: plan them at the station's new park)."""
+    wash_views: list[ViewpointResult] = field(default_factory=list)
+    """The re-inspection views (``wash_round`` set): in the MCAP and the rounds' counts, not in the
+    CycleResult's ``viewpoints`` (a whole-bin wash cycle's would pass the 64 KiB wire limit)."""
     # --- whole-bin cycle (planner.whole.enabled): the station loop's place and what each station gave
     station_index: int = 0
     """Position in ``station_order`` of the station the cycle is at (Hold/Suspend resume here)."""

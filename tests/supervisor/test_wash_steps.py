@@ -119,7 +119,7 @@ def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(
     assert Verifying()(run) == "succeeded"
     moves = [m for r, o, m in run.calls if o == "move"]
     assert [list(m.joints) for m in moves] == [[0.1] * 6]  # only the viewpoint that sees the washed faces
-    assert [v.wash_round for v in ctx.viewpoints] == [1]
+    assert [v.wash_round for v in ctx.wash_views] == [1] and ctx.viewpoints == []
     (rec,) = ctx.wash_rounds
     assert rec.dirty_faces_before == dirty.sum() and rec.dirty_faces_after == 0
     assert rec.sweeps_run == len(plan.sweeps) - 1 and rec.sweeps_refused and rec.reinspected_views == 1
@@ -276,7 +276,7 @@ def test_a_whole_bin_round_washes_and_re_inspects_station_by_station_parking_aga
     assert WashStation()(run) == "verify" and Verifying()(run) == "succeeded"
     moves = [m for _, o, m in run.calls if o == "move"]
     assert len(moves) == 2 and list(moves[1].joints) == [0.2] * 6  # station 1's park is unchanged: its joints
-    assert [(v.station, v.surface, v.wash_round) for v in ctx.viewpoints] == [(0, "external", 1), (1, "external", 1)]
+    assert [(v.station, v.surface, v.wash_round) for v in ctx.wash_views] == [(0, "external", 1), (1, "external", 1)]
     (rec,) = ctx.wash_rounds
     assert rec.dirty_faces_before == (dirty_a | dirty_b).sum() and rec.dirty_faces_after == 0
     assert WashCheck()(run) == "done" and ctx.wash.verdict == "clean"

@@ -3,7 +3,8 @@
 The faces to look at again are the round's targets and every face its jet sprayed, dilated by
 ``wash.splash_m``; the inspection plan's viewpoints that see any of them are visited again in
 plan order (move → capture → classify, each a :class:`~cellctl.messages.ViewpointResult` with
-``wash_round``). Their evidence alone gives the faces they see a new state (the views before
+``wash_round``, kept in ``wash_views``, not in the CycleResult's ``viewpoints``: the MCAP has
+them, the round their count). Their evidence alone gives the faces they see a new state (the views before
 the wash saw powder that is gone); faces they do not see keep theirs. The merged map becomes
 the cycle's dirt map, the round is recorded (:data:`~cellctl.bus.topics.WASH_ROUND`, the
 CycleResult's ``wash.rounds``) and ``wash_check`` decides again.
@@ -79,7 +80,7 @@ class Verifying(Step):
     OUTCOMES = ("succeeded", "next", "failed")
     DESCRIPTION = "re-inspect the washed regions and their splash neighbours; merge into the dirt map; record the round"
     READS = ("wash_plan", "plan", "dirt_map", "verify_queue")
-    WRITES = ("dirt_map", "viewpoints", "wash_rounds", "wash", "wash_plan", "wash_next_view", "verify_queue")
+    WRITES = ("dirt_map", "wash_views", "wash_rounds", "wash", "wash_plan", "wash_next_view", "verify_queue")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
@@ -100,12 +101,12 @@ class Verifying(Step):
             if ctx.verify_queue:
                 return "next"
         washed, covered = face_mask(wplan.washed, n) | washed_faces(ctx, n), face_mask(wplan.covered, n)
-        mine = [v for v in ctx.viewpoints if v.wash_round == r]
+        mine = [v for v in ctx.wash_views if v.wash_round == r]
         before = face_mask(wplan.dirty, n)
         new_map = self._dirt_map(ctx, mesh, mine, before, washed_faces(ctx, n))
         ctx.dirt_map = merge_dirt_maps(ctx.dirt_map or {}, new_map, mesh)
-        # the heat maps are in the MCAP (topics.HEATMAP); the CycleResult keeps the fused face_p
-        ctx.viewpoints = [v.model_copy(update={"heatmap": None}) if v.wash_round == r else v for v in ctx.viewpoints]
+        # the heat maps are in the MCAP (topics.HEATMAP); the round's dirt map keeps the fused face_p
+        ctx.wash_views = [v.model_copy(update={"heatmap": None}) if v.wash_round == r else v for v in ctx.wash_views]
         from cellctl.washing.targets import dirty_from_map
 
         after, _ = dirty_from_map(ctx.dirt_map, mesh.n_faces, ctx.cfg.wash.threshold)
@@ -169,7 +170,7 @@ class Verifying(Step):
             moved, _ = run.call("robot", "move", move, MoveReply)
         except WorkerFailed as err:
             run.checkpoint()
-            ctx.viewpoints.append(
+            ctx.wash_views.append(
                 ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err), wash_round=r, **where)
             )
             return
@@ -182,7 +183,7 @@ class Verifying(Step):
             img = mask_board(data, bt, ctx.T_base_bin, moved.camera_pose.matrix(), cap.intrinsics)
         reply = classify_image(run, vp.index, img, "png" if img is not data else cap.format, surface)
         record_heat(run, reply)
-        ctx.viewpoints.append(
+        ctx.wash_views.append(
             with_reply(ViewpointResult(index=vp.index, camera_pose=moved.camera_pose, wash_round=r, **where), reply)
         )
 

@@ -372,7 +372,8 @@ class Washing(Step):
             except WorkerFailed as err:
                 run.checkpoint()  # a Hold/Stop interrupts the sweep: not a refusal, resume it
                 # one refused sweep (newly in collision at the measured pose) costs its faces, not the round
-                stats["refused"].append({"sweep": i, "station": rank, "reason": str(err)[:300]})
+                # the reason's head names the sweep and the cause (the CycleResult has a size limit)
+                stats["refused"].append({"sweep": i, "station": rank, "reason": str(err)[:120]})
                 ctx.wash_next_sweep = i + 1
                 continue
             stats["sweeps_run"] += reply.sweeps_run
