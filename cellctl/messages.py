@@ -562,6 +562,12 @@ class CycleResult(WireMessage):
     )
     finished: str = Field(default_factory=now_iso)
     wash: WashResult | None = Field(default=None, description="mode wash_and_verify: the rounds and the wash verdict")
+    viewpoints_omitted: int | None = Field(
+        default=None,
+        ge=0,
+        description="views left out of this message (heat maps first, then clean views) to fit the wire's size limit; "
+        "the cycle's MCAP (`log`) records every one",
+    )
 
 
 # --- worker replies -------------------------------------------------------------------------

@@ -14,13 +14,13 @@ from typing import Any
 import zenoh
 
 from cellctl.bus import keys
-from cellctl.bus.codec import encode
+from cellctl.bus.codec import MAX_PAYLOAD_BYTES, encode
 from cellctl.messages import Ack, Admin, CycleResult, Event, EventLevel, Status, UnitMode
 from cellctl.supervisor.definition import PackMLState
 from cellctl.supervisor.events import Query
 from cellctl.supervisor.recorder import Recorder
 
-__all__ = ["Outbox", "make_status", "reply"]
+__all__ = ["Outbox", "fit_to_wire", "make_status", "reply"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -34,6 +34,38 @@ def reply(query: Query, payload: bytes) -> None:
         query.reply(query.key_expr, payload, congestion_control=zenoh.CongestionControl.BLOCK)
     finally:
         query.drop()
+
+
+def fit_to_wire(res: CycleResult, limit: int = MAX_PAYLOAD_BYTES) -> bytes:
+    """The result's bytes for the bus, within the size every subscriber accepts.
+
+    A whole-bin wash cycle can carry a few hundred views with heat maps, past ``limit``; every subscriber
+    (`PlcClient`, the gateway, the HMI) refuses such a payload, so the PLC would wait out its cycle timeout for a
+    result that came. What is left out is what the cycle's MCAP holds anyway, least telling first: the views' heat
+    maps, then the clean views, then every view. ``viewpoints_omitted`` says how many views are missing or cut.
+    """
+    data = encode(res)
+    if len(data) <= limit:
+        return data
+    views = res.viewpoints
+    trimmed = [v.model_copy(update={"heatmap": None}) if v.heatmap is not None else v for v in views]
+    telling = [v for v in trimmed if v.label != "clean" or v.uncertain or v.error is not None]
+    untouched = {id(v) for v in views}
+    for kept in (trimmed, telling, []):
+        omitted = len(views) - sum(1 for v in kept if id(v) in untouched)
+        data = encode(res.model_copy(update={"viewpoints": kept, "viewpoints_omitted": omitted}))
+        if len(data) <= limit:
+            log.warning(
+                "cycle %s: result cut to %d bytes for the wire (%d of %d views left out or without heat map; "
+                "the MCAP has them)",
+                res.cycle_id,
+                len(data),
+                omitted,
+                len(views),
+            )
+            return data
+    log.error("cycle %s: result is %d bytes without any view, over the %d-byte limit", res.cycle_id, len(data), limit)
+    return data
 
 
 def make_status(
@@ -107,7 +139,7 @@ class Outbox:
         self._put("status", encode(st))
 
     def result(self, res: CycleResult) -> None:
-        self._put("result", encode(res))
+        self._put("result", fit_to_wire(res))
 
     def announce(self, level: str, text: str, cycle_id: str | None, record: Recorder | None) -> None:
         """An Event on ``events`` (and in the cycle's log when one is open), and in the log file."""
