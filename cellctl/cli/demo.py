@@ -12,6 +12,8 @@ whole bin (stations, both surfaces), the others visit every station. To stay a f
 a small machine the demo plans at p_SP 3 % and runs the sim arm 10× faster with a 50 ms settle
 (``robot.speed_scale``, ``robot.settle_s``); the CycleResult still reports the plan's modelled
 cycle time at the arm's real limits (0.5 s settle). ``--single-station`` plays the story of one station and one surface.
+``--wash`` adds a wash-and-verify cycle (dirty bin → wash → re-inspect, rounds and pictures) to either story: on a
+whole-bin cycle it walks every station twice per round, so it is not in the default run.
 """
 
 from __future__ import annotations
@@ -40,6 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--robot", choices=("sim", "ur"), default=None, help="ur: UR backend against `sim ur-controller`")
     p.add_argument(
         "--single-station", action="store_true", help="one station, one surface per cycle (the story before whole-bin)"
+    )
+    p.add_argument(
+        "--wash", action="store_true", help="add a wash-and-verify cycle (mode=wash_and_verify) before the last stage"
     )
     add_config_arguments(p)
     p.set_defaults(func=run)
@@ -122,7 +127,7 @@ def _fill(row: Row, res: Any) -> None:
         row.modelled = f"{res.modelled_cycle_s:.0f}s"
 
 
-def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool) -> list[Stage]:
+def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool, wash: bool) -> list[Stage]:
     """The demo's story: whole-bin cycles (each scan visits every station, both surfaces) or
     the single-station one.
 
@@ -161,7 +166,7 @@ def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool) -> 
             Expect("completed", washed=True),
             params={"mode": "wash_and_verify"},
         )
-        return [new_bin, adjusted, dirty, wash, beyond]
+        return [new_bin, adjusted, dirty, *([wash] if wash else []), beyond]
     return [
         new_bin,
         Stage("same bin, clean → plan found, scan", {}, Expect("completed", "clean")),
@@ -173,11 +178,17 @@ def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool) -> 
         dirty,
         # the verdict is not asserted: on the twin the rounds leave dirt the nozzle cannot reach
         # from this park (docs/washing/README.md); the rounds and their pictures are the story
-        Stage(
-            "powder on the wall → wash, re-inspect (rounds)",
-            {"dirty": True, "powder_amount": 0.15, "seed": 29},
-            Expect("completed"),
-            params={"mode": "wash_and_verify"},
+        *(
+            [
+                Stage(
+                    "powder on the wall → wash, re-inspect (rounds)",
+                    {"dirty": True, "powder_amount": 0.15, "seed": 29},
+                    Expect("completed"),
+                    params={"mode": "wash_and_verify"},
+                )
+            ]
+            if wash
+            else []
         ),
         beyond,
     ]
@@ -216,7 +227,7 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
     # systematic parking offset (an obstacle where the base would park).
     nudged = (0.008, -0.006, math.radians(0.5))
     moved = (-0.15, 0.0, math.radians(5.0))
-    stages = _stories(bt, home, nudged, moved, whole=not args.single_station)
+    stages = _stories(bt, home, nudged, moved, whole=not args.single_station, wash=args.wash)
 
     def _terminate(signum: int, _frame: object) -> None:
         raise KeyboardInterrupt(f"signal {signum}")  # unwinds the cell: workers stopped, logs closed

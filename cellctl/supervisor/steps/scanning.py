@@ -90,15 +90,18 @@ def mask_cabin(png: bytes, mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray,
     return out.tobytes() if ok else png
 
 
-def classifier_input(run: StepRun, data: bytes, fmt: str, T_base_cam: np.ndarray, intr) -> tuple[bytes, str]:  # noqa: ANN001
-    """What the classifier gets for a captured view: the board filled in, and for the surfaces of
-    ``classifier.mask_cabin`` the cabin past the bin too (the recorded image stays as captured)."""
+def classifier_input(  # noqa: ANN001
+    run: StepRun, data: bytes, fmt: str, T_base_cam: np.ndarray, intr, surface: str | None = None
+) -> tuple[bytes, str]:
+    """What the classifier gets for a captured view of ``surface`` (default: the cycle's current one): the board
+    filled in, and for the surfaces of ``classifier.mask_cabin`` the cabin past the bin too (the recorded image
+    stays as captured)."""
     ctx = run.ctx
     if ctx.catalog is None or not ctx.bin_type or ctx.T_base_bin is None:
         return data, fmt
     bt = ctx.catalog.get(ctx.bin_type)
     image = mask_board(data, bt, ctx.T_base_bin, T_base_cam, intr)
-    if ctx.surface in ctx.cfg.classifier.mask_cabin:
+    if (surface or ctx.surface) in ctx.cfg.classifier.mask_cabin:
         image = mask_cabin(image, ctx.catalog.load_mesh(ctx.bin_type), ctx.T_base_bin, T_base_cam, intr)
     return (image, "png") if image is not data else (data, fmt)
 

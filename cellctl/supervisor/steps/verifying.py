@@ -152,10 +152,9 @@ class Verifying(Step):
     @staticmethod
     def _look(run: StepRun, vp: Any, r: int, surface: str, rank: int | None) -> None:  # noqa: ANN401
         from cellctl.geometry.transforms import invert
-        from cellctl.supervisor.steps.board_mask import mask_board
         from cellctl.supervisor.steps.classifying import record_heat, with_reply
         from cellctl.supervisor.steps.identifying import captured_image
-        from cellctl.supervisor.steps.scanning import classify_image
+        from cellctl.supervisor.steps.scanning import classifier_input, classify_image
 
         ctx = run.ctx
         where = {"station": rank, "surface": surface} if rank is not None else {}
@@ -177,11 +176,9 @@ class Verifying(Step):
         cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
         data = captured_image(cap, image)
         ctx.log.image(topics.CAMERA_IMAGE, data, cap.format, "camera")
-        img = data
-        bt = ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
-        if bt is not None and ctx.T_base_bin is not None:
-            img = mask_board(data, bt, ctx.T_base_bin, moved.camera_pose.matrix(), cap.intrinsics)
-        reply = classify_image(run, vp.index, img, "png" if img is not data else cap.format, surface)
+        # the same input as the scan's views (board, and the cabin past the rim for internal views, filled in)
+        img, fmt = classifier_input(run, data, cap.format, moved.camera_pose.matrix(), cap.intrinsics, surface)
+        reply = classify_image(run, vp.index, img, fmt, surface)
         record_heat(run, reply)
         ctx.wash_views.append(
             with_reply(ViewpointResult(index=vp.index, camera_pose=moved.camera_pose, wash_round=r, **where), reply)

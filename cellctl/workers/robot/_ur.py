@@ -57,6 +57,7 @@ from cellctl.messages import (
     WashRequest,
 )
 from cellctl.workers.robot._planned import PlannedRobot
+from cellctl.workers.robot._sim import TwinBaseReport
 
 __all__ = ["UrRobot", "classify_fault", "path_deviation"]
 
@@ -258,7 +259,7 @@ def _dispose(*handles: Any) -> None:
     t.join(2.0)
 
 
-class UrRobot(PlannedRobot):
+class UrRobot(TwinBaseReport, PlannedRobot):
     """The ``ur`` backend of the robot role.
 
     Args:
