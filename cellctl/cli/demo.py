@@ -160,13 +160,13 @@ def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool, was
         # stations (picked by that): washed from the stations, re-inspected. The target is a clean
         # verdict; on the twin one view stays dirty through the rounds (docs/washing/README.md), so
         # the stage asserts that rounds ran, and prints the wash verdict and pictures
-        wash = Stage(
+        washing = Stage(
             "powder the nozzle reaches → wash, re-inspect",
             {"dirty": True, "powder_amount": 0.01, "seed": 18},
             Expect("completed", washed=True),
             params={"mode": "wash_and_verify"},
         )
-        return [new_bin, adjusted, dirty, *([wash] if wash else []), beyond]
+        return [new_bin, adjusted, dirty, *([washing] if wash else []), beyond]
     return [
         new_bin,
         Stage("same bin, clean → plan found, scan", {}, Expect("completed", "clean")),
