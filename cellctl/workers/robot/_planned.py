@@ -43,7 +43,7 @@ from cellctl.sim.collision import CollisionWorld, densify
 from cellctl.sim.motion import STEP_RAD, path_length, plan_path
 from cellctl.workers.robot._port import Robot
 
-__all__ = ["DRIVE_S", "FROZEN_GAP_S", "PlannedRobot"]
+__all__ = ["DRIVE_S", "FROZEN_GAP_S", "PlannedRobot", "TwinBaseReport"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -454,3 +454,24 @@ class PlannedRobot(Robot):
             wash_passes=len(self._washes),
             washes=list(self._washes) if washes else None,
         )
+
+
+class TwinBaseReport:
+    """For a twin-backed :class:`PlannedRobot` (put it first in the bases): the twin parks the base,
+    so the twin's base reports its pose, ``ApproachReply.base_pose`` (frame ``map``, the twin's world).
+
+    A station whose board is not visible then gets the bin pose measured at an earlier station
+    carried through the base's reported motion, so only the localisation error is left
+    unmeasured there, not the parking error. Only the ``sim`` base reports: a ``manual`` one is
+    parked by a person, with no localisation to report; a worker without the twin (a real
+    controller) knows nothing of the base (a vendor base reports through :meth:`Base.pose`).
+    """
+
+    def approach(self, req: ApproachRequest) -> ApproachReply:
+        reply = super().approach(req)  # type: ignore[misc]
+        twin = getattr(self, "publishes_twin", False)  # a real controller's worker knows nothing of the base
+        if not twin or self.cfg.base.backend != "sim" or not self._parked:  # type: ignore[attr-defined]
+            return reply
+        b = self.cfg.base  # type: ignore[attr-defined]
+        T = scene.localised(self._scenario, b.localisation_error_m, b.localisation_error_deg, self._park_attempt)  # type: ignore[attr-defined]
+        return reply.model_copy(update={"base_pose": PoseMsg.from_matrix(T, "map")})

@@ -18,35 +18,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cellctl.errors import RobotError
-from cellctl.messages import ApproachReply, ApproachRequest, PoseMsg
-from cellctl.sim import scene
-from cellctl.workers.robot._planned import DRIVE_S, FROZEN_GAP_S, PlannedRobot
+from cellctl.workers.robot._planned import DRIVE_S, FROZEN_GAP_S, PlannedRobot, TwinBaseReport
 
-__all__ = ["DRIVE_S", "FROZEN_GAP_S", "SimRobot", "TwinBaseReport"]
+__all__ = ["DRIVE_S", "FROZEN_GAP_S", "SimRobot"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
-
-
-class TwinBaseReport:
-    """For a twin-backed :class:`PlannedRobot` (put it first in the bases): the twin parks the base,
-    so the twin's base reports its pose, ``ApproachReply.base_pose`` (frame ``map``, the twin's world).
-
-    A station whose board is not visible then gets the bin pose measured at an earlier station
-    carried through the base's reported motion, so only the localisation error is left
-    unmeasured there, not the parking error. Only the ``sim`` base reports: a ``manual`` one is
-    parked by a person, with no localisation to report; a worker without the twin (a real
-    controller) knows nothing of the base (a vendor base reports through :meth:`Base.pose`).
-    """
-
-    def approach(self, req: ApproachRequest) -> ApproachReply:
-        reply = super().approach(req)  # type: ignore[misc]
-        twin = getattr(self, "publishes_twin", False)  # a real controller's worker knows nothing of the base
-        if not twin or self.cfg.base.backend != "sim" or not self._parked:  # type: ignore[attr-defined]
-            return reply
-        b = self.cfg.base  # type: ignore[attr-defined]
-        T = scene.localised(self._scenario, b.localisation_error_m, b.localisation_error_deg, self._park_attempt)  # type: ignore[attr-defined]
-        return reply.model_copy(update={"base_pose": PoseMsg.from_matrix(T, "map")})
 
 
 class SimRobot(TwinBaseReport, PlannedRobot):

@@ -56,8 +56,7 @@ from cellctl.messages import (
     WashReply,
     WashRequest,
 )
-from cellctl.workers.robot._planned import PlannedRobot
-from cellctl.workers.robot._sim import TwinBaseReport
+from cellctl.workers.robot._planned import PlannedRobot, TwinBaseReport
 
 __all__ = ["UrRobot", "classify_fault", "path_deviation"]
 
