@@ -67,8 +67,11 @@ class WashParams:
         n_roll: rolls about the jet tried by reachability (the jet is round: any roll sprays alike).
         residue_rolls: rolls of the second cover pass, which replans every station for only the
             target points the first pass left short of their passes (0: no second pass).
-        cpu_budget_s: the second pass tries no further station once the plan has used this
-            much CPU time (keeps a round's planning within its 10 s when much dirt is out of reach).
+        cpu_budget_s: the plan's CPU ceiling (keeps a round's planning within its 10 s when much
+            dirt is out of reach): a station after the first is planned only when the CPU used so
+            far plus its predicted cost (its waypoints in reach at the CPU per waypoint measured on
+            the stations planned so far in this plan) fits; the stations skipped are counted in
+            ``counts["stations_over_budget"]`` and their dirt is left for the next round.
         margin: collision clearance, m.
         max_stations: most base poses one wash plan uses.
         seed: seeds the tour's ant colony.
@@ -79,7 +82,7 @@ class WashParams:
     margin_m: float = 0.02
     n_roll: int = 4
     residue_rolls: int = 12
-    cpu_budget_s: float = 7.0
+    cpu_budget_s: float = 8.5
     max_stations: int = 8
     margin: float = 0.005
     seed: int = 0
@@ -343,6 +346,10 @@ def plan_wash(
     wp_pts = np.concatenate([ln.points for ln in lines])
     wp_faces = np.concatenate([ln.faces for ln in lines])
     tried: set[int] = set()
+    _warm(mesh, nozzle, robot, poses[0], p)
+    # the rate is measured on warm stations: the first plan in a process imports the planning
+    # stack and builds the bin's collision grid (about 2 s once), which no further station pays
+    rate = _CpuRate(p.cpu_budget_s)
 
     def take(st: list[tuple[Sweep, NDArray[np.int64], bool]], k: int) -> None:
         """Keep station ``k``'s sweeps and count their passes on the points under them."""
@@ -362,8 +369,13 @@ def plan_wash(
         if near[k] <= 0:
             break
         tried.add(k)
+        if not rate.fits(near[k], time.process_time() - cpu0):
+            counts["stations_over_budget"] += 1
+            continue
         T_bin_base = poses[k]
+        c = time.process_time()
         st = _station(mesh, facets, lines, T_bin_base, need, fpts, nozzle, robot, p, q0, rays, seen, times, counts)
+        rate.add(near[k], time.process_time() - c)
         if not st:
             continue
         used.append(k)
@@ -381,15 +393,22 @@ def plan_wash(
         r_pts = np.concatenate([ln.points for ln in r_lines]) if r_lines else np.zeros((0, 3))
         near = [int((np.linalg.norm(r_pts - T[:3, 3], axis=1) <= MAX_REACH_M).sum()) for T in poses]
         before = int((need > 0).sum())
+        # a residue waypoint costs about rolls/rolls times a first-pass one until measured
+        r_rate = _CpuRate(p.cpu_budget_s, rate.per_waypoint() * rp.n_roll / max(p.n_roll, 1), first_free=False)
         for k in sorted(range(len(poses)), key=lambda k: -near[k]):
-            if not need.any() or time.process_time() - cpu0 > p.cpu_budget_s:
+            if not need.any():
                 break
             if near[k] <= 0 or (k not in used and len(used) >= p.max_stations):
                 continue
+            if not r_rate.fits(near[k], time.process_time() - cpu0):
+                counts["residue_stations_over_budget"] += 1
+                continue
             counts["residue_stations"] += 1
+            c = time.process_time()
             st = _station(
                 mesh, r_facets, r_lines, poses[k], need, fpts, nozzle, robot, rp, q0, rays, r_seen, {}, counts
             )
+            r_rate.add(near[k], time.process_time() - c)
             if st and k not in used:
                 used.append(k)
             take(st, k)
@@ -425,6 +444,46 @@ def plan_wash(
         times_s=times,
         cpu_s=time.process_time() - cpu0,
     )
+
+
+def _warm(mesh: BinMesh, nozzle: NozzleModel, robot: RobotModel, T_bin_base: NDArray[np.float64], p: WashParams) -> None:
+    """Import the planning stages and build the bin's collision world (cached per mesh) once."""
+    from cellctl.planning import filters, reach, tour, visibility  # noqa: F401
+    from cellctl.planning.collision import PlanningWorld
+
+    PlanningWorld(mesh, nozzle.robot_with_nozzle(robot), T_bin_base, margin=p.margin)
+
+
+class _CpuRate:
+    """CPU seconds per raster waypoint in reach, measured on the stations planned so far: predicts
+    whether one more station fits the plan's budget (``WashParams.cpu_budget_s``).
+
+    A station also costs CPU that does not scale with its waypoints (its pose candidates'
+    filters, the IK set-up): the prediction is never below the cheapest station measured, so a
+    station with few waypoints in reach is not taken for free.
+    """
+
+    def __init__(self, budget_s: float, prior: float = 0.0, first_free: bool = True) -> None:
+        self.budget_s, self.prior, self.first_free = budget_s, prior, first_free
+        self.cpu_s, self.waypoints = 0.0, 0
+        self.cheapest_s = 0.0
+
+    def per_waypoint(self) -> float:
+        return self.cpu_s / self.waypoints if self.waypoints else self.prior
+
+    def add(self, waypoints: int, cpu_s: float) -> None:
+        self.cheapest_s = cpu_s if not self.waypoints else min(self.cheapest_s, cpu_s)
+        self.cpu_s += cpu_s
+        self.waypoints += waypoints
+
+    def predict(self, waypoints: int) -> float:
+        return max(waypoints * self.per_waypoint(), self.cheapest_s)
+
+    def fits(self, waypoints: int, spent_s: float) -> bool:
+        """Whether a station with ``waypoints`` in reach fits after ``spent_s`` (the plan's first always does)."""
+        if self.first_free and not self.waypoints:
+            return True
+        return spent_s + self.predict(waypoints) <= self.budget_s
 
 
 class _Seen:

@@ -129,3 +129,32 @@ def test_the_residue_pass_covers_faces_the_first_pass_left_short(bin_case) -> No
     assert not (first.covered & ~both.covered).any() and len(both.sweeps) > len(first.sweeps)
     assert both.counts["residue_points_left"] < both.counts["residue_points"]
     assert "residue_points" not in first.counts
+
+
+def test_the_cpu_rate_predicts_a_station_from_the_measured_ones_never_below_the_cheapest() -> None:
+    """The plan's CPU ceiling: the first station always runs, a next one only when the CPU spent
+    plus its waypoints at the measured rate (at least the cheapest station's cost) fits."""
+    from cellctl.washing.plan import _CpuRate
+
+    r = _CpuRate(8.5)
+    assert r.fits(10_000, 0.0)  # nothing measured: the plan's first station always runs
+    r.add(100, 2.0)  # 0.02 s per waypoint
+    assert r.fits(100, 6.0) and not r.fits(200, 6.0)
+    assert r.predict(1) == pytest.approx(2.0)  # a station's fixed cost: never free
+    assert not r.fits(1, 7.0)
+    residue = _CpuRate(8.5, prior=0.06, first_free=False)
+    assert not residue.fits(100, 3.0) and residue.fits(50, 3.0)
+    assert _CpuRate(float("inf")).fits(10**9, 1e9)
+
+
+def test_a_cpu_budget_leaves_stations_unplanned_and_counts_them(bin_case) -> None:  # noqa: ANN001
+    """A budget below one station's cost: the first station is planned, every other one is
+    counted over budget (its dirt left for the next round), and the residue pass tries none."""
+    mesh, T = bin_case
+    field = PowderField.sample(mesh, 0.3, 860361905)
+    dm = {"seen_dirty": np.flatnonzero(field.dirty_faces(mesh)).tolist()}
+    T2 = T.copy()
+    T2[:3, 3] += np.array([0.0, 0.3, 0.0])
+    plan = plan_wash(mesh, dm, [T, T2], NozzleModel(), default_robot_model(), WashParams(cpu_budget_s=1e-3))
+    assert plan.counts["stations_over_budget"] == 1 and plan.counts["stations_used"] == 1
+    assert "residue_stations" not in plan.counts and plan.counts.get("residue_stations_over_budget", 0) >= 1
