@@ -25,11 +25,20 @@ MARGIN_M = 0.01
 
 
 def board_polygon(bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr: Intrinsics) -> np.ndarray | None:
-    """Pixel outline (4, 2) of the board in this view, or None when it is not in front of the camera."""
+    """Pixel outline (4, 2) of the board in this view, or None when the camera cannot see its face.
+
+    The board frame's +z points into the board (away from a camera that reads it), so a camera
+    at z ≥ 0 in that frame looks at the board's back: through the wall it is mounted on, from
+    inside the bin or past the wall's edge. Filling its outline there would paint a textureless
+    rectangle over steel the camera does see, which the detector rightly calls a film (the
+    bench's external false-dirty bins: 13 of 15 filled views in one clean cycle were such).
+    """
     w, h = bin_type.board.size_m
     m = MARGIN_M
     corners = np.array([[-m, -m, 0, 1], [w + m, -m, 0, 1], [w + m, h + m, 0, 1], [-m, h + m, 0, 1]], dtype=float)
     T_cam_board = invert(T_base_cam) @ np.asarray(T_base_bin) @ bin_type.T_bin_board()
+    if invert(T_cam_board)[2, 3] >= 0.0:
+        return None  # the board's back: the camera cannot see the pattern
     p = (T_cam_board @ corners.T)[:3]
     if np.any(p[2] <= 0.01):
         return None
@@ -38,7 +47,7 @@ def board_polygon(bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray,
 
 
 def mask_board(png: bytes, bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr: Intrinsics) -> bytes:
-    """The image with the board filled in, or the same bytes when the board is not in view."""
+    """The image with the board filled in, or the same bytes when its face is not in view."""
     import cv2
 
     poly = board_polygon(bin_type, T_base_bin, T_base_cam, intr)
