@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import typing
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, field_validator, model_validator
@@ -326,6 +326,16 @@ class WholeBinConfig(_Model):
         le=0.2,
         description="a station without the board: extra clearance of its configurations from the bin, for the "
         "error of the pose the base's odometry carries there (two base.localisation_error reports); 0: none",
+    )
+    chains: Literal["all", "needed"] = Field(
+        default="needed",
+        description="a viewpoint joined to home through others: visit its chain's viewpoints only where its tour "
+        "needs them (the selection makes up what they saw) or always (all)",
+    )
+    min_bound_pct: dict[Surface, Annotated[float, Field(ge=0, le=100)]] = Field(
+        default_factory=lambda: {"external": 91.0, "internal": 86.0},
+        description="per surface, % of its upper bound the selection must see: below it viewpoints are added past "
+        "view_min_gain_pct (0 / absent: no floor)",
     )
 
 

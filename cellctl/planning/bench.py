@@ -46,8 +46,10 @@ def bench_plan(opts: BenchOptions) -> dict[str, Any]:
 # --- whole bin (issue 19) -------------------------------------------------------------------
 
 WHOLE_SEEDS = 10
-PROCESSES = 3  # plans at a time: the bench's wall-clock budget on a shared machine (CPU seconds are per plan)
 """Seeds per bin (``--n`` overrides): every figure is reported as median and worst over them."""
+PROCESSES = 1
+"""Plans at a time: one, so that each plan's wall time is its own (a plan itself evaluates its
+candidate stations on every core: :attr:`cellctl.planning.whole.WholeParams.workers`)."""
 
 
 FOREIGN = ("foreign_long", "foreign_basin")
@@ -111,7 +113,7 @@ def foreign_mesh(name: str = "foreign_long") -> Any:
     return mesh_from_arrays(V, F, name=d.name, internal=S == FACE_TAG["internal"])
 
 
-def _whole_row(plan: Any) -> dict[str, Any]:
+def _whole_row(plan: Any, plan_load: float | None = None) -> dict[str, Any]:
     j = plan.to_json()
     return {
         "seed": j["seed"],
@@ -124,6 +126,8 @@ def _whole_row(plan: Any) -> dict[str, Any]:
         "viewpoints": sum(v.viewpoints for v in plan.surfaces.values()),
         "planning_s": plan.times_s["total"],
         "planning_cpu_s": plan.times_s["cpu"],
+        "planning_cpu_workers_s": plan.times_s.get("cpu_workers", 0.0),
+        "load_avg_1min": plan_load,
         "cycle_time_s": plan.cycle_time_s,
         "base_moves_s": plan.base_moves_s,
         "exact_cover": j["exact_cover"],
@@ -149,6 +153,7 @@ def _median_worst(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "viewpoints": pair([r["viewpoints"] for r in rows], "max"),
         "planning_s": pair([r["planning_s"] for r in rows], "max"),
         "planning_cpu_s": pair([r["planning_cpu_s"] for r in rows], "max"),
+        "load_avg_1min": pair([r.get("load_avg_1min") or 0.0 for r in rows], "max"),
         "cycle_time_s": pair([r["cycle_time_s"] for r in rows], "max"),
         "dropped_unconnected": pair([r["dropped_unconnected"] for r in rows], "max"),
         "unverified_moves": pair([r["unverified_moves"] for r in rows], "max"),
@@ -190,11 +195,14 @@ def _whole_task(task: tuple[str, int, str, tuple[str, ...], Any]) -> tuple[str, 
     print(f"bench whole-bin: {name} seed {seed}", file=sys.stderr)
     plan_params = PlanParams(seed_pct=cfg.planner.seed_pct, seed=seed, camera=CameraModel.from_config(cfg.camera))
     params = WholeParams.for_cell(cfg, plan_params)  # the arm's own speed and acceleration fractions
+    import os
+
     from cellctl.geometry.robot_model import _quiet_stdout
 
     with _quiet_stdout():  # ur-analytic-ik's C++ warnings on fd 1 would corrupt the bench's JSON
         plan = plan_whole(mesh, params, default_robot_model(), bin_type=bt)
-    return name, seed, _whole_row(plan)
+    # the machine's load over the plan's last minute: what its wall time was measured under
+    return name, seed, _whole_row(plan, os.getloadavg()[0])
 
 
 def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
@@ -202,16 +210,19 @@ def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
 
     Per bin: per seed the plan's figures, and median / worst over the seeds. ``--n`` = seeds
     (default 10), ``--seed`` = the first seed. Plans run :data:`PROCESSES` at a time (spawned
-    processes); planning time is reported as wall time and as the plan's CPU seconds — on a
-    machine shared with other work only the CPU figure is comparable. With ``--out`` the file
+    processes; each plan evaluates its stations on every core); planning time is reported as
+    wall time, CPU seconds (its workers' included) and the load it ran under — on a machine
+    shared with other work only the CPU figure is comparable. With ``--out`` the file
     is rewritten after every finished plan (a cut run keeps what it measured).
     """
     import json
     import multiprocessing as mp
     import os
     import platform
+    from concurrent.futures import ProcessPoolExecutor
 
     from cellctl.geometry.catalog import load_catalog
+    from cellctl.planning.parallel import default_workers
 
     cfg = opts.load_config()
     cat = load_catalog(cfg.path(cfg.catalog))
@@ -225,6 +236,7 @@ def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
         "machine": {
             "cpus": os.cpu_count(),
             "processes": PROCESSES,
+            "workers_per_plan": default_workers(),
             "load_avg_start": list(os.getloadavg()),
             "python": platform.python_version(),
         },
@@ -235,8 +247,9 @@ def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
     # the same number of seeds
     tasks = [(n, s, cfg_path, tuple(opts.overrides), None) for s in seeds for n in names]
     rows: dict[str, dict[int, dict[str, Any]]] = {n: {} for n in names}
-    with mp.get_context("spawn").Pool(PROCESSES) as pool:
-        for name, seed, row in pool.imap_unordered(_whole_task, tasks):
+    # an executor's workers are not daemonic (a Pool's are): each plan may start its own workers
+    with ProcessPoolExecutor(PROCESSES, mp_context=mp.get_context("spawn")) as pool:
+        for name, seed, row in pool.map(_whole_task, tasks):
             rows[name][seed] = row
             got = [rows[name][k] for k in sorted(rows[name])]
             out["bins"][name] = {"summary": _median_worst(got), "runs": got}

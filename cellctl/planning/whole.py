@@ -26,10 +26,12 @@ the plan cache, the pose tolerance and the adjustment work per station unchanged
 
 from __future__ import annotations
 
+import resource
 import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -109,10 +111,18 @@ class WholeParams:
     the chosen ones ± one station (about half the planning CPU). 1 (default): every candidate in full.
     Off by default: on case-study seeds 1 and 2 it chose 3 stations where the full evaluation takes 4,
     and external coverage fell to 89.5 / 87.0 % of the bound (target ≥ 90 %)."""
-    chains: str = "all"
-    """"all" (default): a selected viewpoint's chain home is visited too; "needed": only where the tour
-    needs it (:func:`_with_needed_ancestors`: ~20 fewer case-study viewpoints, 191 → 172 s at seed 0,
-    but ≈ 0.5-1 % less of the external bound, which the coverage target has no room for yet)."""
+    chains: str = "needed"
+    """"needed" (default): a selected viewpoint's chain home is visited only where its tour needs it
+    (:func:`_with_needed_ancestors`), and the selection makes up what the chain viewpoints left out
+    saw (:func:`_needed_and_made_up`): case study seed 0, 99 → 80 viewpoints, modelled cycle
+    192 → 173 s, 92.3 → 92.0 % of the external bound. "all": every chain is visited."""
+    min_bound_pct: dict[str, float] = field(default_factory=lambda: {"external": 91.0, "internal": 86.0})
+    """Per surface, the % of its upper bound the selection must see (0 / absent: no floor): below it
+    viewpoints are added past the gain rule (:func:`_fill_to_floor`); ``planner.whole.min_bound_pct``."""
+    workers: int = 0
+    """Processes one plan evaluates its candidate stations on (and runs the exact cover beside the
+    tours): 0 (default) = the cores this process may use, 1 = in process. The plan is the same
+    for any number (each candidate's evaluation reads only the shared set-up)."""
     odometry_m: float = 0.0
     """Bin-pose error left at a station that cannot see the board (the cycle carries the pose measured
     at an earlier station through the base's reported motion: two localisation reports, the yaw's
@@ -152,6 +162,8 @@ class WholeParams:
             ),
             view_min_gain_pct=whole.view_min_gain_pct,
             odometry_m=whole.odometry_error_m,
+            chains=whole.chains,
+            min_bound_pct=dict(whole.min_bound_pct),
         )
 
     @classmethod
@@ -169,6 +181,11 @@ class WholeParams:
         self.stations.check()
         if not 1 <= self.estimate_thin <= 20:
             raise PlanningError(f"estimate_thin {self.estimate_thin!r} must be in 1..20 (1: every candidate in full)")
+        bad_floor = {k: v for k, v in self.min_bound_pct.items() if k not in SURFACES or not 0 <= v <= 100}
+        if bad_floor:
+            raise PlanningError(f"min_bound_pct {bad_floor} must map surfaces {list(SURFACES)} to 0..100 %")
+        if self.workers < 0:
+            raise PlanningError(f"workers {self.workers!r} must be ≥ 0 (0: one per core, 1: in process)")
         if self.chains not in ("all", "needed"):
             raise PlanningError(f"chains {self.chains!r} must be 'all' or 'needed'")
         bad = [s for s in self.surfaces if s not in SURFACES]
@@ -880,6 +897,9 @@ class _StationEval:
     replaced: int = 0
     unconnected: int = 0
     accept: Callable[[int, NDArray[np.float64]], bool] | None = None
+    margin: float = 0.0
+    """The clearance this station's configurations keep (the plan's, + odometry error without a board)."""
+    identify_reason: str | None = None
 
 
 def _identification(
@@ -928,6 +948,7 @@ def plan_whole(
         PlanningError: bad parameters.
     """
     from cellctl.planning import pipeline as pl
+    from cellctl.planning.parallel import default_workers, fork_map
     from cellctl.planning.reach import robust_acceptor
     from cellctl.planning.select import greedy_area, min_set_cover, simulated_annealing, visible_area
     from cellctl.planning.stations import base_move_s, candidate_stations, choose_stations, exact_station_cover
@@ -935,8 +956,10 @@ def plan_whole(
     from cellctl.sim.motion import STEP_RAD
 
     params.check()
+    workers = params.workers or default_workers()
     t0 = time.perf_counter()
     cpu0 = time.process_time()
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     times: dict[str, float] = {}
 
     def tick(key: str, since: float) -> float:
@@ -970,7 +993,7 @@ def plan_whole(
 
     def empty(reason: str, ev: list[_StationEval] | None = None) -> WholePlan:
         times["total"] = time.perf_counter() - t0
-        times["cpu"] = time.process_time() - cpu0
+        times.update(_cpu_s(cpu0, ru0))
         return WholePlan(
             **head,
             stations=(),
@@ -1033,44 +1056,58 @@ def plan_whole(
     # 2. per usable station: distance filter, reach, connect, visibility; identification pose
     from cellctl.planning.filters import distance_filter
 
+    def station_world(c: Candidate, margin: float) -> tuple[PlanningWorld, Any]:
+        """The planning world and the parking-robustness test at ``c`` with this clearance."""
+        world = PlanningWorld(mesh, robot, c.T_bin_base, margin=margin)
+        return world, robust_acceptor(mesh, robot, c.T_bin_base, replace(p0, margin=margin))
+
+    def station_setup(c: Candidate, surf: str, world: PlanningWorld) -> pl.Setup:
+        filt, sf, rng = shared[surf]
+        return pl.Setup(
+            mesh=mesh,
+            robot=robot,
+            params=replace(p0, surface=surf),
+            T_bin_base=c.T_bin_base,
+            T_base_bin=invert(c.T_bin_base),
+            q_start=q_home,
+            surf_faces=sf,
+            world=world,
+            rays=rays,
+            rng=rng,  # the plan's stream per surface: the tours draw from it station after station
+        )
+
+    def attach(ev: _StationEval) -> _StationEval:
+        """Give an evaluation (from a worker: plain arrays) its world, robustness test and set-ups."""
+        world, ev.accept = station_world(ev.cand, ev.margin)
+        for surf in ev.filt:
+            ev.setups[surf] = station_setup(ev.cand, surf, world)
+        return ev
+
     def evaluate(c: Candidate, thin: int = 1) -> _StationEval:
-        """Reach, connection and visibility at ``c``.
+        """Reach, connection and visibility at ``c``: plain arrays only (it may run in a worker
+        process; :func:`attach` adds the world and set-ups where they are used).
 
         ``thin`` > 1, the estimate that ranks candidates: every thin-th seed direction only, no
         identification pose. (Without the parking-robustness test as well it cost about the same
         and misled the choice: case study seed 0 took an inner station whose views do not survive
         parking error, external 89.7 % of the bound.)
         """
-        ev = _StationEval(c)
-        world = PlanningWorld(mesh, robot, c.T_bin_base, margin=p0.margin)
+        ev = _StationEval(c, margin=p0.margin)
         T_base_bin = invert(c.T_bin_base)
-        accept = robust_acceptor(mesh, robot, c.T_bin_base, p0)
+        world = PlanningWorld(mesh, robot, c.T_bin_base, margin=p0.margin)
         if thin == 1:
             ev.identify, why = _identification(bin_type, world, robot, T_base_bin, q_home, step)
-            ev.setups["identify_reason"] = why
+            ev.identify_reason = why
             if ev.identify is None and params.odometry_m > 0:
                 # No board here: the cycle adjusts the plan to the pose carried by the base's odometry,
                 # whose error it cannot see, so every configuration (and each one the robustness check
                 # re-solves for a parking error) keeps that much more clearance. The plan keeps the
                 # margin it is checked with at lookup.
-                odo = replace(p0, margin=p0.margin + params.odometry_m)
-                world = PlanningWorld(mesh, robot, c.T_bin_base, margin=odo.margin)
-                accept = robust_acceptor(mesh, robot, c.T_bin_base, odo)
-        ev.accept = accept
-        for surf, (filt, sf, rng) in shared.items():
-            p = replace(p0, surface=surf)
-            s = pl.Setup(
-                mesh=mesh,
-                robot=robot,
-                params=p,
-                T_bin_base=c.T_bin_base,
-                T_base_bin=T_base_bin,
-                q_start=q_home,
-                surf_faces=sf,
-                world=world,
-                rays=rays,
-                rng=rng,
-            )
+                ev.margin = p0.margin + params.odometry_m
+        world, accept = station_world(c, ev.margin)
+        for surf, (filt, sf, _rng) in shared.items():
+            s = station_setup(c, surf, world)
+            p = s.params
             near = distance_filter(filt.vp, c.T_bin_base[:3, 3], p.max_reach)
             keep = np.flatnonzero(near & (filt.vp.seed % thin == 0))
             vp = filt.vp.subset(keep)
@@ -1098,9 +1135,13 @@ def plan_whole(
             ev.unconnected += con.unconnected
             found = pl.Reachability(con.reached, found.planner_queries, found.rrtconnect_fallbacks)
             vis = pl.measure(s, found.reached, st)
-            ev.setups[surf], ev.filt[surf], ev.found[surf], ev.vis[surf] = s, f_s, found, vis
+            ev.filt[surf], ev.found[surf], ev.vis[surf] = f_s, found, vis
             ev.seen[surf] = vis.C.any(axis=1) if vis.C.shape[1] else np.zeros(len(sf), dtype=bool)
         return ev
+
+    def evaluate_all(cs: list[Candidate], thin: int = 1) -> list[_StationEval]:
+        """Every candidate's evaluation, on ``params.workers`` processes (the same answer on one)."""
+        return [attach(e) for e in fork_map(lambda c: evaluate(c, thin), cs, workers)]
 
     # 3. choose stations (fewest first). By default every candidate is evaluated in full. With
     # estimate_thin > 1 (reach + connection are ~3/4 of the planning time and most candidates are
@@ -1110,7 +1151,7 @@ def plan_whole(
     areas = {s: mesh.areas[shared[s][1]] for s in shared}
     bounds = {s: surfaces[s].bound_m2 for s in shared}
     if params.estimate_thin > 1 and len(usable) > params.stations.max_stations:
-        estimate = [evaluate(c, params.estimate_thin).seen for c in usable]
+        estimate = [e.seen for e in evaluate_all(usable, params.estimate_thin)]
         per_size: list[tuple[int, ...]] = []
         first, _ = choose_stations(estimate, areas, bounds, params.stations, best_per_size=per_size)
         # the estimate's choice and its best subsets one station smaller and larger: the full masks
@@ -1118,17 +1159,16 @@ def plan_whole(
         # station the full evaluation would not
         k = len(first)
         first = sorted({*first, *(per_size[k - 2] if k > 1 else ()), *(per_size[k] if k < len(per_size) else ())})
-        done = {}
-        for n_done, i in enumerate(first):
-            done[i] = evaluate(usable[i])
-            say("stations", (n_done + 1) / len(first), usable[i].name)
+        done = dict(zip(first, evaluate_all([usable[i] for i in first]), strict=True))
+        say("stations", 1.0)
         # the same rule again over the full masks of those: a station the thin estimate took for
         # a gain it does not make in full (a thin estimate sees less from each station) is dropped
         ids = sorted(done)
         sub, scores = choose_stations([done[i].seen for i in ids], areas, bounds, params.stations)
         chosen = [ids[k] for k in sub]
     else:  # every candidate in full (the default), choose on full masks
-        done = {i: evaluate(c) for i, c in enumerate(usable)}
+        done = dict(enumerate(evaluate_all(usable)))
+        say("stations", 1.0)
         chosen, scores = choose_stations([done[i].seen for i in sorted(done)], areas, bounds, params.stations)
     evals = [done[i] for i in sorted(done)]
     pos = {i: k for k, i in enumerate(sorted(done))}
@@ -1165,18 +1205,30 @@ def plan_whole(
         rng = np.random.default_rng([p0.seed, 17, SURFACES.index(surf)])
         ga = _worthwhile(greedy_area(C, a), C, a, bounds[surf], params.view_min_gain_pct)
         sa = simulated_annealing(C, a, ga, p0.sa_pct, rng, iterations=p0.sa_iterations)
+        cons_s = [e.con[surf] for e in chosen_ev]
+        # the selection plus the chain viewpoints its tours visit; the pair checks are kept
+        # between calls (the make-up and the floor call it again on a grown selection)
+        close = partial(
+            _close_chains,
+            params.chains,
+            owner,
+            local,
+            cons_s,
+            [e.setups[surf].world for e in chosen_ev],
+            q_home,
+            step,
+            [{} for _ in chosen_ev],
+        )
         if params.chains == "needed":
-            chosen_cols = _with_needed_ancestors(
-                sa.selected,
-                owner,
-                local,
-                [e.con[surf] for e in chosen_ev],
-                [e.setups[surf].world for e in chosen_ev],
-                q_home,
-                step,
+            every_chain = _with_ancestors(sa.selected, owner, local, [c.parent for c in cons_s])
+            chosen_cols, counts[f"made_up_{surf}"] = _needed_and_made_up(
+                sa.selected, every_chain, C, a, close, params.view_min_gain_pct / 100.0 * bounds[surf]
             )
         else:
-            chosen_cols = _with_ancestors(sa.selected, owner, local, [e.con[surf].parent for e in chosen_ev])
+            chosen_cols = close(sa.selected)
+        floor = params.min_bound_pct.get(surf, 0.0) / 100.0 * bounds[surf]
+        if floor > 0:
+            chosen_cols, counts[f"floor_added_{surf}"] = _fill_to_floor(chosen_cols, C, a, floor, close)
         counts[f"chain_added_{surf}"] = len(chosen_cols) - len(sa.selected)
         greedy_n[surf] = len(ga)
         picked[surf] = [np.sort(local[chosen_cols][owner[chosen_cols] == k]) for k in range(len(chosen_ev))]
@@ -1204,17 +1256,27 @@ def plan_whole(
                 col = np.zeros(off, dtype=bool)
                 col[offs[surf] : offs[surf] + len(areas[surf])] = Cs[:, j]
                 cols.append((e.cand.index, col))
-    try:
-        exact = exact_station_cover(cols, must, params.exact_time_limit_s)
-    except PlanningError:
-        exact = None
+
+    def exact_cover() -> Any:
+        try:
+            return exact_station_cover(cols, must, params.exact_time_limit_s)
+        except PlanningError:
+            return None
+
     t = tick("exact_cover", t)
 
-    # 6. per chosen station: timed tours (external then internal), station plans, modelled time
+    # 6. per chosen station: timed tours (external then internal), station plans, modelled time.
+    # Stations are independent (each starts and ends at home): they run on the workers, each with
+    # its own random stream (seed, station's candidate, surface), so a plan is the same whatever
+    # worker ran which station and in what order.
     timing = params.timing
     per_vp = timing.settle_s + timing.capture_s
-    stations: list[StationPlan] = []
-    for rank, e in enumerate(chosen_ev):
+
+    def station_tours(rank: int) -> tuple[StationPlan, dict[str, NDArray[np.int64]], dict[str, int]]:
+        """Station ``rank``'s tours and plans; its (possibly chain-completed) picks and its counts."""
+        e = chosen_ev[rank]
+        mine: dict[str, int] = {}
+        sels: dict[str, NDArray[np.int64]] = {}
         q_now = q_home
         hub: list[NDArray[np.float64]] = [q_home, q_home]
         cycle = 0.0
@@ -1226,8 +1288,9 @@ def plan_whole(
         motion: dict[str, float] = {}
         for surf in shared:
             s, f_s, found, vis = e.setups[surf], e.filt[surf], e.found[surf], e.vis[surf]
-            sel = picked[surf][rank]
-            s = replace(s, q_start=q_now, params=replace(s.params, q_start=tuple(float(x) for x in q_now)))
+            sel = sels[surf] = picked[surf][rank]
+            rng = np.random.default_rng([p0.seed, 23, e.cand.index, SURFACES.index(surf)])
+            s = replace(s, q_start=q_now, rng=rng, params=replace(s.params, q_start=tuple(float(x) for x in q_now)))
             st = pl._Stages(None, False)
             hd = pl._Header(uuid.uuid4().hex[:12], head["created"], name, time.perf_counter())
             if len(sel) == 0:
@@ -1245,8 +1308,8 @@ def plan_whole(
                 if len(full) > len(sel):
                     again = _timed_tour(q_now, hub, full, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step)
                     if again[5] < unverified:
-                        counts["chain_readded"] = counts.get("chain_readded", 0) + len(full) - len(sel)
-                        sel = picked[surf][rank] = full
+                        mine["chain_readded"] = mine.get("chain_readded", 0) + len(full) - len(sel)
+                        sel = sels[surf] = full
                         order, Dr, paths, secs_e, n_straight, unverified = again
             q_chain = con.reached.q.copy()  # the chains home are straight between these configurations
             nodes = np.vstack([q_now[None], con.reached.q[sel]])
@@ -1254,7 +1317,7 @@ def plan_whole(
                 nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step
             )
             con.reached.q[sel] = new_q[1:]
-            counts["reconfigured"] = counts.get("reconfigured", 0) + n_changed
+            mine["reconfigured"] = mine.get("reconfigured", 0) + n_changed
             Dr = np.zeros_like(Dr)
             for a, b, pth in zip(order[:-1], order[1:], paths, strict=True):
                 Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(pth, axis=0), axis=1).sum())
@@ -1265,7 +1328,7 @@ def plan_whole(
                 "matrix_straight": int(n_straight),
                 "tour_failed_edges": unverified,
             }
-            counts["unverified_moves"] = counts.get("unverified_moves", 0) + unverified
+            mine["unverified_moves"] = mine.get("unverified_moves", 0) + unverified
             tour = pl.Tour(order, Dr, approaches, tour_counts)
             selection = pl.Selection(sel, sel, _NoSA)
             allowed = np.ones(vis.C.shape[1], dtype=bool)
@@ -1284,20 +1347,34 @@ def plan_whole(
             else:  # a new configuration at the end is one whose straight motion home was checked
                 hub = [q_now, q_home]
         cycle += timing.motion_s(np.array(hub))  # home before the base drives on
-        stations.append(
-            StationPlan(
-                rank=rank,
-                candidate=e.cand.index,
-                angle_deg=e.cand.angle_deg,
-                T_bin_base=e.cand.T_bin_base,
-                identify_T_bin_cam=None if e.identify is None else e.identify[0],
-                identify_q=None if e.identify is None else e.identify[1],
-                identify_reason=e.setups.get("identify_reason"),
-                plans=plans,
-                motion_s=motion,
-                cycle_s=cycle,
-            )
+        plan_k = StationPlan(
+            rank=rank,
+            candidate=e.cand.index,
+            angle_deg=e.cand.angle_deg,
+            T_bin_base=e.cand.T_bin_base,
+            identify_T_bin_cam=None if e.identify is None else e.identify[0],
+            identify_q=None if e.identify is None else e.identify[1],
+            identify_reason=e.identify_reason,
+            plans=plans,
+            motion_s=motion,
+            cycle_s=cycle,
         )
+        return plan_k, sels, mine
+
+    # the MILP (its own time limit) is one more job beside the stations' tours, handed out first:
+    # it only reads the selection, and the tours do not change what it covers
+    def job(k: int) -> Any:
+        return exact_cover() if k < 0 else station_tours(k)
+
+    done_jobs = fork_map(job, [-1, *range(len(chosen_ev))], workers)
+    exact = done_jobs[0]
+    stations: list[StationPlan] = []
+    for plan_k, sels, mine in done_jobs[1:]:
+        stations.append(plan_k)
+        for surf, sel in sels.items():
+            picked[surf][plan_k.rank] = sel
+        for key, v in mine.items():
+            counts[key] = counts.get(key, 0) + v
     for surf in shared:  # a station share may have taken its chains back (above)
         seen_f = np.zeros(len(areas[surf]), dtype=bool)
         for k, e in enumerate(chosen_ev):
@@ -1309,12 +1386,12 @@ def plan_whole(
         base_move_s(cands, a.candidate, b.candidate, params.stations)
         for a, b in zip(stations[:-1], stations[1:], strict=True)
     )
+    t = tick("tours", t)  # the exact cover's MILP included (it runs beside the tours)
     counts["dropped_unconnected"] = 0
     counts["stations"] = len(stations)
     counts.update({f"greedy_{k}": v for k, v in greedy_n.items()})
-    tick("tours", t)
     times["total"] = time.perf_counter() - t0
-    times["cpu"] = time.process_time() - cpu0  # CPU seconds: the figure a shared machine does not inflate
+    times.update(_cpu_s(cpu0, ru0))  # CPU seconds: the figure a shared machine does not inflate
     reason = None
     if stations and stations[0].identify_q is None:
         reason = None  # the first station's missing board is said in its identify_reason
@@ -1333,6 +1410,14 @@ def plan_whole(
     )
 
 
+def _cpu_s(cpu0: float, ru0: Any) -> dict[str, float]:
+    """CPU seconds since ``cpu0`` / ``ru0``: ``cpu`` this process and its finished workers together,
+    ``cpu_workers`` the workers' share (user + system)."""
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    kids = (ru.ru_utime - ru0.ru_utime) + (ru.ru_stime - ru0.ru_stime)
+    return {"cpu": time.process_time() - cpu0 + kids, "cpu_workers": kids}
+
+
 def _with_needed_ancestors(
     cols: NDArray[np.int64],
     owner: NDArray[np.int64],
@@ -1341,6 +1426,7 @@ def _with_needed_ancestors(
     worlds: list[PlanningWorld],
     q_home: NDArray[np.float64],
     fine_step: float,
+    straight_cache: list[dict[tuple[int, int], bool]] | None = None,
 ) -> NDArray[np.int64]:
     """The selection plus the viewpoints on selected ones' chains home that the tour needs.
 
@@ -1352,7 +1438,8 @@ def _with_needed_ancestors(
     viewpoints. Checked at :data:`COARSE_STEP_RAD`, like the chains; the tour checks its moves
     again at the sim arm's step. The tour ends where the arm tucks home by one straight motion
     free at ``fine_step``: a station's share holds one such viewpoint (nearest home first),
-    else a chain's root is added, else every chain (the rule before).
+    else a chain's root is added, else every chain (the rule before). ``straight_cache`` (one
+    dict per station) keeps the pair checks between calls on a growing selection.
     """
     col_of = {(int(o), int(j)): c for c, (o, j) in enumerate(zip(owner, local, strict=True))}
     out: set[int] = set()
@@ -1361,7 +1448,8 @@ def _with_needed_ancestors(
         if not S:
             continue
         par, Q = con.parent, con.reached.q
-        straight: dict[tuple[int, int], bool] = {}
+        # pairs already checked (the make-up and the floor call this again on a grown selection)
+        straight: dict[tuple[int, int], bool] = {} if straight_cache is None else straight_cache[k]
         for _round in range(4 * CHAIN_ROUNDS + 4):
             members = sorted(S)
             todo = [(a, b) for i, a in enumerate(members) for b in members[i + 1 :] if (a, b) not in straight]
@@ -1400,6 +1488,108 @@ def _with_needed_ancestors(
                     S.update(int(x) for x in _chain_ids(a, par))
         out.update(col_of[(k, a)] for a in S)
     return np.array(sorted(out), dtype=np.int64)
+
+
+def _needed_and_made_up(
+    selected: NDArray[np.int64],
+    every_chain: NDArray[np.int64],
+    C: NDArray[np.bool_],
+    area: NDArray[np.float64],
+    close: Callable[[NDArray[np.int64]], NDArray[np.int64]],
+    min_gain_m2: float,
+    rounds: int = 3,
+) -> tuple[NDArray[np.int64], int]:
+    """The selection with only the chain viewpoints its tour needs, plus what makes up the rest.
+
+    Every chain visited (``every_chain``: ``chains="all"``) captures at each chain viewpoint
+    too, and that area is part of the plan's coverage. Visiting only the needed ones (``close``:
+    :func:`_with_needed_ancestors`) loses what the others alone saw, so Greedy Area runs again
+    over exactly those faces (any viewpoint of the chosen stations, each adding ≥ ``min_gain_m2``
+    of them, the selection's own rule), the needed chains of the additions are added, and so on
+    (≤ ``rounds``). Usually a few well-placed viewpoints see what a chain's stops saw on the way.
+
+    Returns:
+        The columns to visit, and how many of them the make-up added (chains included).
+    """
+    from cellctl.planning.select import greedy_area
+
+    target = C[:, every_chain].any(axis=1)  # what visiting every chain sees
+    cols = close(selected)
+    n_needed = len(cols)
+    for _ in range(rounds):
+        lost = target & ~C[:, cols].any(axis=1)
+        if float(area[lost].sum()) < max(min_gain_m2, 1e-12):
+            break
+        Cl = C & lost[:, None]
+        Cl[:, cols] = False
+        add = [int(j) for j in greedy_area(Cl, area)]
+        seen = np.zeros(len(area), dtype=bool)
+        keep = []
+        for j in add:  # the selection's rule: a viewpoint must add min_gain_m2 of what is lost
+            if float(area[Cl[:, j] & ~seen].sum()) < min_gain_m2:
+                break
+            seen |= Cl[:, j]
+            keep.append(j)
+        if not keep:
+            break
+        cols = close(np.union1d(cols, keep).astype(np.int64))
+    return cols, len(cols) - n_needed
+
+
+def _close_chains(
+    chains: str,
+    owner: NDArray[np.int64],
+    local: NDArray[np.int64],
+    cons: list[Connected],
+    worlds: list[PlanningWorld],
+    q_home: NDArray[np.float64],
+    fine_step: float,
+    straight_cache: list[dict[tuple[int, int], bool]] | None,
+    cols: NDArray[np.int64],
+) -> NDArray[np.int64]:
+    """``cols`` plus the chain viewpoints their tours visit (``chains``: "all" or "needed")."""
+    if chains == "needed":
+        return _with_needed_ancestors(cols, owner, local, cons, worlds, q_home, fine_step, straight_cache)
+    return _with_ancestors(cols, owner, local, [c.parent for c in cons])
+
+
+def _fill_to_floor(
+    cols: NDArray[np.int64],
+    C: NDArray[np.bool_],
+    area: NDArray[np.float64],
+    floor_m2: float,
+    close: Callable[[NDArray[np.int64]], NDArray[np.int64]],
+    batch: int = 3,
+) -> tuple[NDArray[np.int64], int]:
+    """Grow the selection, Greedy Area over what it does not see, until it sees ``floor_m2``.
+
+    The gain rule (``view_min_gain_pct``) trades slivers for cycle time; a plant's coverage
+    requirement (``planner.whole.min_bound_pct``) is the other side of that trade: below it, the
+    best next viewpoints are taken whatever they add (``batch`` at a time, then ``close`` adds
+    what their tours need: their chains), until the floor is reached or nothing adds area.
+
+    Returns:
+        The columns, and how many were added (chains included).
+    """
+    n0 = len(cols)
+    for _ in range(200):
+        seen = C[:, cols].any(axis=1) if len(cols) else np.zeros(C.shape[0], dtype=bool)
+        if float(area[seen].sum()) >= floor_m2:
+            break
+        left = area * ~seen
+        gain = left @ C.astype(np.float64)
+        gain[cols] = 0.0
+        best = [int(j) for j in np.argsort(-gain, kind="stable")[:batch] if gain[j] > 0]
+        if not best:
+            break
+        # one at a time within the batch: the second's gain after the first's
+        take = []
+        for j in best:
+            if float(left[C[:, j]].sum()) > 0:
+                take.append(j)
+                left = left * ~C[:, j]
+        cols = close(np.union1d(cols, take).astype(np.int64))
+    return cols, len(cols) - n0
 
 
 def _has_tuck(

@@ -25,7 +25,7 @@ STATIONS = StationParams(candidates=4, max_stations=4)
 
 @pytest.fixture(scope="module")
 def whole(box, robot):
-    return plan_whole(box, WholeParams(plan=FAST, stations=STATIONS), robot)
+    return plan_whole(box, WholeParams(plan=FAST, stations=STATIONS, chains="all", min_bound_pct={}), robot)
 
 
 # --- candidates ---------------------------------------------------------------------------
@@ -106,6 +106,11 @@ def test_whole_params_from_a_cell_take_the_arms_motion_limits_and_refuse_bad_opt
         WholeParams(estimate_thin=0).check()
     with pytest.raises(PlanningError, match=r"chains 'some' must be 'all' or 'needed'"):
         WholeParams(chains="some").check()
+    assert wp.chains == cfg.planner.whole.chains and wp.min_bound_pct == cfg.planner.whole.min_bound_pct
+    with pytest.raises(PlanningError, match=r"min_bound_pct \{'external': 120.0\} must map"):
+        WholeParams(min_bound_pct={"external": 120.0}).check()
+    with pytest.raises(PlanningError, match=r"workers -1 must be ≥ 0"):
+        WholeParams(workers=-1).check()
 
 
 def test_the_batched_parking_robustness_test_answers_as_one_at_a_time(box, robot, T_bin_base):
@@ -183,7 +188,86 @@ def test_the_exact_cover_drops_only_pairs_a_pair_of_the_same_station_beats():
 # --- a whole plan on the box --------------------------------------------------------------------
 
 
+@pytest.fixture(scope="module")
+def needed(box, robot):
+    """Chains only where needed, made up; a coverage floor above what the gain rule keeps; 2 workers."""
+    params = WholeParams(
+        plan=FAST, stations=STATIONS, chains="needed", min_bound_pct={"external": 97.0, "internal": 97.0}, workers=2
+    )
+    return plan_whole(box, params, robot)
+
+
 def test_whole_plan_covers_both_surfaces_with_every_viewpoint_connected(whole, box, robot):
+    _every_viewpoint_connected(whole, box, robot)
+
+
+def test_chains_only_where_needed_keep_every_viewpoint_connected_and_reach_the_floor(needed, whole, box, robot):
+    _every_viewpoint_connected(needed, box, robot)
+    for surf in ("external", "internal"):
+        s = needed.surfaces[surf]
+        # the floor: 97 % of the bound, or every viewpoint that could add area was taken
+        assert s.seen_m2 >= 0.97 * s.bound_m2 - 1e-9 or needed.counts[f"floor_added_{surf}"] > 0
+        assert needed.counts[f"made_up_{surf}"] >= 0
+
+
+def test_a_plan_is_the_same_on_one_worker_and_on_two(needed, box, robot):
+    one = plan_whole(
+        box,
+        WholeParams(
+            plan=FAST, stations=STATIONS, chains="needed", min_bound_pct={"external": 97.0, "internal": 97.0}, workers=1
+        ),
+        robot,
+    )
+    assert [s.candidate for s in one.stations] == [s.candidate for s in needed.stations]
+    for a, b in zip(one.stations, needed.stations, strict=True):
+        for surf in ("external", "internal"):
+            qa = np.array([vp.q for vp in a.plans[surf].viewpoints])
+            qb = np.array([vp.q for vp in b.plans[surf].viewpoints])
+            assert qa.shape == qb.shape and np.array_equal(qa, qb), (a.rank, surf)
+    assert one.cycle_time_s == needed.cycle_time_s
+    assert one.times_s["cpu_workers"] == 0.0 and needed.times_s["cpu_workers"] > 0.0
+    assert needed.times_s["cpu"] >= needed.times_s["cpu_workers"]
+
+
+def test_fork_map_keeps_the_order_and_raises_a_workers_error():
+    from cellctl.planning.parallel import fork_map
+
+    offset = 7  # a closure: forked workers inherit it, nothing is pickled on the way in
+    assert fork_map(lambda x: x * x + offset, list(range(9)), 2) == [x * x + offset for x in range(9)]
+    assert fork_map(lambda x: -x, [3], 4) == [-3]
+
+    def bad(x):
+        if x == 2:
+            raise ValueError(f"item {x} is bad")
+        return x
+
+    with pytest.raises(RuntimeError, match="item 2 is bad"):
+        fork_map(bad, [0, 1, 2, 3], 2)
+
+
+def test_fork_map_runs_in_process_inside_a_daemonic_worker(monkeypatch):
+    import multiprocessing as mp
+    import os
+
+    from cellctl.planning.parallel import fork_map
+
+    monkeypatch.setattr(mp.current_process(), "daemon", True, raising=False)
+    assert fork_map(lambda _x: os.getpid(), [0, 1, 2], 2) == [os.getpid()] * 3
+
+
+def test_the_floor_adds_the_best_viewpoints_until_it_is_reached():
+    from cellctl.planning.whole import _fill_to_floor
+
+    C = np.zeros((6, 4), dtype=bool)
+    C[[0, 1], 0] = C[[2, 3], 1] = C[[4], 2] = C[[5], 3] = True
+    area = np.array([1.0, 1.0, 1.0, 1.0, 0.5, 0.2])
+    cols, added = _fill_to_floor(np.array([0]), C, area, 4.4, lambda c: c, batch=1)
+    assert list(cols) == [0, 1, 2] and added == 2  # 4.5 m² ≥ 4.4: the 0.2 m² view is not needed
+    cols, added = _fill_to_floor(np.array([0]), C, area, 99.0, lambda c: c)
+    assert list(cols) == [0, 1, 2, 3] and added == 3  # nothing left that adds area: stop
+
+
+def _every_viewpoint_connected(whole, box, robot):
     from cellctl.planning.collision import PlanningWorld
     from cellctl.sim.motion import _segment_free
 
