@@ -331,3 +331,93 @@ def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) ->
     n = len(ctx.wash_plan.sweeps)
     assert ctx.wash_run["sweeps_run"] == n and ctx.wash_run["refused"] == []
     assert sum(1 for _, o, _ in run.calls if o == "wash") == n + len(firsts)
+
+
+def _relook_run(cfg, case, second: ClassifyReply):  # noqa: ANN001, ANN202
+    """A washed spot whose one re-inspection view comes back certain dirty, its re-look ``second``
+    (re-looks confirm dirty views: ``classifier.relook.confirm_dirty: on``)."""
+    from cellctl.config import load_config
+
+    cfg = load_config(None, [*_overrides(cfg), "classifier.relook.confirm_dirty=on"])
+    _, mesh, _ = case
+    dirty = _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0))
+    ctx = _ctx(cfg, case, dirty)
+    script = _script(cfg)
+    replies = [ClassifyReply(label="dirty", p_dirty=0.9, model_id="m"), second]
+    # later rounds: every view and re-look as the re-look says
+    script[("classifier", "classify")] = lambda req: (replies.pop(0) if len(replies) > 1 else replies[0], None)
+    run = ScriptedRun(ctx, script)
+    assert WashCheck()(run) == "wash" and WashStation()(run) == "wash" and Washing()(run) == "succeeded"
+    assert WashStation()(run) == "verify" and Verifying()(run) == "succeeded"
+    return ctx, run, dirty
+
+
+def _overrides(cfg) -> list[str]:  # noqa: ANN001
+    """The fixture config's overrides again (its port and folders), to load a variant of it."""
+    ep = cfg.bus.listen[0]
+    return [
+        f'bus.listen=["{ep}"]',
+        f'bus.connect=["{ep}"]',
+        f"recording.dir={cfg.recording.dir}",
+        f"planner.plans_dir={cfg.planner.plans_dir}",
+        "robot.settle_s=0",
+    ]
+
+
+def test_a_dirty_re_inspection_view_a_certain_clean_re_look_overrules_ends_clean(cfg, case) -> None:  # noqa: ANN001
+    """The scan's confirm-dirty rule in the re-inspection: a view still called dirty after the wash is
+    imaged again from a nearby pose (a camera pose, not the planned joints); certain clean there, its
+    faces are clean and the round ends the bin clean."""
+    ctx, run, _ = _relook_run(cfg, case, ClassifyReply(label="clean", p_dirty=0.02, model_id="m"))
+    moves = [m for _, o, m in run.calls if o == "move"]
+    assert len(moves) == 2 and moves[0].joints is not None and moves[1].camera_pose is not None
+    assert not np.allclose(moves[1].camera_pose.matrix(), CAM_POSE.matrix())  # moved by the re-look swing
+    assert [(v.relook_of, v.label, v.wash_round) for v in ctx.wash_views] == [(None, "dirty", 1), (0, "clean", 1)]
+    (rec,) = ctx.wash_rounds
+    assert rec.dirty_faces_after == 0 and rec.reinspected_views == 2
+    assert WashCheck()(run) == "done" and ctx.wash.verdict == "clean"
+
+
+def test_a_dirty_re_inspection_view_its_re_look_confirms_keeps_the_leftover_dirty(cfg, case) -> None:  # noqa: ANN001
+    """Real dirt left after the wash is seen from the re-look pose too: the faces stay dirty and the
+    loop washes again, and once the rounds are spent the bin ends ``dirty``, never clean."""
+    ctx, run, dirty = _relook_run(cfg, case, ClassifyReply(label="dirty", p_dirty=0.85, model_id="m"))
+    (rec,) = ctx.wash_rounds
+    assert rec.dirty_faces_after == dirty.sum()  # every washed face the dirty view sees (none unwashed)
+    assert WashCheck()(run) == "wash"  # round 2
+    for _ in range(cfg.wash.max_rounds - 1):
+        assert WashStation()(run) == "wash" and Washing()(run) == "succeeded"
+        assert WashStation()(run) == "verify" and Verifying()(run) == "succeeded"
+        if len(ctx.wash_rounds) < cfg.wash.max_rounds:
+            assert WashCheck()(run) == "wash"
+    assert WashCheck()(run) == "done" and ctx.verdict == "dirty" and ctx.wash.verdict == "dirty"
+    assert ctx.wash.remaining_faces and "after 3 wash round(s)" in ctx.wash.reason
+
+
+def test_an_uncertain_re_inspection_view_is_re_looked_even_without_confirming(cfg, case) -> None:  # noqa: ANN001
+    """Without confirm-dirty (a single-station cycle's default) only uncertain views are re-looked,
+    and the two are decided as the scan decides them."""
+    _, mesh, _ = case
+    ctx = _ctx(cfg, case, _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0)))
+    script = _script(cfg)
+    replies = iter(
+        [
+            ClassifyReply(label="dirty", p_dirty=0.55, uncertain=True, model_id="m"),
+            ClassifyReply(label="clean", p_dirty=0.01, model_id="m"),
+        ]
+    )
+    script[("classifier", "classify")] = lambda req: (next(replies), None)
+    run = ScriptedRun(ctx, script)
+    assert WashCheck()(run) == "wash" and WashStation()(run) == "wash" and Washing()(run) == "succeeded"
+    assert WashStation()(run) == "verify" and Verifying()(run) == "succeeded"
+    assert [v.relook_of for v in ctx.wash_views] == [None, 0]
+    # decided like the scan's views (classifying.Classifying._view_labels), not by a rule of its own
+    from cellctl.supervisor.steps.classifying import Classifying
+
+    (label,) = Classifying._view_labels(ctx.wash_views, False).values()
+    assert (ctx.wash_rounds[0].dirty_faces_after > 0) == (label == "dirty")
+    ctx2 = _ctx(cfg, case, _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0)))
+    run2 = ScriptedRun(ctx2, _script(cfg, label="dirty"))  # certain dirty, not confirming: no re-look
+    assert WashCheck()(run2) == "wash" and WashStation()(run2) == "wash" and Washing()(run2) == "succeeded"
+    assert WashStation()(run2) == "verify" and Verifying()(run2) == "succeeded"
+    assert [v.relook_of for v in ctx2.wash_views] == [None] and ctx2.wash_rounds[0].dirty_faces_after > 0

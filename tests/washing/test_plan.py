@@ -131,17 +131,19 @@ def test_the_residue_pass_covers_faces_the_first_pass_left_short(bin_case) -> No
     assert "residue_points" not in first.counts
 
 
-def test_the_cpu_rate_predicts_a_station_from_the_measured_ones_never_below_the_cheapest() -> None:
+def test_the_cpu_rate_predicts_a_station_from_the_measured_ones() -> None:
     """The plan's CPU ceiling: the first station always runs, a next one only when the CPU spent
-    plus its waypoints at the measured rate (at least the cheapest station's cost) fits."""
+    plus its waypoints at the rate measured on the stations so far fits."""
     from cellctl.washing.plan import _CpuRate
 
     r = _CpuRate(8.5)
     assert r.fits(10_000, 0.0)  # nothing measured: the plan's first station always runs
     r.add(100, 2.0)  # 0.02 s per waypoint
     assert r.fits(100, 6.0) and not r.fits(200, 6.0)
-    assert r.predict(1) == pytest.approx(2.0)  # a station's fixed cost: never free
-    assert not r.fits(1, 7.0)
+    # a small station after a large one is priced by its waypoints, not by the large one's cost
+    assert r.predict(10) == pytest.approx(0.2) and r.fits(10, 8.0)
+    r.add(300, 2.0)  # the rate is over every station measured: 4 s / 400 waypoints
+    assert r.predict(100) == pytest.approx(1.0)
     residue = _CpuRate(8.5, prior=0.06, first_free=False)
     assert not residue.fits(100, 3.0) and residue.fits(50, 3.0)
     assert _CpuRate(float("inf")).fits(10**9, 1e9)

@@ -15,6 +15,14 @@ classified by its surface's network. Where the base parked again since the scan,
 to its planned camera pose relative to the bin, carried into the new park (the bin pose
 measured there), not to the planned joints.
 
+A re-inspection view is decided as the scan's views are (:mod:`cellctl.supervisor.steps.classifying`):
+an uncertain one, and with ``classifier.relook.confirm_dirty`` (whole-bin cycles by default) a
+certain-dirty one, is imaged again once from a nearby pose (up to ``classifier.relook.max_views``
+per station visit), and a certain-dirty view stays dirty unless its re-look is certain clean.
+Reason: a dirty view after the wash paints faces for the next round, and the whole-image
+classifier's false-dirty views (0.7 % per view) otherwise kept a washed bin dirty through every
+round; real dirt left is seen from 3 cm and 12° away too, so it stays dirty.
+
 With whole-image classifiers (no heat map, the coarse map) a dirty re-inspection view is laid
 on what the round did not wash: it marks dirty the faces it sees that were dirty before the
 round and got no sweep, when it sees any; only a view that sees nothing but washed or clean
@@ -96,6 +104,7 @@ class Verifying(Step):
                 surf, vp = views[k]
                 self._look(run, vp, r, surf, rank)
                 ctx.wash_next_view = k + 1
+            self._relook(run, r, rank)
             ctx.verify_queue.pop(0)
             ctx.wash_next_view = 0
             if ctx.verify_queue:
@@ -152,9 +161,6 @@ class Verifying(Step):
     @staticmethod
     def _look(run: StepRun, vp: Any, r: int, surface: str, rank: int | None) -> None:  # noqa: ANN401
         from cellctl.geometry.transforms import invert
-        from cellctl.supervisor.steps.classifying import record_heat, with_reply
-        from cellctl.supervisor.steps.identifying import captured_image
-        from cellctl.supervisor.steps.scanning import classifier_input, classify_image
 
         ctx = run.ctx
         where = {"station": rank, "surface": surface} if rank is not None else {}
@@ -165,24 +171,86 @@ class Verifying(Step):
             # parked again since the scan: the same view of the bin, from the new park
             T = T_now @ invert(T_then) @ vp.camera_pose.matrix()
             move = MoveRequest(camera_pose=PoseMsg.from_matrix(T, vp.camera_pose.frame_id), settle_s=settle)
+        Verifying._view(run, vp.index, move, vp.camera_pose, surface, {**where, "wash_round": r})
+
+    @staticmethod
+    def _view(run: StepRun, index: int, move: MoveRequest, pose: PoseMsg, surface: str, where: dict[str, Any]) -> bool:
+        """Move, capture, classify one re-inspection view into ``wash_views`` (a refused move: a view
+        with the error at ``pose``); whether a view was taken."""
+        from cellctl.supervisor.steps.classifying import record_heat, with_reply
+        from cellctl.supervisor.steps.identifying import captured_image
+        from cellctl.supervisor.steps.scanning import classifier_input, classify_image
+
+        ctx = run.ctx
         try:
             moved, _ = run.call("robot", "move", move, MoveReply)
         except WorkerFailed as err:
             run.checkpoint()
-            ctx.wash_views.append(
-                ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err), wash_round=r, **where)
-            )
-            return
+            ctx.wash_views.append(ViewpointResult(index=index, camera_pose=pose, error=str(err), **where))
+            return False
         cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
         data = captured_image(cap, image)
         ctx.log.image(topics.CAMERA_IMAGE, data, cap.format, "camera")
         # the same input as the scan's views (board, and the cabin past the rim for internal views, filled in)
         img, fmt = classifier_input(run, data, cap.format, moved.camera_pose.matrix(), cap.intrinsics, surface)
-        reply = classify_image(run, vp.index, img, fmt, surface)
+        reply = classify_image(run, index, img, fmt, surface)
         record_heat(run, reply)
-        ctx.wash_views.append(
-            with_reply(ViewpointResult(index=vp.index, camera_pose=moved.camera_pose, wash_round=r, **where), reply)
-        )
+        ctx.wash_views.append(with_reply(ViewpointResult(index=index, camera_pose=moved.camera_pose, **where), reply))
+        return True
+
+    @staticmethod
+    def _relook(run: StepRun, r: int, rank: int | None) -> int:
+        """Re-image this station's uncertain re-inspection views of round ``r`` (and, confirming, its
+        certain-dirty ones) once each from a nearby pose, the most ambiguous first, at most
+        ``classifier.relook.max_views``; how many views were taken.
+
+        The scan's rule (:mod:`cellctl.supervisor.steps.classifying`): a certain-dirty view is clean
+        only if its re-look is certain clean. A dirty re-inspection view paints faces for the next
+        round, so each is confirmed on its own (the scan stops at the first confirmed one: the bin
+        is dirty by then). Idempotent: a view already re-looked this round is not looked at again
+        (a Hold resumes here).
+        """
+        from cellctl.classify.heatmap import relook_pose
+        from cellctl.supervisor.steps.classifying import RELOOK_POSES, Classifying, _logit, view_key
+
+        ctx = run.ctx
+        rc = ctx.cfg.classifier.relook
+        if rc.max_views <= 0:
+            return 0
+        confirm = Classifying._confirming(ctx)
+        here = [v for v in ctx.wash_views if v.wash_round == r and v.station == rank]
+        looked = {view_key(v) for v in here if v.relook_of is not None and v.error is None}
+        tried = {view_key(v): 0 for v in here}
+        for v in here:
+            if v.relook_of is not None:
+                tried[view_key(v)] += 1
+        firsts = [
+            v
+            for v in here
+            if v.relook_of is None
+            and v.error is None
+            and v.p_dirty is not None
+            and v.camera_pose is not None
+            and (v.uncertain or (confirm and v.label == "dirty"))
+            and view_key(v) not in looked
+        ]
+        done = 0
+        for v in sorted(firsts, key=lambda w: (not w.uncertain, abs(_logit(w.p_dirty)))):  # type: ignore[arg-type]
+            if done + len(looked) >= rc.max_views:
+                break
+            surface = v.surface or ctx.surface
+            # a refused pose (near a rim a swing can touch the bin) tries the next one
+            while tried[view_key(v)] < RELOOK_POSES:
+                run.checkpoint()
+                k = tried[view_key(v)]
+                tried[view_key(v)] = k + 1
+                T = relook_pose(v.camera_pose.matrix(), k, rc.offset_m, rc.glance_deg, rc.depth_m)  # type: ignore[union-attr]
+                where = {"station": v.station, "surface": v.surface, "wash_round": r, "relook_of": v.index}
+                move = MoveRequest(camera_pose=PoseMsg.from_matrix(T), settle_s=ctx.cfg.robot.settle_s)
+                if Verifying._view(run, v.index, move, PoseMsg.from_matrix(T), surface, where):
+                    done += 1
+                    break
+        return done
 
     @staticmethod
     def _dirt_map(
@@ -211,18 +279,18 @@ class Verifying(Step):
                 face_threshold=vc.face_threshold,
             )
             return fm.as_json()
-        from cellctl.supervisor.steps.classifying import view_key
+        from cellctl.supervisor.steps.classifying import Classifying
 
         n = mesh.n_faces
         faces_by = _faces_by_view(ctx.plan, plans)
         seen: set[int] = set()
         dirty: set[int] = set()
-        for v in views:
-            if v.error is not None or v.label is None:
-                continue
-            f = {int(x) for x in faces_by.get(view_key(v), []) if 0 <= int(x) < n}
+        # a viewpoint's views (its re-looks with it) decide together, as in the scan (classifying)
+        labels = Classifying._view_labels([v for v in views if v.error is None], Classifying._confirming(ctx))
+        for key, label in labels.items():
+            f = {int(x) for x in faces_by.get(key, []) if 0 <= int(x) < n}
             seen |= f
-            if v.label == "dirty":
+            if label == "dirty":
                 unwashed = {x for x in f if before[x] and not washed[x]}
                 dirty |= unwashed or f
         return {
