@@ -14,7 +14,8 @@ Every planned viewpoint is rendered by the twin at 256×144 (the size of the twi
 renders; the detector squashes every frame to 128², so the full 1280×720 would cost ~25× the
 render time for the same input) from the
 planned pose jittered by ±1 cm / ±1° as a re-parked robot reaches it, with the cycle's
-lighting; the ID board is masked exactly as the scanning step does; the detector decides; an
+lighting; the ID board (and, for the surfaces of ``classifier.mask_cabin``, the cabin past the
+bin) is masked exactly as the scanning step does; the detector decides; an
 uncertain view is re-looked at from :func:`~cellctl.classify.heatmap.relook_pose` (up to
 ``classifier.relook.max_views`` per cycle); all views are fused per face
 (:func:`~cellctl.classify.heatmap.fuse_views`) and the verdict follows
@@ -39,7 +40,7 @@ import numpy as np
 
 from cellctl.bench_options import BenchOptions
 
-__all__ = ["KINDS", "bench_inspect", "collect_cycles", "score_cycles"]
+__all__ = ["KINDS", "bench_inspect", "classifier_view", "collect_cycles", "score_cycles"]
 
 KINDS = ("clean", "one_spot", "many_spots")
 BENCH_BIN = "case_study"
@@ -87,6 +88,19 @@ def _dirty_faces(field: Any, mesh: Any, threshold: float = 0.5) -> np.ndarray:
     return (a > threshold).any(axis=0)
 
 
+def classifier_view(
+    png: bytes, cabin: bool, bt: Any, mesh: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr: Any
+) -> bytes:
+    """What the scanning step hands the classifier for a view
+    (:func:`cellctl.supervisor.steps.scanning.classifier_input`): the board filled in where its face
+    is seen, and with ``cabin`` (the surface is in ``classifier.mask_cabin``) the cabin past the bin."""
+    from cellctl.supervisor.steps.board_mask import mask_board
+    from cellctl.supervisor.steps.scanning import mask_cabin
+
+    png = mask_board(png, bt, T_base_bin, T_base_cam, intr)
+    return mask_cabin(png, mesh, T_base_bin, T_base_cam, intr) if cabin else png
+
+
 def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
     """Run ``opts.n`` cycles (default 200); returns the JSON described in the module doc."""
     cfg = opts.load_config()
@@ -116,7 +130,6 @@ def collect_cycles(opts: BenchOptions, cfg: Any = None, first: int = 0) -> dict[
     from cellctl.sim.ground_truth import PowderField
     from cellctl.sim.render import RenderParams, SimRenderer
     from cellctl.sim.scene import nominal_T_bin_base
-    from cellctl.supervisor.steps.board_mask import mask_board
     from cellctl.surface import SURFACES
 
     torch.set_num_threads(1)  # 2 shared cores: more threads only contend (measured 9 vs 500 ms)
@@ -185,13 +198,22 @@ def collect_cycles(opts: BenchOptions, cfg: Any = None, first: int = 0) -> dict[
             det: Any = det,
             shots: list = shots,
             T_world_bin: np.ndarray = T_world_bin,
+            surface: str = surface,
         ) -> Any:
             # the renderer's private entry point takes a PowderField directly: the one-spot
             # field is not one of its seeded scenarios
             out = renderer._render(
                 BENCH_BIN, T_world_bin, None, None, T_world_bin @ T_bin_cam, render_cam, rp, pseed + k, field, True
             )
-            png = mask_board(encode_image(out.rgb, "png"), bt, T_base_bin, T_base_bin @ T_bin_cam, intr)
+            png = classifier_view(
+                encode_image(out.rgb, "png"),
+                surface in cfg.classifier.mask_cabin,
+                bt,
+                mesh,
+                T_base_bin,
+                T_base_bin @ T_bin_cam,
+                intr,
+            )
             from cellctl.images import decode_image
 
             img = decode_image(png, "bench view")
@@ -254,6 +276,7 @@ def collect_cycles(opts: BenchOptions, cfg: Any = None, first: int = 0) -> dict[
             "bin": BENCH_BIN,
             "seed": opts.seed,
             "render_px": [intr.width, intr.height],
+            "mask_cabin": list(cfg.classifier.mask_cabin),
             "plans": {
                 s: {"viewpoints": len(p.viewpoints), "coverage": round(float(p.coverage), 4)} for s, p in plans.items()
             },

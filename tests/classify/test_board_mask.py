@@ -77,3 +77,20 @@ def test_a_board_seen_from_behind_its_plane_is_not_filled(renderer: SimRenderer,
     assert _markers(out.rgb, bt) == 0  # and indeed the pattern is not in the image
     png = encode_image(out.rgb, "png")
     assert mask_board(png, bt, np.eye(4), T, CAM.intrinsics()) is png
+
+
+def test_the_bench_masks_views_as_the_scanning_step(renderer: SimRenderer) -> None:
+    """``bench inspect`` hands the detector what ``classifier_input`` would: the cabin past the rim
+    filled only for the surfaces of ``classifier.mask_cabin`` (internal by default)."""
+    from cellctl.classify.inspect_bench import classifier_view
+    from cellctl.supervisor.steps.scanning import mask_cabin
+
+    bt = renderer.catalog.get("case_study")
+    mesh = renderer.catalog.load_mesh("case_study")
+    T = look_at((0.0, 0.9, 0.35), (0.0, 0.0, -0.2))  # into the bin over its rim: cabin past it (28 %)
+    out = renderer.render_bin_view("case_study", T, CAM, dirty=False, params=QUIET)
+    png = encode_image(out.rgb, "png")
+    intr = CAM.intrinsics()
+    assert classifier_view(png, False, bt, mesh, np.eye(4), T, intr) is png  # no board face, no cabin mask
+    cabin = classifier_view(png, True, bt, mesh, np.eye(4), T, intr)
+    assert cabin == mask_cabin(png, mesh, np.eye(4), T, intr) and cabin != png
