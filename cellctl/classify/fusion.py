@@ -431,7 +431,8 @@ def train_detector(
             "root": _rel(root),
             "split_seed": seed,
             "counts": split.counts(),
-            "generator": json.loads(prov_path.read_text()) if prov_path.is_file() else None,
+            "generator": (runs := json.loads(prov_path.read_text()) if prov_path.is_file() else None),
+            "recreate": _recreate(runs or [], root),
         },
         "metrics": {
             "val": metrics(pv, yva, threshold, band),
@@ -465,6 +466,24 @@ def _init_weights(path: Path, surface: str, feats: nn.Module, head: nn.Module) -
         "its_command": prior.get("command"),
         "its_epochs": prior.get("finetune_epochs"),
     }
+
+
+def _recreate(runs: list[dict[str, Any]], root: Path) -> list[str]:
+    """The ``cellctl dataset contam`` commands that regenerate a data set from its ``synth.json``
+    runs (a clean checkout has no ``data/``: the card must say how to make it)."""
+    out = []
+    for r in runs:
+        cmd = f"cellctl dataset contam --surface {r['surface']} --n {r['n']} --out {_rel(root)} --seed {r['seed']}"
+        if r.get("shifted"):
+            cmd += " --shifted"
+        if r.get("source", "mixed") != "mixed":
+            cmd += f" --source {r['source']}"
+        elif r.get("twin_fraction", 0.4) != 0.4:
+            cmd += f" --twin-fraction {r['twin_fraction']}"
+        if r.get("size", 256) != 256:
+            cmd += f" --size {r['size']}"
+        out.append(cmd)
+    return out
 
 
 def _rel(path: Path | str) -> str:

@@ -146,6 +146,11 @@ def test_detector_trains_predicts_and_reloads(contam: Path, tmp_path: Path) -> N
     card = train_detector(contam / "train", "external", out, epochs=2, bank_size=64)
     assert card["sha256"] and card["metrics"]["test"]["n"] > 0
     assert not Path(card["data"]["root"]).is_absolute() or card["data"]["root"] == str(contam / "train")
+    # the card says how to make its data again (a clean checkout has no data/)
+    assert card["data"]["recreate"] == [
+        f"cellctl dataset contam --surface external --n 48 --out {card['data']['root']} --seed 3"
+        " --source closeup --size 96"
+    ]
     det = Detector.load(out, surface="external")
     from cellctl.classify.data import load_image
 
