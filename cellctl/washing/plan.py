@@ -68,10 +68,12 @@ class WashParams:
         residue_rolls: rolls of the second cover pass, which replans every station for only the
             target points the first pass left short of their passes (0: no second pass).
         cpu_budget_s: the plan's CPU ceiling (keeps a round's planning within its 10 s when much
-            dirt is out of reach): a station after the first is planned only when the CPU used so
-            far plus its predicted cost (its waypoints in reach at the CPU per waypoint measured on
-            the stations planned so far in this plan) fits; the stations skipped are counted in
-            ``counts["stations_over_budget"]`` and their dirt is left for the next round.
+            dirt is out of reach; 2 s below it for what is not predicted): a station after the
+            first (first or residue pass) runs its reachability only when the CPU used so far plus
+            its predicted cost (its filtered poses times rolls, at the CPU per pose and roll
+            measured on this plan's stations) fits; the stations skipped are counted in
+            ``counts["stations_over_budget"]`` / ``["residue_stations_over_budget"]`` and their dirt
+            is left for the next round.
         margin: collision clearance, m.
         max_stations: most base poses one wash plan uses.
         seed: seeds the tour's ant colony.
@@ -82,7 +84,7 @@ class WashParams:
     margin_m: float = 0.02
     n_roll: int = 4
     residue_rolls: int = 12
-    cpu_budget_s: float = 8.5
+    cpu_budget_s: float = 8.0
     max_stations: int = 8
     margin: float = 0.005
     seed: int = 0
@@ -369,13 +371,11 @@ def plan_wash(
         if near[k] <= 0:
             break
         tried.add(k)
-        if not rate.fits(near[k], time.process_time() - cpu0):
-            counts["stations_over_budget"] += 1
-            continue
         T_bin_base = poses[k]
-        c = time.process_time()
-        st = _station(mesh, facets, lines, T_bin_base, need, fpts, nozzle, robot, p, q0, rays, seen, times, counts)
-        rate.add(near[k], time.process_time() - c)
+        budget = _Budget(rate, cpu0, "stations_over_budget")
+        st = _station(
+            mesh, facets, lines, T_bin_base, need, fpts, nozzle, robot, p, q0, rays, seen, times, counts, budget
+        )
         if not st:
             continue
         used.append(k)
@@ -393,22 +393,19 @@ def plan_wash(
         r_pts = np.concatenate([ln.points for ln in r_lines]) if r_lines else np.zeros((0, 3))
         near = [int((np.linalg.norm(r_pts - T[:3, 3], axis=1) <= MAX_REACH_M).sum()) for T in poses]
         before = int((need > 0).sum())
-        # a residue waypoint costs about rolls/rolls times a first-pass one until measured
-        r_rate = _CpuRate(p.cpu_budget_s, rate.per_waypoint() * rp.n_roll / max(p.n_roll, 1), first_free=False)
+        # the same unit (a pose and roll through IK and collision checks) as the first pass: its rate holds
+        rate.first_free = False
         for k in sorted(range(len(poses)), key=lambda k: -near[k]):
             if not need.any():
                 break
             if near[k] <= 0 or (k not in used and len(used) >= p.max_stations):
                 continue
-            if not r_rate.fits(near[k], time.process_time() - cpu0):
-                counts["residue_stations_over_budget"] += 1
-                continue
-            counts["residue_stations"] += 1
-            c = time.process_time()
+            budget = _Budget(rate, cpu0, "residue_stations_over_budget")
+            skipped = counts[budget.key]
             st = _station(
-                mesh, r_facets, r_lines, poses[k], need, fpts, nozzle, robot, rp, q0, rays, r_seen, {}, counts
+                mesh, r_facets, r_lines, poses[k], need, fpts, nozzle, robot, rp, q0, rays, r_seen, {}, counts, budget
             )
-            r_rate.add(near[k], time.process_time() - c)
+            counts["residue_stations"] += counts[budget.key] == skipped
             if st and k not in used:
                 used.append(k)
             take(st, k)
@@ -457,36 +454,46 @@ def _warm(
 
 
 class _CpuRate:
-    """CPU seconds per raster waypoint in reach, measured on the stations planned so far: predicts
-    whether one more station fits the plan's budget (``WashParams.cpu_budget_s``).
+    """CPU seconds per pose and roll through reachability (IK, collision checks: 80-95 % of a wash
+    plan's CPU), measured on the stations planned so far: predicts whether one more station's
+    reachability fits the plan's budget (``WashParams.cpu_budget_s``).
 
-    The rate is the measured stations' CPU over their waypoints, so their fixed costs (pose
-    candidates' filters, IK set-up: about 0.3 s a station on the case-study bin) are spread over
-    the waypoints: a station much smaller than those measured is under-predicted by about that
-    much, which the budget's margin below the 10 s target holds. *Not* a floor at the cheapest
-    station measured: after one station that is the plan's largest (4.8 s of 8.5 on a mixed bin),
-    and every further one was skipped.
+    Counted where the cost is: a station's filtered poses times the rolls tried, known just before
+    its reachability runs. A station's waypoints in reach (the previous unit) mispredicted the
+    residue pass by 5x (52 residue points, 5.7 s: 1177 poses x 12 rolls) and a mixed bin's round
+    reached 10.4 s. The rest of a station (filters, cover, tour) is not predicted: the budget's
+    margin below the 10 s target holds it.
     """
 
     def __init__(self, budget_s: float, prior: float = 0.0, first_free: bool = True) -> None:
         self.budget_s, self.prior, self.first_free = budget_s, prior, first_free
-        self.cpu_s, self.waypoints = 0.0, 0
+        self.cpu_s, self.units = 0.0, 0
 
-    def per_waypoint(self) -> float:
-        return self.cpu_s / self.waypoints if self.waypoints else self.prior
+    def per_unit(self) -> float:
+        return self.cpu_s / self.units if self.units else self.prior
 
-    def add(self, waypoints: int, cpu_s: float) -> None:
+    def add(self, units: int, cpu_s: float) -> None:
         self.cpu_s += cpu_s
-        self.waypoints += waypoints
+        self.units += units
 
-    def predict(self, waypoints: int) -> float:
-        return waypoints * self.per_waypoint()
+    def predict(self, units: int) -> float:
+        return units * self.per_unit()
 
-    def fits(self, waypoints: int, spent_s: float) -> bool:
-        """Whether a station with ``waypoints`` in reach fits after ``spent_s`` (the plan's first always does)."""
-        if self.first_free and not self.waypoints:
+    def fits(self, units: int, spent_s: float) -> bool:
+        """Whether ``units`` more fit after ``spent_s`` (before anything is measured: the plan's first station)."""
+        if self.first_free and not self.units:
             return True
-        return spent_s + self.predict(waypoints) <= self.budget_s
+        return spent_s + self.predict(units) <= self.budget_s
+
+
+@dataclass
+class _Budget:
+    """A plan's CPU ceiling as one station sees it: the shared rate, the plan's CPU clock start, and
+    the ``counts`` key a station skipped for it goes under."""
+
+    rate: _CpuRate
+    cpu0: float
+    key: str
 
 
 class _Seen:
@@ -516,9 +523,11 @@ def _station(
     seen: _Seen,
     times: dict[str, float],
     counts: Counter[str],
+    budget: _Budget | None = None,
 ) -> list[tuple[Sweep, NDArray[np.int64], bool]]:
     """One station's sweeps for the face points still in ``need``, in tour order: each with the
-    points under it and whether the straight transit to it is collision-free."""
+    points under it and whether the straight transit to it is collision-free. With a ``budget``, none
+    (counted under its key) when its reachability stage would not fit."""
     from cellctl.geometry import robot_model as rm
     from cellctl.planning.collision import PlanningWorld
     from cellctl.planning.filters import camera_collision_filter, distance_filter, height_filter, occlusion_filter
@@ -570,7 +579,14 @@ def _station(
     _add(times, "generate_filter", t)
 
     t = time.perf_counter()
+    units = len(filtered) * p.n_roll  # what reachability costs: IK and collision checks per pose and roll
+    if budget is not None and not budget.rate.fits(units, time.process_time() - budget.cpu0):
+        counts[budget.key] += 1
+        return []
+    c = time.process_time()
     reached = reachability(filtered, tool, world, invert(T_bin_base), q0, p.n_roll) if len(filtered) else None
+    if budget is not None:
+        budget.rate.add(units, time.process_time() - c)
     _add(times, "reachability", t)
     wp_q = np.full((len(pts), 6), np.nan)
     wp_T = np.full((len(pts), 4, 4), np.nan)
