@@ -23,3 +23,12 @@ def test_the_wash_cycle_is_played_only_when_asked_for(whole: bool) -> None:
     assert len(washed) == len(plain) + 1
     # the story still ends on the cycle beyond tolerance
     assert washed[-1].expect == plain[-1].expect
+
+
+def test_the_whole_bin_wash_cycle_must_end_clean_after_a_wash_round() -> None:
+    """Its powder lies where a nozzle reaches: the story fails unless the rounds leave the bin clean
+    (the single-station one washes from one park, and dirt it cannot reach keeps that bin dirty)."""
+    (whole,) = [s for s in _stories("case_study", HOME, NUDGED, MOVED, True, True) if s.params.get("mode")]
+    assert whole.expect.verdict == "clean" and whole.expect.washed
+    (single,) = [s for s in _stories("case_study", HOME, NUDGED, MOVED, False, True) if s.params.get("mode")]
+    assert single.expect.verdict is None
