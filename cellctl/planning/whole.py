@@ -1208,17 +1208,19 @@ def plan_whole(
         cons_s = [e.con[surf] for e in chosen_ev]
         # the selection plus the chain viewpoints its tours visit; the pair checks are kept
         # between calls (the make-up and the floor call it again on a grown selection)
-        close = partial(
-            _close_chains,
-            params.chains,
-            owner,
-            local,
-            cons_s,
-            [e.setups[surf].world for e in chosen_ev],
-            q_home,
-            step,
-            [{} for _ in chosen_ev],
-        )
+        if params.chains == "needed":
+            close = partial(
+                _with_needed_ancestors,
+                owner=owner,
+                local=local,
+                cons=cons_s,
+                worlds=[e.setups[surf].world for e in chosen_ev],
+                q_home=q_home,
+                fine_step=step,
+                straight_cache=[{} for _ in chosen_ev],
+            )
+        else:
+            close = partial(_with_ancestors, owner=owner, local=local, parents=[c.parent for c in cons_s])
         if params.chains == "needed":
             every_chain = _with_ancestors(sa.selected, owner, local, [c.parent for c in cons_s])
             chosen_cols, counts[f"made_up_{surf}"] = _needed_and_made_up(
@@ -1534,23 +1536,6 @@ def _needed_and_made_up(
             break
         cols = close(np.union1d(cols, keep).astype(np.int64))
     return cols, len(cols) - n_needed
-
-
-def _close_chains(
-    chains: str,
-    owner: NDArray[np.int64],
-    local: NDArray[np.int64],
-    cons: list[Connected],
-    worlds: list[PlanningWorld],
-    q_home: NDArray[np.float64],
-    fine_step: float,
-    straight_cache: list[dict[tuple[int, int], bool]] | None,
-    cols: NDArray[np.int64],
-) -> NDArray[np.int64]:
-    """``cols`` plus the chain viewpoints their tours visit (``chains``: "all" or "needed")."""
-    if chains == "needed":
-        return _with_needed_ancestors(cols, owner, local, cons, worlds, q_home, fine_step, straight_cache)
-    return _with_ancestors(cols, owner, local, [c.parent for c in cons])
 
 
 def _fill_to_floor(
