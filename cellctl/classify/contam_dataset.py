@@ -37,6 +37,7 @@ from tqdm import tqdm
 
 from cellctl.classify.collect import LABELS, check_surface
 from cellctl.classify.contamination import (
+    CLUTTER_K,
     FAMILIES,
     MODEL_INPUT_PX,
     VISIBLE_ALPHA,
@@ -54,8 +55,9 @@ from cellctl.errors import ClassifierError
 
 __all__ = ["GENERATOR", "contam_dataset"]
 
-GENERATOR = "cellctl-contam/1"
-"""Version of this generator, recorded in ``synth.json`` and the model cards."""
+GENERATOR = "cellctl-contam/2"
+"""Version of this generator, recorded in ``synth.json`` and the model cards (2: the visible mask
+also judges a change against its surroundings in the same image, :data:`~cellctl.classify.contamination.CLUTTER_K`)."""
 
 
 def contam_dataset(
@@ -175,8 +177,14 @@ def _draw(
     families: dict,
     look: Look,
     shifted: bool,
+    clutter_k: float = CLUTTER_K,
+    keep: dict[str, Any] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, str, dict[str, Any]] | None:
-    """One labelled image ``(rgb, visible mask, label, info)``, or None when ambiguous."""
+    """One labelled image ``(rgb, visible mask, label, info)``, or None when ambiguous.
+
+    ``keep``: a layered dirty draw's ``dirty``, ``clean`` and ``alpha`` are stored in it (the label
+    check relabels the same draw under other rules, :mod:`cellctl.classify.label_check`).
+    """
     opt = ShiftedOptics.draw(rng) if shifted else Optics.draw(rng)
 
     def camera(img: np.ndarray) -> np.ndarray:
@@ -214,7 +222,9 @@ def _draw(
         alpha = np.maximum(alpha, a)
         params[name] = layer.params
     dirty_img = camera(img)
-    seen = visible_mask(dirty_img, clean_img, alpha, at_px=MODEL_INPUT_PX)
+    if keep is not None:
+        keep.update(dirty=dirty_img, clean=clean_img, alpha=alpha, family="+".join(picks), base=base_name)
+    seen = visible_mask(dirty_img, clean_img, alpha, at_px=MODEL_INPUT_PX, clutter_k=clutter_k)
     label = label_from_mask(seen, present=float((alpha >= VISIBLE_ALPHA).mean()))
     if label != "dirty":
         return None

@@ -62,6 +62,9 @@ __all__ = [
     "MIN_CONTRAST_L",
     "MIN_DELTA_E",
     "PATCH_SIGMA",
+    "CLUTTER_K",
+    "RING_SIGMA",
+    "local_variation",
 ]
 
 VISIBLE_ALPHA = 0.1
@@ -84,6 +87,17 @@ the texture's own contrast, Legge & Foley 1980), so a fixed L* step is invisible
 a factor 2 is about two such steps, the same margin as :data:`MIN_DELTA_E` over a colour JND.
 Without it, a light film over coarse brushed grain (a σ 1.5 px veil: the grain drops by > 3 L*,
 the picture barely changes) was labelled dirty and set the false-clean threshold."""
+CLUTTER_K = 2.0
+"""A patch change must also be ≥ this many times the natural variation of the same measure
+(patch mean colour, patch RMS contrast) in the patch's own surroundings in the same image
+(:data:`RING_SIGMA`, uncontaminated pixels only) to count as visible: a change smaller than
+what the clean steel around it already varies by — a film lifting a dark mirror reflection of
+the polished steel, where reflection brightness is random — looks like more of the same
+surface in a single image. Chosen on a held-out draw of the training generator (seed 11, not
+the shifted set): see ``docs/classifier/detector.md``, "Label rule, round 5"."""
+RING_SIGMA = 6.0
+"""Gaussian scale (px at the model input, ~1.5 detector patches) of the surroundings whose
+natural variation :data:`CLUTTER_K` compares a change with."""
 MODEL_INPUT_PX = 128
 """Side of the square the classifiers see; labels judge visibility there (:func:`visible_mask`)."""
 
@@ -356,8 +370,45 @@ def optics(img: F32, o: Optics) -> NDArray[np.uint8]:
     return out
 
 
+def local_variation(values: F32, weight: F32, sigma: float = RING_SIGMA) -> F32:
+    """Per pixel, the RMS deviation of ``values`` (H, W) or (H, W, C) from their local mean over
+    a Gaussian window ``sigma``, counting only pixels with ``weight`` > 0 (normalised
+    convolution): the natural variation of a measure in a pixel's surroundings.
+
+    Where the window holds (almost) no counted pixel, the variation over all counted pixels of
+    the image is used; with no counted pixel at all, 0 (nothing to compare with).
+    """
+    v = values.astype(np.float32)
+    if v.ndim == 2:
+        v = v[..., None]
+    w = weight.astype(np.float32)
+    if w.sum() <= 0:
+        return np.zeros(v.shape[:2], np.float32)
+
+    def g(x: np.ndarray) -> np.ndarray:
+        out = cv2.GaussianBlur(x, (0, 0), sigma)
+        return out if out.ndim == 3 or x.ndim == 2 else out[..., None]
+
+    ws = g(w)
+    wv = g(v * w[..., None]).reshape(v.shape)
+    wv2 = g((v * v) * w[..., None]).reshape(v.shape)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = wv / ws[..., None]
+        var = (wv2 / ws[..., None] - mean * mean).sum(axis=2)
+    gm = (v * w[..., None]).sum(axis=(0, 1)) / w.sum()
+    gvar = float((((v - gm) ** 2).sum(axis=2) * w).sum() / w.sum())
+    # a window whose counted weight is < 2 % of a full one (far inside a large film) falls
+    # back to the whole image's surroundings: its normalised average is a few pixels' noise
+    var = np.where(ws > 0.02, var, gvar)
+    return np.sqrt(np.maximum(np.nan_to_num(var, nan=gvar), 0.0)).astype(np.float32)
+
+
 def visible_mask(
-    dirty: NDArray[np.uint8], clean: NDArray[np.uint8], alpha: F32, at_px: int | None = None
+    dirty: NDArray[np.uint8],
+    clean: NDArray[np.uint8],
+    alpha: F32,
+    at_px: int | None = None,
+    clutter_k: float = CLUTTER_K,
 ) -> NDArray[np.float32]:
     """1 where contamination lies (opacity ≥ :data:`VISIBLE_ALPHA`) *and* visibly changes a
     patch of the final image against the same draw without it.
@@ -368,7 +419,13 @@ def visible_mask(
     * the patch's mean colour moves by ΔE*ab ≥ :data:`MIN_DELTA_E` (a colour or brightness
       change: powder, stains, droplets, streaks);
     * the patch's RMS contrast in L* changes by ≥ :data:`MIN_CONTRAST_L` and by a factor
-      ≥ :data:`CONTRAST_RATIO` (texture that appears, such as a fibre, or that a haze wipes out).
+      ≥ :data:`CONTRAST_RATIO` (texture that appears, such as a fibre, or that a haze wipes out);
+
+    and, either way, the change is ≥ ``clutter_k`` (:data:`CLUTTER_K`) times the natural
+    variation of that measure in the patch's surroundings in the same image
+    (:func:`local_variation` over the dirty image's uncontaminated pixels, opacity <
+    :data:`VISIBLE_ALPHA` and outside one patch window of them): the clean twin says what
+    changed, the image itself says whether the change stands out from the steel around it.
 
     A single pixel's change is not enough: a thin film that slightly blurs brushed grain moves
     individual grain-line pixels by more than 12 grey levels while the picture looks the same,
@@ -378,7 +435,10 @@ def visible_mask(
         at_px: judge visibility at this square size (the images and ``alpha`` resized with
             ``INTER_AREA``, as the classifier squashes its input): what averages away at the
             model's input is not visible to it. None = as given.
+        clutter_k: the surroundings factor; 0 = the reference-only rule of earlier rounds.
     """
+    if clutter_k < 0:
+        raise ClassifierError(f"clutter_k {clutter_k} must be >= 0")
     d = np.asarray(dirty)
     c = np.asarray(clean)
     a = alpha.astype(np.float32)
@@ -405,7 +465,15 @@ def visible_mask(
     rd, rc = rms(ld[..., 0], md[..., 0]), rms(lc[..., 0], mc[..., 0])
     hi, lo = np.maximum(rd, rc), np.minimum(rd, rc)
     texture = (hi - lo >= MIN_CONTRAST_L) & (hi >= CONTRAST_RATIO * lo)
-    seen = (delta_e >= MIN_DELTA_E) | texture
+    colour = delta_e >= MIN_DELTA_E
+    if clutter_k > 0:
+        # the surroundings: pixels of the dirty image no contamination reaches, one patch
+        # window away from any that does (a patch mean there does not include the dirt)
+        touched = win((a >= VISIBLE_ALPHA).astype(np.float32)) > 0.01
+        ring = (~touched).astype(np.float32)
+        colour &= delta_e >= clutter_k * local_variation(md, ring)
+        texture &= hi - lo >= clutter_k * local_variation(rd, ring)
+    seen = colour | texture
     return ((a >= VISIBLE_ALPHA) & seen).astype(np.float32)
 
 

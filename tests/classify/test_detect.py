@@ -91,6 +91,51 @@ def test_visible_mask_ignores_scattered_pixel_changes_but_sees_vanished_texture(
     assert visible_mask(_flat(200), clean, np.zeros((64, 64), np.float32)).sum() == 0
 
 
+def _reflections(size: int = 64) -> np.ndarray:
+    """Polished-steel-like clean image: bright steel (L* ~ 78) with dark reflection bands (L* ~ 22)."""
+    img = np.full((size, size, 3), 200, np.uint8)
+    for x0 in range(0, size, 8):
+        img[:, x0 : x0 + 4] = 35
+    return img
+
+
+def test_visible_mask_judges_a_change_against_the_variation_around_it() -> None:
+    size = 64
+    alpha = np.zeros((size, size), np.float32)
+    alpha[24:40, 24:40] = 0.5  # a film over the middle
+    lifted_cluttered = _reflections(size)
+    lifted_cluttered[24:40, 24:40] = np.maximum(lifted_cluttered[24:40, 24:40], 55)  # dark bands lifted 35 -> 55
+    # against the twin alone the lift is visible (~8 L* on the dark bands)...
+    assert visible_mask(lifted_cluttered, _reflections(size), alpha, clutter_k=0).sum() > 0
+    # ...but the bands around it vary far more than that: in the image it is more of the same steel
+    assert visible_mask(lifted_cluttered, _reflections(size), alpha).sum() == 0
+    # the same lift on an even surface stands out from its surroundings
+    flat = np.full((size, size, 3), 35, np.uint8)
+    lifted_flat = flat.copy()
+    lifted_flat[24:40, 24:40] = 55
+    assert visible_mask(lifted_flat, flat, alpha)[28:36, 28:36].all()
+    # white powder on the cluttered steel is far above its variation: still visible
+    powder = _reflections(size)
+    powder[24:40, 24:40] = 250
+    assert visible_mask(powder, _reflections(size), alpha)[28:36, 28:36].all()
+    with pytest.raises(ClassifierError, match="clutter_k"):
+        visible_mask(flat, flat, alpha, clutter_k=-1)
+
+
+def test_local_variation_counts_only_the_weighted_surroundings() -> None:
+    from cellctl.classify.contamination import local_variation
+
+    v = np.zeros((32, 32), np.float32)
+    v[:, ::2] = 10.0  # stripes: RMS deviation 5 everywhere
+    assert np.allclose(local_variation(v, np.ones_like(v))[8:-8, 8:-8], 5.0, atol=0.3)
+    w = np.ones_like(v)
+    w[:, 16:] = 0  # the right half does not count...
+    v2 = v.copy()
+    v2[:, 16:] = 1000.0  # ...so its values do not raise the variation
+    assert local_variation(v2, w)[8:-8, 4:12].max() < 5.5
+    assert local_variation(v, np.zeros_like(v)).max() == 0  # nothing to compare with
+
+
 def test_held_out_families_are_not_training_families() -> None:
     assert not set(HELD_OUT_FAMILIES) & set(FAMILIES)
     with pytest.raises(ClassifierError, match="unknown"):
@@ -130,7 +175,7 @@ def test_contam_dataset_is_seeded_labelled_and_has_masks(contam: Path, tmp_path:
         "+".join((a, b)) for a in FAMILIES for b in FAMILIES
     } | set(FAMILIES)
     prov = json.loads((base / "synth.json").read_text())[-1]
-    assert prov["seed"] == 3 and prov["generator"] == "cellctl-contam/1"
+    assert prov["seed"] == 3 and prov["generator"] == "cellctl-contam/2"
     again = contam_dataset(tmp_path, "external", 48, seed=3, source="closeup", size=96)
     assert again["counts"] == prov["counts"]
     assert _digest(tmp_path / "external" / "dirty") == _digest(base / "dirty")
