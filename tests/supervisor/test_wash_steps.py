@@ -25,7 +25,7 @@ from cellctl.messages import (
 )
 from cellctl.sim.ground_truth import PowderField
 from cellctl.sim.scene import HOME_JOINTS, nominal_T_bin_base
-from cellctl.supervisor.steps.verifying import Verifying, merge_dirt_maps
+from cellctl.supervisor.steps.verifying import Verifying, imaged_faces, merge_dirt_maps
 from cellctl.supervisor.steps.washing import WashCheck, Washing, WashStation
 from cellctl.surface import EXTERNAL
 from cellctl.washing.service import MeshCache, wash_plan_reply
@@ -308,8 +308,61 @@ def test_a_dirty_view_is_laid_on_what_the_round_did_not_wash(cfg, case) -> None:
 
     dm = Verifying._dirt_map(ctx, mesh, [view(0)], before, washed)
     assert dm["seen_dirty"] == [3] and dm["seen_clean"] == [1, 2, 9]  # face 3 got no sweep: the dirt is there
+    imaged = imaged_faces(ctx, mesh, view(1))
+    washed[list(imaged)] = True  # everything its image shows was washed: the wash did not explain it
     dm = Verifying._dirt_map(ctx, mesh, [view(1)], before, washed)
-    assert dm["seen_dirty"] == [1, 4]  # nothing unwashed in view: the wash did not explain it
+    assert dm["seen_dirty"] == [1, 4]
+
+
+def _look_at(eye, target) -> np.ndarray:  # noqa: ANN001
+    """Camera optical frame (z ahead, y down) at ``eye`` looking at ``target`` (bin frame)."""
+    z = np.asarray(target, float) - np.asarray(eye, float)
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.cross(z, [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, eye
+    return T
+
+
+def test_a_dirty_view_whose_planned_faces_were_all_washed_marks_the_faces_its_image_shows(cfg, case) -> None:  # noqa: ANN001
+    """The twin's seed-18 wash demo: powder left on two large leg faces (145 cm² each) that no plan
+    lists kept a re-inspection view dirty after its planned faces were washed. The view marks the
+    unwashed faces its image shows (a ray grid across the frame), so the next round washes them;
+    not its own washed faces again."""
+    from cellctl.geometry.camera import CameraModel
+    from cellctl.messages import PoseMsg, ViewpointResult
+
+    _, mesh, T_base_bin = case
+    ctx = _ctx(cfg, case, _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0)))
+    n = mesh.n_faces
+    leg = 4371  # a leg face of the case-study bin, normal -x
+    c, nrm = mesh.centroids[leg], mesh.normals[leg]
+    T_base_cam = T_base_bin @ _look_at(c + 0.4 * nrm, c)
+    pose = PoseMsg.from_matrix(T_base_cam)
+    listed = [1, 2]  # its plan's faces: elsewhere, all washed
+    ctx.plan = PlanLookupReply(
+        hit=True,
+        plan_id="p",
+        viewpoints=[PlannedViewpoint(index=0, camera_pose=pose, joints=[0.1] * 6, faces=listed)],
+        mesh_faces=n,
+    )
+    before = np.zeros(n, bool)
+    before[listed] = True
+    washed = before.copy()
+    v = ViewpointResult(index=0, camera_pose=pose, label="dirty", p_dirty=0.9, wash_round=1)
+    imaged = imaged_faces(ctx, mesh, v)
+    assert leg in imaged and not set(listed) & imaged
+    # only faces in front of the camera, on the side it faces, within 1.5 x the far depth of view
+    d = (mesh.centroids[sorted(imaged)] - (c + 0.4 * nrm)) @ (-nrm)
+    assert (d > 0).all() and (d < 1.5 * CameraModel.from_config(ctx.cfg.camera).dov[1] + 0.15).all()
+    dm = Verifying._dirt_map(ctx, mesh, [v], before, washed)
+    assert leg in dm["seen_dirty"] and not set(listed) & set(dm["seen_dirty"])
+    assert set(dm["seen_dirty"]) == imaged
+    # a clean view marks nothing beyond its own list
+    clean = v.model_copy(update={"label": "clean", "p_dirty": 0.1})
+    dm = Verifying._dirt_map(ctx, mesh, [clean], before, washed)
+    assert dm["seen_dirty"] == [] and dm["seen_clean"] == listed
 
 
 def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) -> None:  # noqa: ANN001

@@ -53,7 +53,7 @@ from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 from cellctl.supervisor.steps.washing import face_mask, picture_dir, views_at, wash_mesh, washed_faces
 
-__all__ = ["Verifying", "merge_dirt_maps"]
+__all__ = ["Verifying", "imaged_faces", "merge_dirt_maps"]
 
 
 def _face_state(dirt_map: dict[str, Any], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -81,6 +81,46 @@ def merge_dirt_maps(old: dict[str, Any], new: dict[str, Any], mesh: Any) -> dict
     dirty = np.where(s1, d1, d0)
     fm = FaceMap(p=np.where(s1, p1, p0), seen=s0 | s1, dirty=dirty, dirty_area_m2=float(mesh.areas[dirty].sum()))
     return fm.as_json()
+
+
+IMAGED_GRID = (64, 36)
+"""Rays across the frame (columns, rows) that find the faces a re-inspection view images: a face of
+the case-study bin's legs (145 cm²) spans tens of them at the camera's far depth of view."""
+IMAGED_DEPTH_FACTOR = 1.5
+"""Faces imaged up to this many times the camera's far depth of view count (the whole-image
+classifier sees a large clump beyond the measuring range; the cabin far behind the bin it ignores)."""
+
+
+def imaged_faces(ctx: Any, mesh: Any, v: ViewpointResult) -> set[int]:  # noqa: ANN401
+    """Faces of the bin a view's image shows (first hits of a ray grid across the frame, within
+    ``IMAGED_DEPTH_FACTOR`` × the far depth of view), not only the faces its plan counts as measured.
+
+    The twin's evidence (docs/washing/README.md): a dirty re-inspection view whose planned faces
+    were all washed saw powder on faces no plan lists (large leg faces only part of which is in any
+    frame), so re-painting its own faces washed them again, round after round. The ray caster is
+    imported here, in a round's re-inspection only (the daemon's import graph stays light).
+    """
+    from cellctl.geometry.camera import CameraModel
+    from cellctl.planning.raycast import RayCaster
+
+    if v.camera_pose is None:
+        return set()
+    T_base_bin = ctx.bin_poses.get(v.station) if v.station is not None else None
+    T_base_bin = ctx.T_base_bin if T_base_bin is None else T_base_bin
+    if T_base_bin is None:
+        return set()
+    cam = CameraModel.from_config(ctx.cfg.camera)
+    T = np.linalg.inv(np.asarray(T_base_bin)) @ v.camera_pose.matrix()
+    nx, ny = IMAGED_GRID
+    u, w = np.meshgrid((np.arange(nx) + 0.5) * cam.width / nx, (np.arange(ny) + 0.5) * cam.height / ny)
+    d = np.stack([(u.ravel() - cam.cx) / cam.fx, (w.ravel() - cam.cy) / cam.fy, np.ones(u.size)], axis=1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    dirs = d @ T[:3, :3].T
+    # built per view (a few ms for a bin mesh): only dirty views whose planned faces were all washed ask
+    face, dist = RayCaster(mesh.vertices, mesh.faces).first_hit(np.broadcast_to(T[:3, 3], dirs.shape), dirs)
+    depth = dist * d[:, 2]
+    ok = (face >= 0) & (depth <= IMAGED_DEPTH_FACTOR * cam.dov[1])
+    return {int(x) for x in np.unique(face[ok])}
 
 
 class Verifying(Step):
@@ -279,7 +319,7 @@ class Verifying(Step):
                 face_threshold=vc.face_threshold,
             )
             return fm.as_json()
-        from cellctl.supervisor.steps.classifying import Classifying
+        from cellctl.supervisor.steps.classifying import Classifying, view_key
 
         n = mesh.n_faces
         faces_by = _faces_by_view(ctx.plan, plans)
@@ -292,6 +332,14 @@ class Verifying(Step):
             seen |= f
             if label == "dirty":
                 unwashed = {x for x in f if before[x] and not washed[x]}
+                if not unwashed:
+                    # every face in its list was washed or clean: the powder it sees lies in the image
+                    # beyond the planned list (a face too large or oblique to count as measured)
+                    imaged: set[int] = set()
+                    for v in views:
+                        if view_key(v) == key and v.error is None and v.label == "dirty":
+                            imaged |= imaged_faces(ctx, mesh, v)
+                    unwashed = {x for x in imaged - f if not washed[x]}
                 dirty |= unwashed or f
         return {
             "faces_total": n,
