@@ -65,8 +65,10 @@ class PlanningWorld:
         """(N,) True where configuration i (rad) is collision-free."""
         Q = np.atleast_2d(np.asarray(q, dtype=np.float64))
         out = np.empty(len(Q), dtype=bool)
-        for s in range(0, len(Q), 8192):  # bound memory: 8192 configs × ~100 spheres
-            out[s : s + 8192] = ~self.sim.check(Q[s : s + 8192])
+        # chunks bound memory and keep a check's (N, spheres) arrays in cache: 2048 configs
+        # check ~30 % faster per configuration than 8192 (cellctl/sim/collision.py)
+        for s in range(0, len(Q), 2048):
+            out[s : s + 2048] = ~self.sim.check(Q[s : s + 2048])
         return out
 
     def camera_free(self, T_bin_cam: ArrayLike) -> NDArray[np.bool_]:
