@@ -220,6 +220,14 @@ class WashConfig(_Model):
     splash_m: float = Field(
         default=0.05, ge=0, le=0.5, description="re-inspect the washed faces' neighbours this far (the jet splashes)"
     )
+    # a clean verdict covers only what the cell saw; below this share of the bin's area (both
+    # surfaces) no dirt seen is not a clean bin: `dirty`, reason "unverified" (docs/washing/README.md)
+    min_seen_fraction: float = Field(
+        default=0.6,
+        ge=0,
+        le=1,
+        description="`clean` needs the scan and re-inspections to have seen this share of the bin's area",
+    )
 
 
 class VerdictConfig(_Model):

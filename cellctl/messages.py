@@ -896,6 +896,15 @@ class WashResult(BaseModel):
     remaining_faces: list[int] = Field(default_factory=list, description="faces still dirty at the end")
     remaining_m2: float = 0.0
     unwashable: list[dict[str, Any]] = Field(default_factory=list, description="dirt no nozzle pose reaches, why")
+    seen_fraction: float | None = Field(
+        default=None,
+        ge=0.0,
+        le=1.0,
+        description="share of the bin's area (both surfaces) the scan and the re-inspections saw: what `clean` covers",
+    )
+    min_seen_fraction: float | None = Field(
+        default=None, ge=0.0, le=1.0, description="wash.min_seen_fraction: `clean` needs seen_fraction at least this"
+    )
 
 
 # --- camera ---------------------------------------------------------------------------------

@@ -1,27 +1,43 @@
-"""`cellctl demo`'s stories: the wash-and-verify cycle is in them only with `--wash`."""
+"""`cellctl demo`'s stories: the whole-bin dirty bin is a wash-and-verify cycle unless `--no-wash`."""
 
 from __future__ import annotations
 
 import math
 
-import pytest
-
-from cellctl.cli.demo import _stories
+from cellctl.cli.demo import _stories, register
 
 HOME = (0.0, 0.0, 0.0, 0.0)
 NUDGED = (0.008, -0.006, math.radians(0.5))
 MOVED = (-0.15, 0.0, math.radians(5.0))
 
 
-@pytest.mark.parametrize("whole", [True, False])
-def test_the_wash_cycle_is_played_only_when_asked_for(whole: bool) -> None:
-    plain = _stories("case_study", HOME, NUDGED, MOVED, whole=whole, wash=False)
-    washed = _stories("case_study", HOME, NUDGED, MOVED, whole=whole, wash=True)
+def test_the_default_demo_washes_and_no_wash_skips_it() -> None:
+    import argparse
+
+    ap = argparse.ArgumentParser()
+    register(ap.add_subparsers())
+    assert ap.parse_args(["demo"]).wash is True
+    assert ap.parse_args(["demo", "--no-wash"]).wash is False
+
+
+def test_the_whole_bin_story_tells_dirty_and_washed_clean_in_one_cycle() -> None:
+    plain = _stories("case_study", HOME, NUDGED, MOVED, whole=True, wash=False)
+    washed = _stories("case_study", HOME, NUDGED, MOVED, whole=True, wash=True)
     assert all(s.params.get("mode") != "wash_and_verify" for s in plain)
-    modes = [s.params.get("mode") for s in washed]
-    assert modes.count("wash_and_verify") == 1
+    assert [s.params.get("mode") for s in washed].count("wash_and_verify") == 1
+    # the wash cycle takes the plain dirty scan's place (its scan is the dirty verdict): no extra scan
+    assert len(washed) == len(plain)
+    (dirty,) = [s for s in plain if s.expect.verdict == "dirty"]
+    (wash,) = [s for s in washed if s.params.get("mode")]
+    assert washed.index(wash) == plain.index(dirty) and wash.scenario["dirty"] is True
+    assert washed[-1].expect == plain[-1].expect
+
+
+def test_the_single_station_story_adds_its_wash_cycle() -> None:
+    plain = _stories("case_study", HOME, NUDGED, MOVED, whole=False, wash=False)
+    washed = _stories("case_study", HOME, NUDGED, MOVED, whole=False, wash=True)
+    assert [s.params.get("mode") for s in washed].count("wash_and_verify") == 1
     assert len(washed) == len(plain) + 1
-    # the story still ends on the cycle beyond tolerance
     assert washed[-1].expect == plain[-1].expect
 
 

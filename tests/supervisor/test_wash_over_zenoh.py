@@ -3,6 +3,7 @@ scan found dirty, re-inspects it and ends clean; dirt no nozzle pose reaches end
 
 from __future__ import annotations
 
+import pytest
 from mcap.reader import make_reader
 
 from cellctl.bus import topics
@@ -12,6 +13,13 @@ from tests.supervisor.test_cycle_over_zenoh import _verify_config, cell, plc  # 
 # FakeCell's viewpoint i sees faces 2i, 2i+1 of the case-study mesh, the bin 1 m in front of the
 # base: viewpoint 16's faces face the base (washable), viewpoint 1's the far side (out of reach)
 WASHABLE, FAR = 16, 1
+
+
+@pytest.fixture
+def cfg(cfg):  # noqa: ANN001, ANN201
+    """FakeCell's views see two faces each: the coverage bound of a clean verdict is tested on its own
+    (test_wash_steps), not here."""
+    return cfg.model_copy(update={"wash": cfg.wash.model_copy(update={"min_seen_fraction": 0.0})})
 
 
 def _cycle(client, **params) -> object:  # noqa: ANN001, ANN003
@@ -41,7 +49,9 @@ def test_a_washable_dirty_view_is_washed_re_inspected_and_the_bin_ends_clean(cfg
     # the log replays: the same wash plan request, sweeps, re-inspection and result
     from cellctl.recording.replay import verify
 
-    report = verify(cfg.path(res.log), _verify_config(tmp_path / "v", 0), 60, (fake_identify, cell.supervisor.catalog))
+    vcfg = _verify_config(tmp_path / "v", 0)
+    vcfg = vcfg.model_copy(update={"wash": cfg.wash})  # the replaying supervisor decides with the same bound
+    report = verify(cfg.path(res.log), vcfg, 60, (fake_identify, cell.supervisor.catalog))
     assert report.ok, report.differences
     assert "Execute.washing" in report.states_replayed and "Execute.verifying" in report.states_replayed
 

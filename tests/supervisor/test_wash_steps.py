@@ -55,8 +55,11 @@ def case(cfg):  # noqa: ANN001, ANN201
     return cat, mesh, T_base_bin
 
 
-def _ctx(cfg, case, dirty: np.ndarray | None, **kw):  # noqa: ANN001, ANN202
+def _ctx(cfg, case, dirty: np.ndarray | None, min_seen: float = 0.0, **kw):  # noqa: ANN001, ANN202
+    """A scripted cycle's blackboard; its views see a few faces, so ``wash.min_seen_fraction`` is
+    ``min_seen`` (0: the coverage bound is tested on its own)."""
     cat, mesh, T = case
+    cfg = cfg.model_copy(update={"wash": cfg.wash.model_copy(update={"min_seen_fraction": min_seen})})
     dm = None if dirty is None else {"seen_dirty": np.flatnonzero(dirty).tolist(), "seen_clean": []}
     # the inspection plan: one viewpoint sees the dirty faces, one sees faces far from them
     far = np.flatnonzero(~dirty)[:5].tolist() if dirty is not None else [0]
@@ -214,7 +217,8 @@ def _whole_ctx(cfg, case, dirty_a, dirty_b):  # noqa: ANN001, ANN202
 
     cat, mesh, T_a = case
     whole = cfg.planner.whole.model_copy(update={"enabled": True})
-    cfg = cfg.model_copy(update={"planner": cfg.planner.model_copy(update={"whole": whole})})
+    wash = cfg.wash.model_copy(update={"min_seen_fraction": 0.0})  # its views see two spots
+    cfg = cfg.model_copy(update={"planner": cfg.planner.model_copy(update={"whole": whole}), "wash": wash})
     T_b = T_a @ transform_from_xyz_rpy((0, 0, 0), (0, 0, np.pi))  # the base on the other side of the bin
     poses = {0: T_a, 1: T_b}
     stations = [
@@ -474,3 +478,35 @@ def test_an_uncertain_re_inspection_view_is_re_looked_even_without_confirming(cf
     assert WashCheck()(run2) == "wash" and WashStation()(run2) == "wash" and Washing()(run2) == "succeeded"
     assert WashStation()(run2) == "verify" and Verifying()(run2) == "succeeded"
     assert [v.relook_of for v in ctx2.wash_views] == [None] and ctx2.wash_rounds[0].dirty_faces_after > 0
+
+
+def test_clean_needs_the_configured_share_of_the_bin_seen(cfg, case) -> None:  # noqa: ANN001
+    """No dirt seen on a map that saw too little of the bin is not a clean bin: ``dirty``, reason
+    "unverified", the seen share reported; the same map seeing enough of the bin ends clean."""
+    _, mesh, _ = case
+    n = mesh.n_faces
+    a = mesh.areas
+    order = np.argsort(-a)  # the largest faces first: a known share of the area
+    k = int(np.searchsorted(np.cumsum(a[order]) / a.sum(), 0.5)) + 1
+    half = sorted(order[:k].tolist())  # just over half the bin's area
+    ctx = _ctx(cfg, case, np.zeros(n, bool), min_seen=0.6)
+    ctx.dirt_map = {"seen_dirty": [], "seen_clean": half}
+    run = ScriptedRun(ctx, _script(cfg))
+    assert WashCheck()(run) == "done" and run.calls == []
+    assert ctx.verdict == "dirty" and ctx.wash.verdict == "dirty" and ctx.wash.reason.startswith("unverified")
+    assert 0.5 <= ctx.wash.seen_fraction < 0.6 and ctx.wash.min_seen_fraction == 0.6
+    assert f"{ctx.wash.seen_fraction:.0%}" in ctx.wash.reason
+    ctx = _ctx(cfg, case, np.zeros(n, bool), min_seen=0.5)
+    ctx.dirt_map = {"seen_dirty": [], "seen_clean": half}
+    run = ScriptedRun(ctx, _script(cfg))
+    assert WashCheck()(run) == "done"
+    assert ctx.verdict == "clean" and ctx.wash.verdict == "clean" and ctx.wash.reason is None
+    assert ctx.wash.seen_fraction >= 0.5
+    # a heat-map dirt map: seen is where a face has a probability
+    p = np.full(n, np.nan)
+    p[half] = 0.01
+    ctx = _ctx(cfg, case, np.zeros(n, bool), min_seen=0.6)
+    from cellctl.classify.heatmap import FaceMap
+
+    ctx.dirt_map = FaceMap(p=np.nan_to_num(p), seen=~np.isnan(p), dirty=np.zeros(n, bool), dirty_area_m2=0.0).as_json()
+    assert WashCheck()(ScriptedRun(ctx, _script(cfg))) == "done" and ctx.wash.reason.startswith("unverified")

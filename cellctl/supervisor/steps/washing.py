@@ -48,7 +48,16 @@ from cellctl.messages import (
 from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import Step
 
-__all__ = ["WashCheck", "WashStation", "Washing", "face_mask", "picture_dir", "verify_stations", "views_at"]
+__all__ = [
+    "WashCheck",
+    "WashStation",
+    "Washing",
+    "face_mask",
+    "picture_dir",
+    "seen_fraction",
+    "verify_stations",
+    "views_at",
+]
 
 
 def picture_dir(ctx: CycleContext) -> Path | None:
@@ -157,6 +166,19 @@ def verify_stations(ctx: CycleContext) -> list[int | None]:
     return [r for r in wash_ranks(ctx) if views_at(ctx, mesh, r)]
 
 
+def seen_fraction(ctx: CycleContext, mesh: Any) -> float:  # noqa: ANN401
+    """Share of the bin's area (both surfaces) the cycle's dirt map has seen: the scan's views and every
+    round's re-inspection merged (faces with a probability, or in a coarse map's seen lists).
+
+    A clean verdict is a statement about these faces only: powder where no view looks is not seen,
+    and not washed (docs/washing/README.md, the seed-20 twin run)."""
+    from cellctl.supervisor.steps.verifying import _face_state
+
+    _, seen, _ = _face_state(ctx.dirt_map or {}, mesh.n_faces)
+    total = float(mesh.areas.sum())
+    return float(mesh.areas[seen].sum()) / total if total > 0 else 0.0
+
+
 def _dirty_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:  # noqa: ANN401
     from cellctl.washing.targets import dirty_from_map
 
@@ -198,7 +220,14 @@ class WashCheck(Step):
         mesh = wash_mesh(ctx)
         dirty = _dirty_faces(ctx, mesh)
         if not dirty.any():
-            return self._end(run, "clean", None, dirty, mesh)
+            seen = seen_fraction(ctx, mesh)
+            if seen < wc.min_seen_fraction:
+                why = (
+                    f"unverified: no dirt seen, but the scan and re-inspections saw {seen:.0%} of the bin's area, "
+                    f"below wash.min_seen_fraction {wc.min_seen_fraction:.0%}: the rest is not known clean"
+                )
+                return self._end(run, "dirty", why, dirty, mesh)
+            return self._end(run, "clean", None, dirty, mesh)  # WashResult.seen_fraction: what clean covers
         area = float(mesh.areas[dirty].sum())
         if done >= wc.max_rounds:
             why = f"dirt left after {done} wash round(s) (wash.max_rounds): {int(dirty.sum())} faces"
@@ -292,6 +321,8 @@ class WashCheck(Step):
             remaining_faces=remaining,
             remaining_m2=round(area, 6),
             unwashable=unwashable or [],
+            seen_fraction=round(seen_fraction(ctx, mesh), 4) if mesh is not None and ctx.dirt_map else None,
+            min_seen_fraction=ctx.cfg.wash.min_seen_fraction,
         )
         ctx.wash_plan = None
         if verdict is not None:
