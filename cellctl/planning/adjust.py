@@ -22,7 +22,7 @@ from cellctl.planning.plan import Plan, PlannedViewpoint, ReachableViewpoint
 from cellctl.planning.planfile import list_plans
 from cellctl.planning.robot import RobotModel
 
-__all__ = ["AdjustedViewpoint", "LookupResult", "adjust_plan", "lookup_plan"]
+__all__ = ["NEARBY_VIEWS", "AdjustedViewpoint", "LookupResult", "adjust_plan", "lookup_plan", "nearby_views"]
 
 
 @dataclass(frozen=True)
@@ -132,6 +132,39 @@ def adjust_plan(
                 a, b = pairs[int(np.flatnonzero(~ok)[0])]
                 return out, f"ok; {int((~ok).sum())} straight move(s) (first {a}→{b}) now need a planned path"
     return out, "ok"
+
+
+NEARBY_VIEWS: tuple[tuple[float, float], ...] = (
+    (0.010, 0.0),
+    (0.020, 0.0),
+    (0.0, 15.0),
+    (0.0, -15.0),
+    (0.015, 30.0),
+    (0.015, -30.0),
+)
+"""(standoff back along the optical axis m, roll about it deg) of :func:`nearby_views`, nearest first."""
+
+
+def nearby_views(T_cam: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+    """Camera poses that keep a viewpoint's view when its own pose is refused at run time.
+
+    A tolerated parking or pose-measurement error moves the bin by millimetres against a plan
+    whose configurations keep a 5 mm margin: an internal viewpoint whose wrist passes the rim
+    closely can touch it (demo, dirty cycle: wrist_3 vs bin, every IK solution). Backing the
+    camera off along its optical axis (the same spot, a 1-3 % larger footprint at ~0.5 m) pulls
+    the wrist out of the cavity; rolling it about the axis (the same footprint, turned) swings
+    the wrist and camera body around the rim. ``T_cam`` in any frame, optical +Z forward.
+    """
+    T = np.asarray(T_cam, dtype=np.float64)
+    out = []
+    for back, roll in NEARBY_VIEWS:
+        a = np.deg2rad(roll)
+        Rz = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        N = np.eye(4)
+        N[:3, :3] = T[:3, :3] @ Rz
+        N[:3, 3] = T[:3, 3] - back * T[:3, 2]
+        out.append(N)
+    return out
 
 
 def lookup_plan(

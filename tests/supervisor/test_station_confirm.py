@@ -82,6 +82,16 @@ def test_once_a_dirty_view_is_confirmed_no_further_one_is_re_looked(cfg) -> None
     assert ctx.verdict == "dirty"
 
 
+def _scan_run(ctx, move) -> ScriptedRun:  # noqa: ANN001
+    """A scripted scan: the robot's moves by ``move``, every capture a clean view."""
+    script = {
+        ("robot", "move"): move,
+        ("camera", "capture"): (CaptureReply(format="png", intrinsics=INTRINSICS, camera_pose=CAM_POSE), _png()),
+        ("classifier", "classify"): (ClassifyReply(label="clean", p_dirty=0.1, model_id="m"), None),
+    }
+    return ScriptedRun(ctx, script)
+
+
 def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None:  # noqa: ANN001
     from cellctl.errors import WorkerFailed
     from cellctl.messages import PlanLookupReply, PlannedViewpoint
@@ -101,12 +111,7 @@ def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None
             raise WorkerFailed("target joints are in collision: wrist_2 vs bin", role="robot")
         return MoveReply(joints=[0.0] * 6, camera_pose=CAM_POSE), None
 
-    script = {
-        ("robot", "move"): move,
-        ("camera", "capture"): (CaptureReply(format="png", intrinsics=INTRINSICS, camera_pose=CAM_POSE), _png()),
-        ("classifier", "classify"): (ClassifyReply(label="clean", p_dirty=0.1, model_id="m"), None),
-    }
-    run = ScriptedRun(ctx, script)
+    run = _scan_run(ctx, move)
     assert Scanning()(run) == "succeeded"
     assert [v.error for v in ctx.viewpoints] == [None, None]
     moves = [m for r, op, m in run.calls if (r, op) == ("robot", "move")]
@@ -169,3 +174,34 @@ def test_a_view_whose_every_re_look_pose_is_refused_keeps_its_label(cfg) -> None
     assert Classifying()(run) == "succeeded"
     assert len([1 for r, op, _ in run.calls if (r, op) == ("robot", "move")]) == 4  # the four swings, then stop
     assert ctx.verdict == "dirty"
+
+
+def test_a_whole_bin_scan_tries_nearby_views_when_the_camera_pose_is_refused_too(cfg) -> None:  # noqa: ANN001
+    """Joints and camera pose refused (the rim on every IK solution after a tolerated pose error):
+    the view backed off / rolled is tried, and the first one the arm reaches is the view."""
+    from cellctl.errors import WorkerFailed
+    from cellctl.messages import PlanLookupReply, PlannedViewpoint
+    from cellctl.planning.adjust import nearby_views
+    from cellctl.supervisor.steps.scanning import Scanning
+
+    cfg.planner.whole.enabled = True
+    ctx = context(cfg)
+    ctx.stations = [
+        StationInfo(station=0, base_pose=PoseMsg.from_matrix(CAM_POSE.matrix(), "bin"), plans={"internal": "p"})
+    ]
+    ctx.station_order = [0]
+    vps = [PlannedViewpoint(index=0, camera_pose=CAM_POSE, joints=[0.1] * 6, faces=[0])]
+    ctx.plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=10)
+    reachable = nearby_views(CAM_POSE.matrix())[1]  # 20 mm further back
+
+    def move(req):  # noqa: ANN001, ANN202
+        if req.joints is not None or not np.allclose(req.camera_pose.matrix(), reachable, atol=1e-6):
+            raise WorkerFailed("target joints are in collision: wrist_3 vs bin", role="robot")
+        return MoveReply(joints=[0.0] * 6, camera_pose=req.camera_pose), None
+
+    run = _scan_run(ctx, move)
+    assert Scanning()(run) == "succeeded"
+    assert [v.error for v in ctx.viewpoints] == [None]
+    moves = [m for r, op, m in run.calls if (r, op) == ("robot", "move")]
+    assert len(moves) == 4  # joints, camera pose, 10 mm back, 20 mm back (reached: no further try)
+    assert any("20 mm further back" in t for _, t in run.events)

@@ -162,6 +162,26 @@ class Scanning(Step):
                         )
                     except WorkerFailed as err2:
                         err = WorkerFailed(f"{err}; by its camera pose: {err2}", role="robot")
+                        # a tolerated parking error can still bring the bin's rim onto every IK
+                        # solution of the pose: nearby poses with the same view (backed off, rolled)
+                        from cellctl.planning.adjust import NEARBY_VIEWS, nearby_views
+
+                        for (back, roll), T in zip(NEARBY_VIEWS, nearby_views(vp.camera_pose.matrix()), strict=True):
+                            try:
+                                again, _ = run.call(
+                                    "robot",
+                                    "move",
+                                    MoveRequest(camera_pose=PoseMsg.from_matrix(T), settle_s=settle),
+                                    MoveReply,
+                                )
+                            except WorkerFailed:
+                                continue
+                            run.event(
+                                "info",
+                                f"station {st.station} {surface} viewpoint {vp.index}: refused ({err}); reached "
+                                f"{back * 1000:.0f} mm further back, rolled {roll:+.0f} deg",
+                            )
+                            break
                 if again is None:
                     # One refused viewpoint (e.g. newly in collision after adjustment) costs coverage,
                     # not the cycle; hangs and missing workers still abort.
