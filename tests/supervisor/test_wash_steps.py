@@ -286,6 +286,33 @@ def test_a_whole_bin_round_washes_and_re_inspects_station_by_station_parking_aga
     assert WashCheck()(run) == "done" and ctx.wash.verdict == "clean"
 
 
+def test_a_later_round_plans_the_station_the_base_stands_at_at_the_pose_measured_at_this_park(cfg, case) -> None:  # noqa: ANN001
+    """Round 2 starts where round 1's re-inspection parked the base: a park again since the scan.
+    Its sweeps from there are planned at the bin pose measured at this park (no re-park, no replan
+    follows); the other stations keep the scan's pose (they are replanned when the base parks)."""
+    from cellctl.geometry.transforms import transform_from_xyz_rpy
+
+    _, mesh, T_a = case
+    dirty_a = _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0))
+    dirty_b = _dirty(mesh, (-0.2, 0.37, -0.15), (0, 1.0, 0))
+    ctx = _whole_ctx(cfg, case, dirty_a, dirty_b)
+    ctx.wash_scan_poses = dict(ctx.bin_poses)
+    ctx.wash_parked = 1
+    done = {"sweeps_planned": 1, "sweeps_run": 1, "passes_run": 2, "washed_m2": 0.01, "covered_m2": 0.01}
+    ctx.wash_rounds = [WashRound(round=1, dirty_faces_before=9, dirty_m2_before=0.01, **done)]
+    scan_1 = ctx.bin_poses[1]
+    ctx.bin_poses[1] = transform_from_xyz_rpy((0.02, -0.01, 0.0), (0, 0, np.radians(1.0))) @ scan_1  # parked again
+    run = ScriptedRun(ctx, _script(cfg))
+    assert WashCheck()(run) == "wash"
+    (req,) = [m for _, o, m in run.calls if o == "wash_plan"]
+    assert np.allclose(req.stations[0].matrix(), invert(ctx.bin_poses[1]))  # this park's pose
+    assert not np.allclose(req.stations[0].matrix(), invert(scan_1))
+    assert np.allclose(req.stations[1].matrix(), invert(ctx.wash_scan_poses[0]))
+    assert ctx.wash_queue[0] == 1 and WashStation()(run) == "wash"  # no parking: the base is there
+    assert Washing()(run) == "succeeded"
+    assert [o for _, o, _ in run.calls].count("wash_plan") == 1  # its sweeps were planned at this park
+
+
 def test_a_dirty_view_is_laid_on_what_the_round_did_not_wash(cfg, case) -> None:  # noqa: ANN001
     """Coarse map: a re-inspection view that is still dirty marks the faces it sees that were dirty and
     got no sweep, not the washed ones; a view that sees only washed faces marks them dirty again."""

@@ -54,6 +54,7 @@ __all__ = [
     "Washing",
     "face_mask",
     "picture_dir",
+    "round_poses",
     "seen_fraction",
     "verify_stations",
     "views_at",
@@ -158,6 +159,24 @@ def views_at(ctx: CycleContext, mesh: Any, rank: int | None) -> list[tuple[str, 
     else:
         pairs = [(surf, vp) for (st, surf), p in ctx.plans.items() if st == rank for vp in p.viewpoints]
     return [(s, vp) for s, vp in pairs if any(0 <= f < n and look[f] for f in vp.faces)]
+
+
+def round_poses(ctx: CycleContext) -> list[np.ndarray]:
+    """T_base_bin of each station a round plans for, in :func:`wash_ranks` order.
+
+    Single-station: the measured pose (the base stays where the cycle parked it). Whole-bin: the
+    pose each station's plans were adjusted to in the scan, except the station the base stands at
+    now, which is at the pose measured at *this* park. A later round starts where the last
+    re-inspection parked the base, a park again since the scan; planning its sweeps at the scan's
+    pose put the jet off by the park's error (2 cm, 1°) and, with no re-park there, nothing
+    replanned them: the twin demo's 2 dirty faces survived a round washed from that station
+    (489 → 2 → 2 → 0) and were washed only from the next station, in round 3. The other stations
+    are replanned at the pose measured when the base parks there (``Washing._replan``)."""
+    if not ctx.whole:
+        assert ctx.T_base_bin is not None
+        return [ctx.T_base_bin]
+    here = ctx.wash_parked
+    return [ctx.bin_poses[r] if r == here and r in ctx.bin_poses else ctx.wash_scan_poses[r] for r in wash_ranks(ctx)]
 
 
 def verify_stations(ctx: CycleContext) -> list[int | None]:
@@ -269,9 +288,7 @@ class WashCheck(Step):
         wc = ctx.cfg.wash
         state, _ = run.call("robot", "state", RobotStateRequest(), RobotState)
         assert ctx.T_base_bin is not None and ctx.bin_type is not None  # wash_mesh checked them
-        # single-station: the base stays where the cycle parked it, the one station is the measured
-        # pose; whole-bin: every station scanned, at the pose its plans were adjusted to
-        poses = [ctx.T_base_bin] if not ctx.whole else [ctx.wash_scan_poses[r] for r in wash_ranks(ctx)]
+        poses = round_poses(ctx)
         req = WashPlanRequest(
             bin_type=ctx.bin_type,
             stations=[PoseMsg.from_matrix(invert(T), "bin") for T in poses],
@@ -296,7 +313,7 @@ class WashCheck(Step):
 
         assert ctx.T_base_bin is not None
         name = ctx.bin_type or "bin"
-        poses = [ctx.T_base_bin] if not ctx.whole else [ctx.wash_scan_poses[r] for r in wash_ranks(ctx)]
+        poses = round_poses(ctx)
         view = _plan_view(plan, mesh.n_faces, [invert(T) for T in poses])
         before = draw_dirt_map(mesh, ctx.dirt_map or {}, folder / f"r{r}_before.png", f"{name} round {r}: before")
         path = draw_wash_path(mesh, view, _spot_passes(plan), folder / f"r{r}_path.png", f"{name} round {r}:")
