@@ -424,8 +424,9 @@ def visible_mask(
     and, either way, the change is ≥ ``clutter_k`` (:data:`CLUTTER_K`) times the natural
     variation of that measure in the patch's surroundings in the same image
     (:func:`local_variation` over the dirty image's uncontaminated pixels, opacity <
-    :data:`VISIBLE_ALPHA` and outside one patch window of them): the clean twin says what
-    changed, the image itself says whether the change stands out from the steel around it.
+    :data:`VISIBLE_ALPHA` and outside one patch window of them, or over the clean draw's steel
+    at the same place, whichever varies more): the clean twin says what changed, the image
+    itself says whether the change stands out from the steel around it.
 
     A single pixel's change is not enough: a thin film that slightly blurs brushed grain moves
     individual grain-line pixels by more than 12 grey levels while the picture looks the same,
@@ -471,8 +472,14 @@ def visible_mask(
         # window away from any that does (a patch mean there does not include the dirt)
         touched = win((a >= VISIBLE_ALPHA).astype(np.float32)) > 0.01
         ring = (~touched).astype(np.float32)
-        colour &= delta_e >= clutter_k * local_variation(md, ring)
-        texture &= hi - lo >= clutter_k * local_variation(rd, ring)
+        # ...and the steel under the contamination itself, from the clean draw: inside a large
+        # film the ring is far away, while the edge of a dark reflection right there varies
+        # as much as the film changes it (a veiled reflection edge looks like a softer one)
+        everywhere = np.ones_like(ring)
+        var_mean = np.maximum(local_variation(md, ring), local_variation(mc, everywhere))
+        var_rms = np.maximum(local_variation(rd, ring), local_variation(rc, everywhere))
+        colour &= delta_e >= clutter_k * var_mean
+        texture &= hi - lo >= clutter_k * var_rms
     seen = colour | texture
     return ((a >= VISIBLE_ALPHA) & seen).astype(np.float32)
 
