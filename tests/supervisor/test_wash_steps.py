@@ -313,6 +313,39 @@ def test_a_later_round_plans_the_station_the_base_stands_at_at_the_pose_measured
     assert [o for _, o, _ in run.calls].count("wash_plan") == 1  # its sweeps were planned at this park
 
 
+def test_a_re_inspection_view_whose_carried_pose_is_refused_is_taken_from_its_planned_joints(cfg, case) -> None:  # noqa: ANN001
+    """Parked again since the scan, a view goes to its camera pose carried into the new park; when the
+    arm refuses that pose (unreachable there), the planned joints take the view (nearly the same faces),
+    so its faces are re-inspected this round and not left as they were."""
+    from cellctl.geometry.transforms import transform_from_xyz_rpy
+
+    _, mesh, T_a = case
+    ctx = _whole_ctx(cfg, case, _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0)), np.zeros(mesh.n_faces, bool))
+    ctx.wash_scan_poses = dict(ctx.bin_poses)
+    ctx.bin_poses[0] = transform_from_xyz_rpy((0.02, 0.0, 0.0), (0, 0, np.radians(1.0))) @ T_a  # parked again
+    script = _script(cfg)
+
+    def move(req):  # noqa: ANN001, ANN202
+        if req.camera_pose is not None:
+            raise WorkerFailed("robot refused move: camera pose at [1.18, -0.10, 0.27] (base frame) is unreachable")
+        return MoveReply(joints=list(req.joints), camera_pose=CAM_POSE), None
+
+    script[("robot", "move")] = move
+    run = ScriptedRun(ctx, script)
+    (vp,) = ctx.plans[(0, "external")].viewpoints
+    Verifying._look(run, vp, 1, "external", 0)
+    moves = [m for _, o, m in run.calls if o == "move"]
+    assert [m.camera_pose is not None for m in moves] == [True, False] and list(moves[1].joints) == list(vp.joints)
+    (v,) = ctx.wash_views
+    assert v.error is None and v.label == "clean" and (v.station, v.wash_round) == (0, 1)
+    # both refused: one view with the error, as before
+    script[("robot", "move")] = lambda req: (_ for _ in ()).throw(WorkerFailed("in collision"))
+    ctx.wash_views = []
+    Verifying._look(run, vp, 1, "external", 0)
+    (v,) = ctx.wash_views
+    assert v.error == "in collision" and v.label is None
+
+
 def test_a_dirty_view_is_laid_on_what_the_round_did_not_wash(cfg, case) -> None:  # noqa: ANN001
     """Coarse map: a re-inspection view that is still dirty marks the faces it sees that were dirty and
     got no sweep, not the washed ones; a view that sees only washed faces marks them dirty again."""

@@ -210,13 +210,28 @@ class Verifying(Step):
         if T_then is not None and T_now is not None and not np.allclose(T_then, T_now, atol=1e-9):
             # parked again since the scan: the same view of the bin, from the new park
             T = T_now @ invert(T_then) @ vp.camera_pose.matrix()
-            move = MoveRequest(camera_pose=PoseMsg.from_matrix(T, vp.camera_pose.frame_id), settle_s=settle)
+            carried = MoveRequest(camera_pose=PoseMsg.from_matrix(T, vp.camera_pose.frame_id), settle_s=settle)
+            if Verifying._view(run, vp.index, carried, vp.camera_pose, surface, {**where, "wash_round": r}, False):
+                return
+            # the carried pose is out of the arm's reach or in collision from this park: the planned
+            # joints see nearly the same faces (off by the park's error, 2-3 cm). A refused view left
+            # its faces as they were: on the twin the only view of 2 dirty faces was refused so, and
+            # their dirt took a round more (528 -> 2 -> 2 -> 0)
+            run.event("info", f"re-inspection view {vp.index} ({surface}): carried pose refused, the planned joints")
         Verifying._view(run, vp.index, move, vp.camera_pose, surface, {**where, "wash_round": r})
 
     @staticmethod
-    def _view(run: StepRun, index: int, move: MoveRequest, pose: PoseMsg, surface: str, where: dict[str, Any]) -> bool:
+    def _view(
+        run: StepRun,
+        index: int,
+        move: MoveRequest,
+        pose: PoseMsg,
+        surface: str,
+        where: dict[str, Any],
+        record_refusal: bool = True,
+    ) -> bool:
         """Move, capture, classify one re-inspection view into ``wash_views`` (a refused move: a view
-        with the error at ``pose``); whether a view was taken."""
+        with the error at ``pose``, unless ``record_refusal`` is False); whether a view was taken."""
         from cellctl.supervisor.steps.classifying import record_heat, with_reply
         from cellctl.supervisor.steps.identifying import captured_image
         from cellctl.supervisor.steps.scanning import classifier_input, classify_image
@@ -226,7 +241,8 @@ class Verifying(Step):
             moved, _ = run.call("robot", "move", move, MoveReply)
         except WorkerFailed as err:
             run.checkpoint()
-            ctx.wash_views.append(ViewpointResult(index=index, camera_pose=pose, error=str(err), **where))
+            if record_refusal:
+                ctx.wash_views.append(ViewpointResult(index=index, camera_pose=pose, error=str(err), **where))
             return False
         cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
         data = captured_image(cap, image)
