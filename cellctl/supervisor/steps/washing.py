@@ -167,11 +167,11 @@ def round_poses(ctx: CycleContext) -> list[np.ndarray]:
     Single-station: the measured pose (the base stays where the cycle parked it). Whole-bin: the
     pose each station's plans were adjusted to in the scan, except the station the base stands at
     now, which is at the pose measured at *this* park. A later round starts where the last
-    re-inspection parked the base, a park again since the scan; planning its sweeps at the scan's
-    pose put the jet off by the park's error (2 cm, 1°) and, with no re-park there, nothing
-    replanned them: the twin demo's 2 dirty faces survived a round washed from that station
-    (489 → 2 → 2 → 0) and were washed only from the next station, in round 3. The other stations
-    are replanned at the pose measured when the base parks there (``Washing._replan``)."""
+    re-inspection parked the base, a park again since the scan (2-3 cm, 1° off it); planned at the
+    scan's pose its sweeps were off by that error and nothing replanned them (no re-park follows):
+    on the twin 2 of 4 such round-2 sweeps were refused in collision, all 4 ran when planned here.
+    The other stations are replanned at the pose measured when the base parks there
+    (``Washing._replan``)."""
     if not ctx.whole:
         assert ctx.T_base_bin is not None
         return [ctx.T_base_bin]
