@@ -205,7 +205,7 @@ def _whole_task(task: tuple[str, int, str, tuple[str, ...], Any]) -> tuple[str, 
     return name, seed, _whole_row(plan, os.getloadavg()[0])
 
 
-def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
+def bench_whole_bin(opts: BenchOptions, only: list[str] | None = None) -> dict[str, Any]:
     """``cellctl bench whole-bin``: the three catalog bins and a foreign mesh, ≥ 10 seeds each, p_SP 10.
 
     Per bin: per seed the plan's figures, and median / worst over the seeds. ``--n`` = seeds
@@ -228,6 +228,13 @@ def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
     cat = load_catalog(cfg.path(cfg.catalog))
     seeds = list(range(opts.seed, opts.seed + (opts.n or WHOLE_SEEDS)))
     names = [*cat.names, *FOREIGN]
+    if only:  # a subset of the bins (e.g. the case study alone for a cycle-time change)
+        from cellctl.errors import ConfigError
+
+        unknown = [n for n in only if n not in names]
+        if unknown:
+            raise ConfigError(f"bench whole-bin: unknown bins {unknown}; known: {names}")
+        names = [n for n in names if n in only]
     out: dict[str, Any] = {
         "seed_pct": cfg.planner.seed_pct,
         "seeds": seeds,

@@ -68,3 +68,14 @@ def test_summary_reports_the_median_and_the_worst_direction_of_each_figure():
 
 def test_bench_whole_bin_is_registered():
     assert BENCHES["whole-bin"][0] == "cellctl.planning.bench:bench_whole_bin"
+
+
+def test_a_bench_of_some_bins_refuses_an_unknown_bin_by_name():
+    import pytest
+
+    from cellctl.bench_options import BenchOptions
+    from cellctl.errors import ConfigError
+    from cellctl.planning.bench import bench_whole_bin
+
+    with pytest.raises(ConfigError, match="case_stduy"):
+        bench_whole_bin(BenchOptions(n=1), only=["case_stduy"])
