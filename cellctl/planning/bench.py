@@ -205,8 +205,15 @@ def _whole_task(task: tuple[str, int, str, tuple[str, ...], Any]) -> tuple[str, 
     return name, seed, _whole_row(plan, os.getloadavg()[0])
 
 
-def bench_whole_bin(opts: BenchOptions, only: list[str] | None = None) -> dict[str, Any]:
-    """``cellctl bench whole-bin``: the three catalog bins and a foreign mesh, ≥ 10 seeds each, p_SP 10.
+def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
+    """``cellctl bench whole-bin``: the three catalog bins and two foreign meshes, ≥ 10 seeds each, p_SP 10.
+
+    See :func:`bench_bins` (all bins)."""
+    return bench_bins(opts, None)
+
+
+def bench_bins(opts: BenchOptions, only: list[str] | None) -> dict[str, Any]:
+    """:func:`bench_whole_bin` on ``only`` of its bins (all for None), e.g. the case study alone.
 
     Per bin: per seed the plan's figures, and median / worst over the seeds. ``--n`` = seeds
     (default 10), ``--seed`` = the first seed. Plans run :data:`PROCESSES` at a time (spawned

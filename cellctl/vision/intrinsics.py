@@ -84,7 +84,7 @@ def detect_board_corners(gray: NDArray[np.uint8], catalog: Any, min_corners: int
     boards = boards_from_catalog(catalog)
     dp = detector_parameters()
     mc, mids, _ = cv2.aruco.ArucoDetector(get_dictionary(boards[0].spec.dictionary), dp).detectMarkers(gray)
-    if mids is None:
+    if mids is None or len(mids) == 0:  # OpenCV returns None or an empty array for no markers
         raise IdentificationError("no markers detected")
     ids = mids.ravel()
     counts = [int(np.sum((ids >= k.id_range[0]) & (ids <= k.id_range[1]))) for k in boards]

@@ -75,7 +75,7 @@ def test_a_bench_of_some_bins_refuses_an_unknown_bin_by_name():
 
     from cellctl.bench_options import BenchOptions
     from cellctl.errors import ConfigError
-    from cellctl.planning.bench import bench_whole_bin
+    from cellctl.planning.bench import bench_bins
 
     with pytest.raises(ConfigError, match="case_stduy"):
-        bench_whole_bin(BenchOptions(n=1), only=["case_stduy"])
+        bench_bins(BenchOptions(n=1), only=["case_stduy"])

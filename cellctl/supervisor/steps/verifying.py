@@ -51,24 +51,9 @@ from cellctl.messages import (
 )
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
-from cellctl.supervisor.steps.washing import face_mask, picture_dir, views_at, wash_mesh, washed_faces
+from cellctl.supervisor.steps.washing import face_mask, face_state, picture_dir, views_at, wash_mesh, washed_faces
 
 __all__ = ["Verifying", "imaged_faces", "merge_dirt_maps"]
-
-
-def _face_state(dirt_map: dict[str, Any], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(p, seen, dirty) per face of a dirt map, the coarse kind (face id lists) as p = 1 dirty / 0 clean."""
-    from cellctl.classify.heatmap import face_probabilities
-
-    dirty = np.zeros(n, bool)
-    dirty[np.asarray(dirt_map.get("seen_dirty", []), np.int64)] = True
-    p = face_probabilities(dirt_map, n)
-    if p is not None:
-        seen = ~np.isnan(p)
-        return np.nan_to_num(p, nan=0.0), seen, dirty
-    seen = dirty.copy()
-    seen[np.asarray(dirt_map.get("seen_clean", []), np.int64)] = True
-    return dirty.astype(float), seen, dirty
 
 
 def merge_dirt_maps(old: dict[str, Any], new: dict[str, Any], mesh: Any) -> dict[str, Any]:  # noqa: ANN401
@@ -76,8 +61,8 @@ def merge_dirt_maps(old: dict[str, Any], new: dict[str, Any], mesh: Any) -> dict
     from cellctl.classify.heatmap import FaceMap
 
     n = mesh.n_faces
-    p0, s0, d0 = _face_state(old, n)
-    p1, s1, d1 = _face_state(new, n)
+    p0, s0, d0 = face_state(old, n)
+    p1, s1, d1 = face_state(new, n)
     dirty = np.where(s1, d1, d0)
     fm = FaceMap(p=np.where(s1, p1, p0), seen=s0 | s1, dirty=dirty, dirty_area_m2=float(mesh.areas[dirty].sum()))
     return fm.as_json()

@@ -53,6 +53,7 @@ __all__ = [
     "WashStation",
     "Washing",
     "face_mask",
+    "face_state",
     "picture_dir",
     "round_poses",
     "seen_fraction",
@@ -185,15 +186,28 @@ def verify_stations(ctx: CycleContext) -> list[int | None]:
     return [r for r in wash_ranks(ctx) if views_at(ctx, mesh, r)]
 
 
+def face_state(dirt_map: dict[str, Any], n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(p, seen, dirty) per face of a dirt map, the coarse kind (face id lists) as p = 1 dirty / 0 clean."""
+    from cellctl.classify.heatmap import face_probabilities
+
+    dirty = np.zeros(n, bool)
+    dirty[np.asarray(dirt_map.get("seen_dirty", []), np.int64)] = True
+    p = face_probabilities(dirt_map, n)
+    if p is not None:
+        seen = ~np.isnan(p)
+        return np.nan_to_num(p, nan=0.0), seen, dirty
+    seen = dirty.copy()
+    seen[np.asarray(dirt_map.get("seen_clean", []), np.int64)] = True
+    return dirty.astype(float), seen, dirty
+
+
 def seen_fraction(ctx: CycleContext, mesh: Any) -> float:  # noqa: ANN401
     """Share of the bin's area (both surfaces) the cycle's dirt map has seen: the scan's views and every
     round's re-inspection merged (faces with a probability, or in a coarse map's seen lists).
 
     A clean verdict is a statement about these faces only: powder where no view looks is not seen,
     and not washed (docs/washing/README.md, the seed-20 twin run)."""
-    from cellctl.supervisor.steps.verifying import _face_state
-
-    _, seen, _ = _face_state(ctx.dirt_map or {}, mesh.n_faces)
+    _, seen, _ = face_state(ctx.dirt_map or {}, mesh.n_faces)
     total = float(mesh.areas.sum())
     return float(mesh.areas[seen].sum()) / total if total > 0 else 0.0
 
