@@ -15,9 +15,9 @@ cycle time at the arm's real limits (0.5 s settle). ``--single-station`` plays t
 The whole-bin story's dirty bin is a wash-and-verify cycle (issue 17): the scan calls it dirty, the nozzle washes
 what the scan found from the stations, the re-inspection looks again, and the cycle must end clean with each round's
 three pictures (dirt map before, wash path, dirt map after) written; one cycle tells "dirty" and "washed clean", so the
-default story scans no more than before plus the wash rounds (~16 min on a quiet 2-core machine). ``--no-wash`` plays
-the plain dirty scan instead. The single-station story adds its wash cycle after its dirty scan (its rounds, no verdict
-asserted: one park does not reach all the dirt).
+default story scans no more than before plus the wash rounds (the whole demo ~10 min on 2 cores, 2026-12-02).
+``--no-wash`` plays the plain dirty scan instead. The single-station story adds its wash cycle after its dirty
+scan (its rounds, no verdict asserted: one park does not reach all the dirt).
 """
 
 from __future__ import annotations

@@ -86,6 +86,7 @@ def imaged_faces(ctx: Any, mesh: Any, v: ViewpointResult) -> set[int]:  # noqa: 
     imported here, in a round's re-inspection only (the daemon's import graph stays light).
     """
     from cellctl.geometry.camera import CameraModel
+    from cellctl.geometry.transforms import invert
     from cellctl.planning.raycast import RayCaster
 
     if v.camera_pose is None:
@@ -95,7 +96,7 @@ def imaged_faces(ctx: Any, mesh: Any, v: ViewpointResult) -> set[int]:  # noqa: 
     if T_base_bin is None:
         return set()
     cam = CameraModel.from_config(ctx.cfg.camera)
-    T = np.linalg.inv(np.asarray(T_base_bin)) @ v.camera_pose.matrix()
+    T = invert(np.asarray(T_base_bin)) @ v.camera_pose.matrix()
     nx, ny = IMAGED_GRID
     u, w = np.meshgrid((np.arange(nx) + 0.5) * cam.width / nx, (np.arange(ny) + 0.5) * cam.height / ny)
     d = np.stack([(u.ravel() - cam.cx) / cam.fx, (w.ravel() - cam.cy) / cam.fy, np.ones(u.size)], axis=1)
