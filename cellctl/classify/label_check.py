@@ -1,6 +1,6 @@
 """Choose the visible-mask surroundings factor on a held-out draw of the *training* generator.
 
-``python -m cellctl.classify.label_check --surface S [--n-dirty 300 --n-clean 150 --seed 11]``
+``cellctl detector label-check --surface S [--n-dirty 300 --n-clean 150 --seed 11]``
 
 Draws dirty and clean images exactly as ``cellctl dataset contam`` does (same families, optics and
 twin renders; a seed no data set uses, never the shifted generator), labels every layered dirty
@@ -16,9 +16,6 @@ to ``--out``.
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -62,7 +59,11 @@ def label_check(
             layered.append(keep)
         else:
             fixed_dirty.append(d[0])
-    clean = [d[0] for d in (_draw(False, surface, size, rng, twin, 0.4, 0.35, FAMILIES, Look(), False) for _ in range(n_clean)) if d]
+    clean = [
+        d[0]
+        for d in (_draw(False, surface, size, rng, twin, 0.4, 0.35, FAMILIES, Look(), False) for _ in range(n_clean))
+        if d
+    ]
     det = Detector.load(model, surface=surface)
     p_clean = np.array([r.p_dirty for r in det.predict(clean)])
     p_fixed = np.array([r.p_dirty for r in det.predict(fixed_dirty)]) if fixed_dirty else np.zeros(0)
@@ -105,26 +106,3 @@ def label_check(
         "seconds": round(time.perf_counter() - t0, 1),
         "candidates": rows,
     }
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m cellctl.classify.label_check", description=__doc__.split("\n")[0])
-    ap.add_argument("--surface", required=True)
-    ap.add_argument("--n-dirty", type=int, default=300)
-    ap.add_argument("--n-clean", type=int, default=150)
-    ap.add_argument("--seed", type=int, default=11)
-    ap.add_argument("--model", type=Path, default=None)
-    ap.add_argument("--out", type=Path, default=None)
-    a = ap.parse_args(argv)
-    model = a.model or Path("models/classifier") / f"{a.surface}.detect.pt"
-    res = label_check(a.surface, a.n_dirty, a.n_clean, a.seed, model)
-    text = json.dumps(res, indent=1)
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(text + "\n")
-    sys.stdout.write(text + "\n")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -124,6 +124,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_config_arguments(de)
     de.set_defaults(func=run_detector_eval)
+    dl = dv.add_parser(
+        "label-check",
+        help="score visible-mask surroundings factors on a held-out draw of the training generator (a pre-change "
+        "detector as the single-image observer; docs/classifier/detector.md)",
+    )
+    dl.add_argument("--surface", required=True, choices=SURFACES)
+    dl.add_argument("--n-dirty", type=int, default=300)
+    dl.add_argument("--n-clean", type=int, default=150)
+    dl.add_argument("--seed", type=int, default=11, help="a seed no data set uses (default 11)")
+    dl.add_argument("--model", type=Path, default=None, help="the observer (default models/classifier/S.detect.pt)")
+    dl.add_argument("--out", type=Path, default=None, help="also write the JSON here")
+    dl.set_defaults(func=run_label_check)
 
     c = sub.add_parser("classify", help="classify image files")
     c.add_argument("images", nargs="+")
@@ -290,6 +302,18 @@ def run_detector_eval(args: argparse.Namespace) -> int:
         card = json.loads(card_path.read_text())
         card.setdefault("metrics", {})[args.record] = report
         card_path.write_text(json.dumps(card, indent=2) + "\n")
+    return 0
+
+
+def run_label_check(args: argparse.Namespace) -> int:
+    from cellctl.classify.label_check import label_check
+
+    model = args.model or Path("models/classifier") / f"{args.surface}.detect.pt"
+    text = json.dumps(label_check(args.surface, args.n_dirty, args.n_clean, args.seed, model), indent=1)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text + "\n")
+    print(text)
     return 0
 
 

@@ -484,3 +484,24 @@ def test_bench_inspect_scores_collected_cycles_against_the_truth() -> None:
     assert (rep["false_dirty_bins"], rep["clean_bins"]) == (1, 2)
     assert rep["face_recall"] == pytest.approx(0.5) and rep["face_precision"] == pytest.approx(0.5)
     assert rep["any_view_rule"]["false_dirty_bins"] == 1 and rep["cycles"] == 4
+
+
+def test_label_check_scores_every_candidate_factor_from_the_cli(tmp_path) -> None:  # noqa: ANN001
+    import json
+
+    from cellctl.classify.label_check import CANDIDATES
+    from cellctl.cli import main
+
+    out = tmp_path / "lc.json"
+    assert (
+        main(
+            ["detector", "label-check", "--surface", "external", "--n-dirty", "4", "--n-clean", "2", "--out", str(out)]
+        )
+        == 0
+    )
+    res = json.loads(out.read_text())
+    assert res["surface"] == "external" and res["seed"] == 11 and res["clean_n"] == 2
+    assert [c["clutter_k"] for c in res["candidates"]] == list(CANDIDATES)
+    # a larger factor can only keep fewer layered draws dirty (the rule only adds a condition)
+    kept = [c["layered_kept"] for c in res["candidates"]]
+    assert kept == sorted(kept, reverse=True)
