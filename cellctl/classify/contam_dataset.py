@@ -55,9 +55,10 @@ from cellctl.errors import ClassifierError
 
 __all__ = ["GENERATOR", "contam_dataset"]
 
-GENERATOR = "cellctl-contam/2"
+GENERATOR = "cellctl-contam/3"
 """Version of this generator, recorded in ``synth.json`` and the model cards (2: the visible mask
-also judges a change against its surroundings in the same image, :data:`~cellctl.classify.contamination.CLUTTER_K`)."""
+also judges a change against its surroundings in the same image, :data:`~cellctl.classify.contamination.CLUTTER_K`;
+3: two more training families, ``soot`` and ``tarnish``: dark matte smudges and darker-than-steel films)."""
 
 
 def contam_dataset(

@@ -18,6 +18,10 @@ family           what it draws
                  mineral rim, clearer centre)
 ``fibre``        thin curved threads, 1–2 px, white / blue / dark / coloured
 ``fingerprint``  elliptical ridge patterns of skin oil: low-contrast, greasy
+``soot``         a dark matte smudge (soot, carbon, ink, rubber): irregular fractal outline,
+                 patchy opacity, neutral or blue-black
+``tarnish``      a darker-than-steel translucent film (oily/wet patch, discolouration): the
+                 steel under it times a transmission 0.35–0.8, large soft elongated region
 ================ ==========================================================================
 
 Optics (:func:`optics`) then vary blur, exposure, white balance, sensor noise and JPEG for
@@ -109,7 +113,8 @@ class Layer:
     """One drawn contamination: opacity ``alpha`` (H, W), colour ``rgb`` (H, W, 3) in [0, 1].
 
     ``mode`` says how it meets the steel: ``matte`` (covers, lit like the surface under it),
-    ``film`` (veils: lowers contrast and blurs reflections), ``gloss`` (liquid: darkens, adds
+    ``film`` (veils: lowers contrast and blurs reflections), ``absorb`` (a translucent dark film:
+    the steel times the layer's transmission ``rgb``), ``gloss`` (liquid: darkens, adds
     a specular dot).
     """
 
@@ -275,6 +280,49 @@ def _fingerprint(h: int, w: int, rng: np.random.Generator) -> Layer:
     return Layer(alpha, _const(h, w, np.clip(col, 0, 1)), "film", "fingerprint", {"n": n})
 
 
+def _soot(h: int, w: int, rng: np.random.Generator) -> Layer:
+    """A dark matte smudge: soot, carbon, ink or a black rubber mark.
+
+    Unlike the held-out ``grease`` (an elliptical blob with a blurred tail, glossy, brown-black)
+    its outline is an irregular fractal cloud, its opacity patchy, its material matte (it covers
+    the steel and is lit like it) and its colour neutral or blue-black.
+    """
+    field = fbm((h, w), rng, 4, int(rng.choice([2, 3, 4, 6])))
+    cover = float(rng.uniform(0.008, 0.1))
+    thr = float(np.quantile(field, 1.0 - cover))
+    region = np.clip((field - thr) / float(rng.uniform(0.01, 0.06)), 0, 1)
+    patchy = 0.55 + 0.45 * fbm((h, w), rng, 3, int(rng.choice([8, 16])))
+    alpha = _soft(region * patchy, float(rng.uniform(0.5, 2.0))) * float(rng.uniform(0.55, 0.95))
+    grey = float(rng.uniform(0.05, 0.22))
+    tint = np.array([1.0, 1.0, 1.0], np.float32) if rng.random() < 0.6 else np.array([0.85, 0.92, 1.15], np.float32)
+    rgb = np.clip(grey * tint, 0, 1)
+    return Layer(alpha.astype(np.float32), _const(h, w, rgb), "matte", "soot", {"cover": round(cover, 3)})
+
+
+def _tarnish(h: int, w: int, rng: np.random.Generator) -> Layer:
+    """A darker-than-steel translucent film: an oily or wet patch, a discoloured (tarnished) area.
+
+    It absorbs light and keeps the texture and reflections under it (``absorb`` mode: the steel
+    times a transmission 0.35-0.8), over a large, soft, often elongated region. Unlike the
+    held-out ``grease`` there is no opaque core, no elliptical outline and no brown cast;
+    unlike ``stain`` no tide mark and no orange-brown colour.
+    """
+    stretch = float(rng.uniform(1.0, 4.0))
+    small = fbm((h, max(8, int(w / stretch))), rng, 3, 3)
+    field = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    if rng.random() < 0.5:
+        field = cv2.rotate(cv2.resize(field, (h, w)), cv2.ROTATE_90_CLOCKWISE)
+    cover = float(rng.uniform(0.02, 0.3))
+    thr = float(np.quantile(field, 1.0 - cover))
+    region = np.clip((field - thr) / float(rng.uniform(0.02, 0.1)), 0, 1)
+    alpha = _soft(region, float(rng.uniform(1.0, 4.0))) * (0.85 + 0.15 * fbm((h, w), rng, 2, 8))
+    transmission = float(rng.uniform(0.35, 0.8))
+    tint = np.clip(transmission * rng.uniform(0.92, 1.08, 3), 0, 1).astype(np.float32)
+    return Layer(
+        alpha.astype(np.float32), _const(h, w, tint), "absorb", "tarnish", {"transmission": round(transmission, 3)}
+    )
+
+
 FAMILIES: dict[str, Callable[[int, int, np.random.Generator], Layer]] = {
     "powder": _powder,
     "film": _film,
@@ -282,6 +330,8 @@ FAMILIES: dict[str, Callable[[int, int, np.random.Generator], Layer]] = {
     "droplet": _droplet,
     "fibre": _fibre,
     "fingerprint": _fingerprint,
+    "soot": _soot,
+    "tarnish": _tarnish,
 }
 """The training families, by name (see the module table)."""
 
@@ -321,11 +371,14 @@ def composite(base: F32, layer: Layer, where: NDArray[np.bool_] | None = None) -
     elif layer.mode == "film":
         veiled = cv2.GaussianBlur(base, (0, 0), 1.5) * 0.75 + layer.rgb * 0.25 * float(lum.mean() + 0.3)
         out = base * (1 - a) + veiled * a
+    elif layer.mode == "absorb":
+        # a translucent dark film: the steel (texture, reflections) times the layer's transmission
+        out = base * (1 - a) + base * layer.rgb * a
     elif layer.mode == "gloss":
         dark = base * 0.55 + layer.rgb * 0.45
         out = base * (1 - a) + dark * a
     else:
-        raise ClassifierError(f"layer mode {layer.mode!r} is unknown; expected matte, film or gloss")
+        raise ClassifierError(f"layer mode {layer.mode!r} is unknown; expected matte, film, absorb or gloss")
     return np.clip(out, 0, 1).astype(np.float32), alpha
 
 

@@ -294,6 +294,7 @@ def train_detector(
     bank_size: int = BANK_SIZE,
     threads: int | None = None,
     init_from: Path | str | None = None,
+    calib: Path | str | None = None,
 ) -> dict[str, Any]:
     """Fit one surface's detector on a ``cellctl dataset contam`` folder; write weights + card.
 
@@ -301,6 +302,10 @@ def train_detector(
     fusion, Platt scaling and threshold on val; test is reported.
 
     Args:
+        calib: a second ``cellctl dataset contam`` folder of the *training* generator drawn with
+            another seed (never the shifted one): all its images join the validation split for
+            the fusion, Platt scaling and threshold (the calibration pool), so the false-clean
+            target rests on several hundred dirty images, not on the one or two faintest of 120.
         init_from: a format-2 detector of the same surface whose backbone and patch head the
             fine-tuning starts from (a continued training, e.g. after a label change: 12 epochs
             from ImageNet cost ~35 CPU min per surface); the bank, fusion, Platt scaling and
@@ -322,6 +327,19 @@ def train_detector(
     xtr, mtr, ytr = load_arrays(split.train)
     xva, mva, yva = load_arrays(split.val)
     xte, _, yte = load_arrays(split.test)
+    n_val = len(yva)
+    calib_items: list[tuple[Path, int]] = []
+    cruns: list[dict[str, Any]] = []
+    if calib is not None:
+        cprov = Path(calib) / surface / "synth.json"
+        cruns = json.loads(cprov.read_text()) if cprov.is_file() else []
+        if any(r.get("shifted") for r in cruns):
+            raise ClassifierError(f"calibration folder {str(calib)!r} holds shifted draws; use the training generator")
+        calib_items = split_dataset(calib, surface, fractions=(0.0, 0.0, 1.0)).test
+        if not calib_items:
+            raise ClassifierError(f"calibration folder {str(calib)!r} has no {surface} images")
+        xca, mca, yca = load_arrays(calib_items)
+        xva, mva, yva = torch.cat([xva, xca]), np.concatenate([mva, mca]), np.concatenate([yva, yca])
     feats = PatchFeatures()
     head = _head()
     init = None
@@ -367,6 +385,17 @@ def train_detector(
     pv = _sig(platt[0] * zv + platt[1])
     threshold = choose_threshold(pv, yva, target_false_clean)
     band = UNCERTAIN_LOGIT_BAND
+    calib_info = None
+    if calib is not None:
+        calib_info = {
+            "root": _rel(calib),
+            "n": len(calib_items),
+            "dirty": int(sum(y for _, y in calib_items)),
+            "generator": cruns or None,
+            "recreate": _recreate(cruns, Path(calib)),
+            "rule": "fusion, Platt and threshold fitted on val + all of calib (the pool); threshold: "
+            "floor(target x n_dirty) pool misses allowed, half-way in logit to the clean score below, cap 0.5",
+        }
     st, at = maps(fte)
     pt = _sig(platt[0] * zmax(st, at) + platt[1])
     blob = {
@@ -406,7 +435,8 @@ def train_detector(
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "command": f"cellctl detector train --surface {surface} --data {_rel(data)} --out {_rel(out)} --seed {seed}"
         + (f" --epochs {epochs}" if epochs != 12 else "")
-        + (f" --init-from {init['path']}" if init else ""),
+        + (f" --init-from {init['path']}" if init else "")
+        + (f" --calib {_rel(calib)}" if calib is not None else ""),
         "init_from": init,
         "backbone": {
             "arch": "lite0 (ImageNet, fine-tuned with the patch head; BN statistics frozen), stem + blocks 0-10",
@@ -433,10 +463,12 @@ def train_detector(
             "counts": split.counts(),
             "generator": (runs := json.loads(prov_path.read_text()) if prov_path.is_file() else None),
             "recreate": _recreate(runs or [], root),
+            "calib": calib_info,
         },
         "metrics": {
-            "val": metrics(pv, yva, threshold, band),
+            "val": metrics(pv[:n_val], yva[:n_val], threshold, band),
             "test": metrics(pt, yte, threshold, band),
+            **({"calib_pool": metrics(pv, yva, threshold, band)} if calib is not None else {}),
         },
         "train_seconds": round(time.perf_counter() - t0, 1),
     }

@@ -112,6 +112,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="DETECT_PT",
         help="continue fine-tuning from this format-2 detector of the same surface (bank, fusion, threshold refitted)",
     )
+    dt.add_argument(
+        "--calib",
+        default=None,
+        metavar="DIR",
+        help="a second `dataset contam` draw (training generator, other seed) that joins val for fusion and threshold",
+    )
     add_config_arguments(dt)
     dt.set_defaults(func=run_detector_train)
     de = dv.add_parser("eval", help="evaluate a surface's detector on every image of a folder")
@@ -282,6 +288,7 @@ def run_detector_train(args: argparse.Namespace) -> int:
         bank_size=args.bank_size,
         target_false_clean=args.target_false_clean,
         init_from=args.init_from,
+        calib=args.calib,
     )
     print(json.dumps({"model_id": card["model_id"], "test": card["metrics"]["test"], "seconds": card["train_seconds"]}))
     return 0

@@ -175,7 +175,7 @@ def test_contam_dataset_is_seeded_labelled_and_has_masks(contam: Path, tmp_path:
         "+".join((a, b)) for a in FAMILIES for b in FAMILIES
     } | set(FAMILIES)
     prov = json.loads((base / "synth.json").read_text())[-1]
-    assert prov["seed"] == 3 and prov["generator"] == "cellctl-contam/2"
+    assert prov["seed"] == 3 and prov["generator"] == "cellctl-contam/3"
     again = contam_dataset(tmp_path, "external", 48, seed=3, source="closeup", size=96)
     assert again["counts"] == prov["counts"]
     assert _digest(tmp_path / "external" / "dirty") == _digest(base / "dirty")
@@ -225,6 +225,26 @@ def test_detector_trains_predicts_and_reloads(contam: Path, tmp_path: Path) -> N
     b2 = torch.load(cont, weights_only=True)
     assert all(torch.equal(b2["backbone"][k], blob["backbone"][k]) for k in blob["backbone"])
     assert all(torch.equal(b2["head"][k], blob["head"][k]) for k in blob["head"])
+    # a calibration draw of the training generator joins val for fusion and threshold; shifted draws cannot
+    from cellctl.classify.contam_dataset import contam_dataset
+
+    contam_dataset(tmp_path / "calib", "external", 24, seed=5, source="closeup", size=96)
+    card3 = train_detector(
+        contam / "train",
+        "external",
+        tmp_path / "c" / "external.detect.pt",
+        epochs=0,
+        bank_size=64,
+        init_from=out,
+        calib=tmp_path / "calib",
+    )
+    assert card3["data"]["calib"]["n"] == 24 and card3["data"]["calib"]["dirty"] == 12
+    assert card3["metrics"]["calib_pool"]["n"] == card3["metrics"]["val"]["n"] + 24 and "--calib" in card3["command"]
+    assert card3["data"]["calib"]["recreate"][0].startswith("cellctl dataset contam --surface external --n 24")
+    with pytest.raises(ClassifierError, match="shifted"):
+        train_detector(
+            contam / "train", "external", tmp_path / "z.detect.pt", epochs=0, init_from=out, calib=contam / "shifted"
+        )
     with pytest.raises(ClassifierError, match="needs a backbone"):
         train_detector(
             contam / "train", "external", tmp_path / "x.detect.pt", epochs=0, init_from=tmp_path / "old.detect.pt"
