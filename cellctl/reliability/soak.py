@@ -1,4 +1,5 @@
-"""``cellctl bench soak --cycles N``: sim cycles back to back; cycles/hour, RSS, open files, threads.
+"""``cellctl bench soak --cycles N``: sim cycles back to back; cycles/hour, RSS, open files, threads,
+and the viewpoints the arm refused (``refused_viewpoints``, per cycle in ``refused_by_cycle``).
 
 The whole cell runs as in production (daemon in this process, the four sim workers as child
 processes); a PLC client runs Reset → Start → result with zero settle and no pause between
@@ -21,7 +22,7 @@ from typing import Any
 
 from cellctl.bench_options import BenchOptions
 
-__all__ = ["ResourceSampler", "bench_soak", "growth"]
+__all__ = ["ResourceSampler", "bench_soak", "growth", "refused_viewpoints"]
 
 GROWTH_FLOOR = {"rss_mb": 5.0, "fds": 2.0, "threads": 2.0}
 """Absolute growth below which a change is noise (allocator pools, a lazily opened file)."""
@@ -73,6 +74,19 @@ def growth(samples: list[dict[str, Any]], name: str, metric: str) -> dict[str, A
     }
 
 
+def refused_viewpoints(res: Any) -> tuple[int, list[str]]:
+    """Viewpoints of a CycleResult the arm refused (not re-looks), and why; the demo counts the same.
+
+    A refused viewpoint is one the scan could not reach at its planned joints, by IK nor at a
+    nearby pose: its ``error`` is set. A whole-bin cycle also reports per station (``refused``
+    per surface); the larger of the two counts is taken (a station's count includes views whose
+    record was not kept)."""
+    views = [v for v in res.viewpoints if v.error is not None and v.relook_of is None]
+    by_station = sum(sum(st.refused.values()) for st in res.stations or [])
+    why = [f"viewpoint {v.index} (station {v.station}, {v.surface}): {v.error}" for v in views]
+    return max(len(views), by_station), why
+
+
 def _plot(samples: list[dict[str, Any]], names: list[str], path: Path) -> Path | None:
     try:
         import matplotlib
@@ -109,6 +123,9 @@ def bench_soak(opts: BenchOptions) -> dict[str, Any]:
     every = max(1, n // 100)
     outcomes: dict[str, int] = {}
     failures: list[str] = []
+    refused: list[int] = []  # per cycle: viewpoints the arm refused (issue 19's target: 0)
+    refusals: list[str] = []
+    planned: list[int] = []
     with running_sim_cell(opts, "soak", FAST_SIM) as run:
         plc, cfg, out = run.plc, run.cfg, run.out
         roles = list(cfg.supervisor.spawn_workers)
@@ -123,6 +140,10 @@ def bench_soak(opts: BenchOptions) -> dict[str, Any]:
                 outcome = res.outcome.value
                 if outcome != "completed":
                     failures.append(f"cycle {i} {res.cycle_id}: {outcome}: {res.reason}")
+                n_ref, why = refused_viewpoints(res)
+                refused.append(n_ref)
+                refusals += [f"cycle {i}: {w}" for w in why]
+                planned.append(sum(sum(st.viewpoints.values()) for st in res.stations or []) or len(res.viewpoints))
             except CellError as err:
                 outcome = "error"
                 failures.append(f"cycle {i}: {err}")
@@ -149,6 +170,10 @@ def bench_soak(opts: BenchOptions) -> dict[str, Any]:
         "elapsed_s": round(elapsed, 1),
         "cycles_per_hour": round(n / elapsed * 3600, 1),
         "config": dict(o.split("=", 1) for o in [*FAST_SIM, *opts.overrides]),
+        "refused_viewpoints": sum(refused),
+        "refused_by_cycle": refused,
+        "planned_viewpoints_by_cycle": planned,
+        "refusals": refusals[:20],
         "growth": verdict,
         "no_growth": all(v["ok"] is not False for per in verdict.values() for v in per.values()),
         "samples": sampler.samples,
