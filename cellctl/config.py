@@ -239,9 +239,29 @@ class VerdictConfig(_Model):
     rule: Literal["faces", "views"] = Field(
         default="views", description="faces: fused per-face probabilities; views: dirty if any view is dirty"
     )
-    face_threshold: float = Field(default=0.5, gt=0, lt=1, description="a face is dirty at this fused probability")
+    # threshold 0.7 / prior 0.2 / patches: chosen on the seed-1 validation bench (docs/classifier/inspect.md, round 6)
+    face_threshold: float = Field(default=0.7, gt=0, lt=1, description="a face is dirty at this fused probability")
     min_dirty_area_cm2: float = Field(default=0.0, ge=0, description="faces rule: dirty only above this dirty area")
-    face_prior: float = Field(default=0.1, gt=0, lt=1, description="prior dirt probability of a face")
+    face_prior: float = Field(default=0.2, gt=0, lt=1, description="prior dirt probability of a face")
+    projection: Literal["patches", "samples"] = Field(
+        default="patches",
+        description="patches: a face-index render of each view carries every heat-map patch onto the face cells its "
+        "rays hit; samples: four sample points per face looked up in the heat map (before round 6)",
+    )
+    face_cells: int = Field(default=4, ge=1, le=16, description="patches: a face is fused as cells² barycentric cells")
+    patch_share: float = Field(
+        default=0.25,
+        ge=0,
+        le=1,
+        description="patches: a hot patch gives a face its full dirty evidence once the face fills this share of the "
+        "patch's on-bin rays, less below (0: always full)",
+    )
+    board_margin_m: float = Field(
+        default=0.03,
+        ge=0,
+        le=0.2,
+        description="patches: heat-map patches whose rays hit the ID board or this margin around it give no evidence",
+    )
 
 
 class RelookConfig(_Model):
