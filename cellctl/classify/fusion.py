@@ -58,6 +58,12 @@ READABLE_FORMATS = ("cellctl-detector/1", DETECTOR_FORMAT)
 BANK_SIZE = 1024
 """Coreset size per surface: latency is linear in it (256 patches × 1024 × 176 MACs ≈ 46 M)."""
 MAX_FILE_BYTES = 64 * 1024 * 1024
+DECISION_SCORES = ("fused", "supervised")
+SUPERVISED_MARGIN = 0.005
+"""The image decision uses the supervised head's largest logit alone (``decision_score``
+``supervised``; the heat map stays fused) only when, on the calibration pool, its accuracy at its
+own false-clean threshold beats the fused score's by at least this much (5 images of 1040): the
+clean-only bank stays in the decision unless the pool says it costs accuracy."""
 SPLIT = (0.65, 0.2, 0.15)
 """Train/val/test shares: with 600 dirty images, 120 dirty validation images let a 1 % false-clean
 target allow one miss (at 90, the old 15 %, the single faintest label set the threshold)."""
@@ -119,6 +125,11 @@ class Detector:
         self.anom_ref = [float(v) for v in blob["anomaly_ref"]]  # mean, std of clean val max distance
         self.threshold = float(blob["threshold"])
         self.band = float(blob["uncertain_logit_band"])
+        self.decision_score = str(blob.get("decision_score", "fused"))
+        if self.decision_score not in DECISION_SCORES:
+            raise ClassifierError(
+                f"decision_score {self.decision_score!r} is unknown; expected one of {DECISION_SCORES}"
+            )
         self.model_id = model_id
         self.card = card
 
@@ -140,7 +151,7 @@ class Detector:
         amax = a.double().numpy().reshape(len(z), -1).max(1)
         return {
             "heat": _sig(z).astype(np.float32),
-            "p": p,
+            "p": p_sup if self.decision_score == "supervised" else p,
             "p_sup": p_sup,
             "anom_z": (amax - self.anom_ref[0]) / self.anom_ref[1],
         }
@@ -385,6 +396,16 @@ def train_detector(
     pv = _sig(platt[0] * zv + platt[1])
     threshold = choose_threshold(pv, yva, target_false_clean)
     band = UNCERTAIN_LOGIT_BAND
+    # the decision score: fused unless the head alone is clearly better on the pool (SUPERVISED_MARGIN)
+    psv = _sig(platt_sup[0] * svmax + platt_sup[1])
+    t_sup = choose_threshold(psv, yva, target_false_clean)
+    pool_acc = {
+        "fused": metrics(pv, yva, threshold, band)["accuracy"],
+        "supervised": metrics(psv, yva, t_sup, band)["accuracy"],
+    }
+    decision_score = "supervised" if pool_acc["supervised"] >= pool_acc["fused"] + SUPERVISED_MARGIN else "fused"
+    if decision_score == "supervised":
+        pv, threshold = psv, t_sup
     calib_info = None
     if calib is not None:
         calib_info = {
@@ -398,6 +419,8 @@ def train_detector(
         }
     st, at = maps(fte)
     pt = _sig(platt[0] * zmax(st, at) + platt[1])
+    if decision_score == "supervised":
+        pt = _sig(platt_sup[0] * st.double().numpy().reshape(len(st), -1).max(1) + platt_sup[1])
     blob = {
         "format": DETECTOR_FORMAT,
         "surface": surface,
@@ -414,6 +437,7 @@ def train_detector(
         "anomaly_ref": ref,
         "threshold": float(threshold),
         "uncertain_logit_band": band,
+        "decision_score": decision_score,
         "labels": list(LABELS),
     }
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -456,6 +480,9 @@ def train_detector(
         "decision": {
             "rule": "dirty if p_dirty >= threshold; uncertain within band logits",
             "target_false_clean": target_false_clean,
+            "score": decision_score,
+            "score_rule": f"supervised head alone if its pool accuracy beats the fused one's by >= {SUPERVISED_MARGIN}",
+            "pool_accuracy": pool_acc,
         },
         "data": {
             "root": _rel(root),

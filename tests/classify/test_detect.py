@@ -241,6 +241,15 @@ def test_detector_trains_predicts_and_reloads(contam: Path, tmp_path: Path) -> N
     assert card3["data"]["calib"]["n"] == 24 and card3["data"]["calib"]["dirty"] == 12
     assert card3["metrics"]["calib_pool"]["n"] == card3["metrics"]["val"]["n"] + 24 and "--calib" in card3["command"]
     assert card3["data"]["calib"]["recreate"][0].startswith("cellctl dataset contam --surface external --n 24")
+    assert card3["decision"]["score"] in ("fused", "supervised")
+    assert set(card3["decision"]["pool_accuracy"]) == {"fused", "supervised"}
+    # the decision score: "supervised" answers with the head's own calibrated probability
+    det.decision_score = "supervised"
+    d_sup = det.predict([img])[0]
+    assert d_sup.p_dirty == d_sup.p_supervised and np.array_equal(d_sup.heat, d.heat)
+    torch.save({**blob, "decision_score": "median"}, tmp_path / "bad.detect.pt")
+    with pytest.raises(ClassifierError, match="decision_score"):
+        Detector.load(tmp_path / "bad.detect.pt")
     with pytest.raises(ClassifierError, match="shifted"):
         train_detector(
             contam / "train", "external", tmp_path / "z.detect.pt", epochs=0, init_from=out, calib=contam / "shifted"
