@@ -37,12 +37,18 @@ __all__ = [
     "UNSEEN_CODE",
     "FaceFusion",
     "FaceMap",
+    "Footprint",
+    "MeshCaster",
     "ViewEvidence",
+    "board_quad",
     "decode_heat",
     "encode_heat",
     "face_probabilities",
+    "footprint",
+    "fuse_config",
     "fuse_views",
     "heat_png",
+    "patch_evidence",
     "project_heat",
     "relook_pose",
     "verdict",
@@ -140,6 +146,157 @@ def project_heat(
     val = np.where(ok, val, -1.0).reshape(len(faces), ns)
     seen = (val >= 0).any(axis=1)
     return faces[seen], val[seen].max(axis=1)
+
+
+# --- patch → face projection (a face-index render of the view) -----------------------------------
+
+PATCH_SUB = 5
+"""Rays per heat-map patch side (5 × 5 = 25 a patch, 6400 for a 16×16 map; ~2 ms a view). Odd, so
+one ray goes through each patch centre, where the bilinear map has the patch's own value: a lone
+hot patch (a small spot) keeps its full probability on the face under its centre."""
+
+BOARD_MARGIN_M = 0.03
+"""The ID board is cast as an occluder this much larger than its pattern on every side: a patch
+whose rays hit it (or its rim, which ``mask_board`` leaves unfilled) is no evidence about steel."""
+
+OFF_BIN = -1
+"""Face id of a ray that misses the bin (the cabin, the floor, the lit scene past the rim)."""
+ON_BOARD = -2
+"""Face id of a ray that hits the ID board (plus :data:`BOARD_MARGIN_M`)."""
+
+
+class MeshCaster:
+    """First-hit rays on the bin mesh (bin frame), optionally with the ID board as an occluder.
+
+    Embree through embreex (the twin's renderer uses it too), built once per mesh and board.
+    """
+
+    def __init__(self, mesh: Any, board: NDArray[np.float64] | None = None) -> None:
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh
+
+        V = np.asarray(mesh.vertices, np.float64)
+        F = np.asarray(mesh.faces, np.int64)
+        self.n_faces = len(F)
+        if board is not None:
+            F = np.vstack([F, len(V) + np.array([[0, 1, 2], [0, 2, 3]])])
+            V = np.vstack([V, np.asarray(board, np.float64).reshape(4, 3)])
+        self._scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene=self._scene, vertices=V.astype(np.float32), indices=F.astype(np.int32))
+
+    def cast(
+        self, origin: NDArray[np.float64], dirs: NDArray[np.float64]
+    ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+        """Face id per ray (:data:`OFF_BIN`, :data:`ON_BOARD`) and the hit's barycentric ``(u, v)``
+        (weights of the face's second and third corner)."""
+        o = np.ascontiguousarray(np.broadcast_to(np.asarray(origin, np.float32), dirs.shape))
+        res = self._scene.run(o, np.ascontiguousarray(dirs, dtype=np.float32), output=1)
+        f = res["primID"].astype(np.int64)
+        f = np.where(f >= self.n_faces, ON_BOARD, np.where(f < 0, OFF_BIN, f))
+        return f, np.stack([res["u"], res["v"]], -1)
+
+
+def board_quad(bin_type: Any, margin: float = BOARD_MARGIN_M) -> NDArray[np.float64]:
+    """The ID board's corners (4, 3) in the bin frame, ``margin`` m larger on every side."""
+    w, h = bin_type.board.size_m
+    m = margin
+    c = np.array([[-m, -m, 0, 1], [w + m, -m, 0, 1], [w + m, h + m, 0, 1], [-m, h + m, 0, 1]], np.float64)
+    return (np.asarray(bin_type.T_bin_board(), np.float64) @ c.T)[:3].T
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """Where one view's heat-map patches land: ``sub``² rays per patch, row-major over the image.
+
+    Attributes:
+        sub: rays per patch side.
+        cell: (R,) row-major patch index of each ray.
+        face: (R,) face the ray hits first (:data:`OFF_BIN`, :data:`ON_BOARD`).
+        bary: (R, 2) barycentric ``(u, v)`` of the hit on its face.
+    """
+
+    sub: int
+    cell: NDArray[np.int64]
+    face: NDArray[np.int64]
+    bary: NDArray[np.float32]
+
+
+def footprint(
+    caster: MeshCaster, T_bin_cam: NDArray[np.float64], intrinsics: Any, grid: int, sub: int = PATCH_SUB
+) -> Footprint:
+    """A face-index render of the view at ``grid·sub`` rays a side: patch (i, j) of the squashed
+    ``grid``² map spans pixels ``[j·W/G, (j+1)·W/G) × [i·H/G, (i+1)·H/G)`` of the frame."""
+    W, H = float(intrinsics.width), float(intrinsics.height)
+    t = (np.arange(grid * sub, dtype=np.float64) + 0.5) / (grid * sub)
+    uu, vv = np.meshgrid(t * W - 0.5, t * H - 0.5)  # OpenCV: integer pixel coordinates are pixel centres
+    d = np.stack([(uu - intrinsics.cx) / intrinsics.fx, (vv - intrinsics.cy) / intrinsics.fy, np.ones_like(uu)], -1)
+    d = d.reshape(-1, 3)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    T = np.asarray(T_bin_cam, np.float64)
+    face, bary = caster.cast(T[:3, 3], d @ T[:3, :3].T)
+    rc = np.arange(grid * sub) // sub
+    cell = (rc[:, None] * grid + rc[None, :]).reshape(-1).astype(np.int64)
+    return Footprint(sub, cell, face, bary)
+
+
+def _bilinear_rays(heat: NDArray[np.floating], fp: Footprint, idx: NDArray[np.int64]) -> NDArray[np.float64]:
+    """The heat map bilinearly interpolated (patch centres as nodes) at rays ``idx``."""
+    g = heat.shape[0]
+    n = g * fp.sub
+    r, q = idx // n, idx % n
+    gx = np.clip((q + 0.5) / fp.sub - 0.5, 0, g - 1)
+    gy = np.clip((r + 0.5) / fp.sub - 0.5, 0, g - 1)
+    x0, y0 = np.floor(gx).astype(int), np.floor(gy).astype(int)
+    x1, y1 = np.minimum(x0 + 1, g - 1), np.minimum(y0 + 1, g - 1)
+    fx, fy = gx - x0, gy - y0
+    h = np.asarray(heat, np.float64)
+    return (h[y0, x0] * (1 - fx) + h[y0, x1] * fx) * (1 - fy) + (h[y1, x0] * (1 - fx) + h[y1, x1] * fx) * fy
+
+
+def patch_evidence(
+    heat: NDArray[np.floating],
+    fp: Footprint,
+    faces: NDArray[np.int64] | list[int],
+    n_faces: int,
+    *,
+    cells: int = 4,
+    share_full: float = 0.25,
+    max_view_logit: float = MAX_VIEW_LOGIT,
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """One view's log-likelihood ratio per **face cell** (face·cells² + cell).
+
+    Each face is split into ``cells``² cells on its barycentric grid; a ray of the footprint that
+    hits one of ``faces`` (the plan's faces of the view) gives its cell the heat map at the ray,
+    bilinear between patch centres, as a clipped logit; a cell hit by several rays takes the
+    largest. Patches that touch the ID board (:data:`ON_BOARD`) give nothing. Dirty evidence from a
+    patch is scaled by the share of the patch's on-bin rays that hit the face, up to 1 at
+    ``share_full`` (0: off): a hot patch on a corner that a thin face only grazes does not make
+    that face dirty on its own.
+    """
+    g = heat.shape[0]
+    allowed = np.zeros(n_faces, bool)
+    fa = np.asarray(faces, np.int64)
+    allowed[fa[(fa >= 0) & (fa < n_faces)]] = True
+    board = np.bincount(fp.cell, weights=fp.face == ON_BOARD, minlength=g * g) > 0
+    ok = (fp.face >= 0) & ~board[fp.cell]
+    ok[ok] = allowed[fp.face[ok]]
+    idx = np.flatnonzero(ok)
+    if len(idx) == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    f, c, uv = fp.face[idx], fp.cell[idx], fp.bary[idx]
+    q = np.clip(_bilinear_rays(heat, fp, idx), 1e-6, 1 - 1e-6)
+    z = np.clip(np.log(q / (1 - q)), -max_view_logit, max_view_logit)
+    if share_full > 0:
+        on_bin = np.bincount(fp.cell[fp.face >= 0], minlength=g * g)
+        _, inv, cnt = np.unique(f * (g * g) + c, return_inverse=True, return_counts=True)
+        share = cnt[inv] / on_bin[c]
+        z = np.where(z > 0, z * np.minimum(1.0, share / share_full), z)
+    i = np.minimum((uv[:, 0] * cells).astype(np.int64), cells - 1)
+    j = np.minimum((uv[:, 1] * cells).astype(np.int64), cells - 1)
+    keys, inv = np.unique(f * cells * cells + i * cells + j, return_inverse=True)
+    e = np.full(len(keys), -np.inf)
+    np.maximum.at(e, inv, z)
+    return keys, e
 
 
 @dataclass
@@ -286,21 +443,85 @@ def fuse_views(
     clean_weight: float = 1.0,
     max_view_logit: float = MAX_VIEW_LOGIT,
     subdiv: int = 0,
+    projection: str = "samples",
+    caster: MeshCaster | None = None,
+    cells: int = 4,
+    share_full: float = 0.25,
 ) -> FaceMap:
-    """All views of a cycle → per-face dirt probability (:class:`FaceFusion`) and dirty faces."""
-    fusion = FaceFusion(mesh.n_faces, prior, clean_weight, max_view_logit)
-    for v in views:
-        if v.heat is not None:
-            faces, p = project_heat(v.heat, v.T_bin_cam, intrinsics, mesh, v.faces, subdiv)
-        else:
-            faces = np.asarray(v.faces, np.int64)
-            faces = faces[(faces >= 0) & (faces < mesh.n_faces)]
-            p = np.full(len(faces), float(v.p_dirty))
-        fusion.add(faces, p)
-    p = fusion.probability()
-    seen = fusion.seen()
+    """All views of a cycle → per-face dirt probability and dirty faces (``p ≥ face_threshold``).
+
+    ``projection``:
+
+    * ``samples`` — each face's sample points looked up in the heat map (:func:`project_heat`),
+      fused per face (:class:`FaceFusion`);
+    * ``patches`` — a face-index render of every view (:func:`footprint`, ``caster`` = the mesh
+      and, to drop the patches on it, the ID board) carries each patch's heat onto the face cells
+      its rays hit (:func:`patch_evidence`); views add per face cell in log-odds as in
+      :class:`FaceFusion`, and a face's probability is that of its dirtiest seen cell.
+
+    Raises:
+        ClassifierError: unknown projection.
+    """
+    if projection == "samples":
+        fusion = FaceFusion(mesh.n_faces, prior, clean_weight, max_view_logit)
+        for v in views:
+            if v.heat is not None:
+                faces, p = project_heat(v.heat, v.T_bin_cam, intrinsics, mesh, v.faces, subdiv)
+            else:
+                faces = np.asarray(v.faces, np.int64)
+                faces = faces[(faces >= 0) & (faces < mesh.n_faces)]
+                p = np.full(len(faces), float(v.p_dirty))
+            fusion.add(faces, p)
+        p = fusion.probability()
+        seen = fusion.seen()
+    elif projection == "patches":
+        FaceFusion(1, prior, clean_weight, max_view_logit)  # the same argument checks
+        caster = caster if caster is not None else MeshCaster(mesh)
+        k2 = cells * cells
+        llr = np.zeros(mesh.n_faces * k2)
+        nv = np.zeros(mesh.n_faces * k2, np.int32)
+        for v in views:
+            if v.heat is not None:
+                fp = footprint(caster, v.T_bin_cam, intrinsics, v.heat.shape[0])
+                keys, z = patch_evidence(
+                    v.heat, fp, v.faces, mesh.n_faces, cells=cells, share_full=share_full, max_view_logit=max_view_logit
+                )
+            else:  # a whole-image model: its probability on every cell of every face it sees
+                faces = np.asarray(v.faces, np.int64)
+                faces = faces[(faces >= 0) & (faces < mesh.n_faces)]
+                keys = (faces[:, None] * k2 + np.arange(k2)[None, :]).reshape(-1)
+                q = min(max(float(v.p_dirty), 1e-6), 1 - 1e-6)
+                z = np.full(len(keys), float(np.clip(np.log(q / (1 - q)), -max_view_logit, max_view_logit)))
+            llr[keys] += np.where(z < 0, clean_weight * z, z)
+            nv[keys] += 1
+        pc = 1.0 / (1.0 + np.exp(-(np.log(prior / (1 - prior)) + llr)))
+        pc = np.where(nv > 0, pc, -1.0).reshape(mesh.n_faces, k2)
+        seen = (nv.reshape(mesh.n_faces, k2) > 0).any(axis=1)
+        p = np.where(seen, pc.max(axis=1), prior)
+    else:
+        raise ClassifierError(f"heat projection {projection!r} is unknown; expected 'patches' or 'samples'")
     dirty = seen & (p >= face_threshold)
     return FaceMap(p, seen, dirty, float(mesh.areas[dirty].sum()))
+
+
+def fuse_config(views: list[ViewEvidence], mesh: Any, intrinsics: Any, vc: Any, bin_type: Any = None) -> FaceMap:
+    """:func:`fuse_views` with the settings of ``vc`` (a :class:`~cellctl.config.VerdictConfig`);
+    ``bin_type`` (its ID board) makes the board an occluder whose patches are dropped."""
+    caster = None
+    if vc.projection == "patches":
+        board = board_quad(bin_type, vc.board_margin_m) if bin_type is not None else None
+        caster = MeshCaster(mesh, board)
+    return fuse_views(
+        views,
+        mesh,
+        intrinsics,
+        prior=vc.face_prior,
+        face_threshold=vc.face_threshold,
+        projection=vc.projection,
+        caster=caster,
+        cells=vc.face_cells,
+        share_full=vc.patch_share,
+    )
 
 
 def verdict(face_map: FaceMap, view_labels: list[str], rule: str = "faces", min_dirty_area_cm2: float = 0.0) -> str:

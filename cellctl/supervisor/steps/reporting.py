@@ -92,6 +92,16 @@ def dirt_map(
     }, coverage
 
 
+def _bin_type(ctx):  # noqa: ANN001, ANN202
+    """The cycle's bin type (its ID board is an occluder for the heat projection), or None."""
+    from cellctl.errors import ConfigError
+
+    try:
+        return ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
+    except ConfigError:  # the mesh loaded, so this does not happen; without a board the projection still works
+        return None
+
+
 def _ids(faces: set[int], total: int) -> np.ndarray:
     idx = np.fromiter(faces, dtype=np.int64, count=len(faces))
     return idx[(idx >= 0) & (idx < total)]
@@ -132,16 +142,16 @@ class Reporting(Step):
         plans = ctx.plans if whole else None
         cover_surface = None if whole else ctx.surface
         if mesh is not None and has_heat and ctx.mode != "collect":
-            from cellctl.classify.heatmap import fuse_views, verdict
+            from cellctl.classify.heatmap import fuse_config, verdict
             from cellctl.geometry.camera import CameraModel
 
             vc = ctx.cfg.classifier.verdict
-            fm = fuse_views(
+            fm = fuse_config(
                 view_evidence(ctx.plan, ctx.viewpoints, ctx.T_base_bin, plans, ctx.bin_poses),
                 mesh,
                 CameraModel.from_config(ctx.cfg.camera),
-                prior=vc.face_prior,
-                face_threshold=vc.face_threshold,
+                vc,
+                _bin_type(ctx),
             )
             ctx.dirt_map = fm.as_json()
             seen_ids = np.flatnonzero(fm.seen)
