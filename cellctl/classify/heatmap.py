@@ -159,6 +159,10 @@ BOARD_MARGIN_M = 0.03
 """The ID board is cast as an occluder this much larger than its pattern on every side: a patch
 whose rays hit it (or its rim, which ``mask_board`` leaves unfilled) is no evidence about steel."""
 
+BOARD_HALO_PATCHES = 1
+"""Patches this close (in patches, 8-connected) to one that sees the board are dropped too: the
+detector's heat spreads about one patch past a thing it calls dirty (bench figures, round 6)."""
+
 OFF_BIN = -1
 """Face id of a ray that misses the bin (the cabin, the floor, the lit scene past the rim)."""
 ON_BOARD = -2
@@ -268,7 +272,8 @@ def patch_evidence(
     Each face is split into ``cells``² cells on its barycentric grid; a ray of the footprint that
     hits one of ``faces`` (the plan's faces of the view) gives its cell the heat map at the ray,
     bilinear between patch centres, as a clipped logit; a cell hit by several rays takes the
-    largest. Patches that touch the ID board (:data:`ON_BOARD`) give nothing. Dirty evidence from a
+    largest. Patches that touch the ID board (:data:`ON_BOARD`), and their neighbours
+    (:data:`BOARD_HALO_PATCHES`), give nothing. Dirty evidence from a
     patch is scaled by the share of the patch's on-bin rays that hit the face, up to 1 at
     ``share_full`` (0: off): a hot patch on a corner that a thin face only grazes does not make
     that face dirty on its own.
@@ -277,7 +282,11 @@ def patch_evidence(
     allowed = np.zeros(n_faces, bool)
     fa = np.asarray(faces, np.int64)
     allowed[fa[(fa >= 0) & (fa < n_faces)]] = True
-    board = np.bincount(fp.cell, weights=fp.face == ON_BOARD, minlength=g * g) > 0
+    board = (np.bincount(fp.cell, weights=fp.face == ON_BOARD, minlength=g * g) > 0).reshape(g, g)
+    if board.any() and BOARD_HALO_PATCHES > 0:  # the detector's heat spreads about a patch past what it sees
+        k = 2 * BOARD_HALO_PATCHES + 1
+        board = cv2.dilate(board.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+    board = board.reshape(-1)
     ok = (fp.face >= 0) & ~board[fp.cell]
     ok[ok] = allowed[fp.face[ok]]
     idx = np.flatnonzero(ok)
