@@ -367,6 +367,13 @@ class WholeBinConfig(_Model):
         description="per surface, % of its upper bound the selection must see: below it viewpoints are added past "
         "view_min_gain_pct (0 / absent: no floor)",
     )
+    cycle_budget_s: float = Field(
+        default=180.0,
+        ge=0,
+        le=3600,
+        description="takt for one bin's modelled cycle (s): a plan above it takes one station fewer where the floors "
+        "(min_bound_pct) still hold, then drops the viewpoints that see least per second down to the floors; 0: none",
+    )
 
 
 class PlannerConfig(_Model):
