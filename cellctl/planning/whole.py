@@ -123,6 +123,11 @@ class WholeParams:
     """Processes one plan evaluates its candidate stations on (and runs the exact cover beside the
     tours): 0 (default) = the cores this process may use, 1 = in process. The plan is the same
     for any number (each candidate's evaluation reads only the shared set-up)."""
+    cycle_budget_s: float = 0.0
+    """The plant's takt for one bin's modelled cycle (s; 0: none; ``planner.whole.cycle_budget_s``,
+    180). A plan above it takes one station fewer where that set still sees every surface's floor
+    (``min_bound_pct``), then gives up the viewpoints that see least per modelled second while the
+    floors hold (:func:`_trim_to_budget`); a plan within it is not touched."""
     odometry_m: float = 0.0
     """Bin-pose error left at a station that cannot see the board (the cycle carries the pose measured
     at an earlier station through the base's reported motion: two localisation reports, the yaw's
@@ -164,6 +169,7 @@ class WholeParams:
             odometry_m=whole.odometry_error_m,
             chains=whole.chains,
             min_bound_pct=dict(whole.min_bound_pct),
+            cycle_budget_s=whole.cycle_budget_s,
         )
 
     @classmethod
@@ -184,6 +190,8 @@ class WholeParams:
         bad_floor = {k: v for k, v in self.min_bound_pct.items() if k not in SURFACES or not 0 <= v <= 100}
         if bad_floor:
             raise PlanningError(f"min_bound_pct {bad_floor} must map surfaces {list(SURFACES)} to 0..100 %")
+        if not self.cycle_budget_s >= 0:
+            raise PlanningError(f"cycle_budget_s {self.cycle_budget_s!r} must be ≥ 0 (0: no budget)")
         if self.workers < 0:
             raise PlanningError(f"workers {self.workers!r} must be ≥ 0 (0: one per core, 1: in process)")
         if self.chains not in ("all", "needed"):
@@ -523,6 +531,7 @@ def connect(
     n_roll: int,
     accept: Callable[[int, NDArray[np.float64]], bool] | None,
     max_step: float,
+    wrap: Callable[[NDArray[np.float64]], NDArray[np.float64]] | None = None,
 ) -> Connected:
     """Keep only viewpoints joined to the start by straight, collision-free joint motions.
 
@@ -530,6 +539,7 @@ def connect(
     it (≤ :data:`CHAIN_ROUNDS` hops). One that joins nothing is replaced — before selection —
     by its next-best solution (other rolls and IK solutions of the plan's arm shape, at its own
     distance, then the next) that joins; a direction none of whose solutions joins is left out.
+    ``wrap`` (:func:`wrap_window`) puts the replacements' ±2π joints in the reached ones' window.
     """
     from cellctl.planning.reach import _rz, branch_signature, candidates, roll_sequence
 
@@ -570,6 +580,8 @@ def connect(
                 vidx += [i] * len(Qc)
         if owners:
             Qc, rc = np.concatenate(Qs), np.concatenate(rs)
+            if wrap is not None:
+                Qc = wrap(Qc)
             own, vi = np.asarray(owners), np.asarray(vidx)
             if shape is not None:  # only the plan's arm shape: check only those solutions
                 same = (branch_signature(Qc, robot) >> 1) == shape
@@ -621,6 +633,51 @@ def chain_to_start(k: int, parent: NDArray[np.int64], Q: NDArray[np.float64]) ->
     return out
 
 
+def wrap_window(
+    Q: NDArray[np.float64], robot: RobotModel, q_ref: NDArray[np.float64]
+) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+    """A map of configurations into one 2π window per ±2π joint, cut where ``Q`` leaves its widest gap.
+
+    q and q ± 2π of a ±2π joint are the same arm, but a straight move between them turns the
+    joint a full circle. IK solutions are wrapped towards home (``q_ref``), whose base joint
+    faces away from the bin: a station's viewpoints straddle the cut at home ± π, and
+    neighbours 0.3 rad apart got 6.0 rad base turns (case study seed 2: 50 s of its 132 s of
+    tour motion were base-joint-bound moves). Per joint, the angles of ``Q`` are cut at their
+    largest circular gap (so the set is one contiguous arc) and the arc is shifted by 2πk to lie
+    within the joint's limits, its middle nearest ``q_ref``. Other joints are unchanged.
+    """
+    from cellctl.planning.reach import _WRAPPABLE
+
+    two_pi = 2.0 * np.pi
+    lo = np.full(6, -np.inf)
+    for j in _WRAPPABLE:
+        if len(Q) == 0:
+            break
+        a = np.sort(np.mod(Q[:, j], two_pi))
+        gaps = np.diff(np.r_[a, a[0] + two_pi])
+        g = int(np.argmax(gaps))
+        start = a[(g + 1) % len(a)]  # the arc begins after its widest gap
+        width = float(two_pi - gaps[g])
+        ks = np.arange(-3, 4)
+        mids = start + ks * two_pi + width / 2.0
+        fits = (start + ks * two_pi >= robot.q_min[j] - 1e-9) & (start + ks * two_pi + width <= robot.q_max[j] + 1e-9)
+        if not fits.any():
+            continue
+        k = ks[fits][int(np.argmin(np.abs(mids[fits] - q_ref[j])))]
+        lo[j] = start + k * two_pi - 1e-9
+
+    def into(X: NDArray[np.float64]) -> NDArray[np.float64]:
+        out = np.array(X, dtype=np.float64, copy=True)
+        for j in _WRAPPABLE:
+            if np.isfinite(lo[j]):
+                w = lo[j] + np.mod(out[..., j] - lo[j], two_pi)
+                ok = (w >= robot.q_min[j] - 1e-9) & (w <= robot.q_max[j] + 1e-9)
+                out[..., j] = np.where(ok, w, out[..., j])
+        return out
+
+    return into
+
+
 # --- timed tour --------------------------------------------------------------------------
 
 
@@ -635,8 +692,12 @@ def _timed_tour(
     rng: np.random.Generator,
     max_step: float,
     fine_step: float,
+    tuck: bool = True,
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], list[NDArray[np.float64]], list[float], int, int]:
     """Order ``[start, *Q[sel]]`` by motion time; every move straight or via home along the chains.
+
+    ``tuck``: the arm goes home after this tour (False: another surface's tour follows from its
+    end, so a last viewpoint without a free straight way home is no move the arm must make).
 
     Ant colony + 2-opt on the motion-time matrix (pairs checked at ``max_step``; a colliding
     pair costs its way via home: both ends' chains of straight motions, known free). The moves
@@ -736,19 +797,70 @@ def _timed_tour(
         paths.append(path)
         secs.append(timing.motion_s(path))
         Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+    # a move via home (a colliding straight one): a shorter way round, proven free at the sim
+    # arm's step, where there is one (the arm's own planner then finds such a path; the model
+    # takes the detour's time)
+    detoured = np.zeros(len(paths), dtype=bool)
+    for e, (a, b) in enumerate(zip(order[:-1].tolist(), order[1:].tolist(), strict=True)):
+        if len(paths[e]) > 2:
+            d = _detour(nodes[a], nodes[b], q_home, world, fine_step)
+            if d is not None:
+                t_d = timing.motion_s(d)
+                if t_d < secs[e] or not (direct[a] and direct[b]):
+                    paths[e], secs[e], detoured[e] = d, t_d, True
+                    Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(d, axis=0), axis=1).sum())
     # moves the sim arm could not make: via home from/to a node that is not direct, and the end
     bad = [
         (a, b)
-        for p, a, b in zip(paths, order[:-1], order[1:], strict=True)
-        if len(p) > 2 and not (direct[a] and direct[b])
+        for p, a, b, dt in zip(paths, order[:-1], order[1:], detoured, strict=True)
+        if len(p) > 2 and not dt and not (direct[a] and direct[b])
     ]
     unverified = len(bad)
     last = int(order[-1])
-    unverified += 0 if ends_home and direct[last] else 1
+    unverified += 0 if (ends_home and direct[last]) or not tuck else 1
     # the viewpoints whose missing way home makes those moves: their chains are what a retry adds
-    stuck = {x for e in bad for x in e if not direct[x]} | ({last} if not direct[last] else set())
+    stuck = {x for e in bad for x in e if not direct[x]} | ({last} if tuck and not direct[last] else set())
     stuck_ids = np.array(sorted(int(sel[x - 1]) for x in stuck if x > 0), dtype=np.int64)
     return order, Dr, paths, secs, int(free.sum()), int(unverified), stuck_ids
+
+
+DETOUR_PULLS = (0.25, 0.5, 0.75)  # how far towards home a detour's waypoints are pulled
+DETOUR_GROUPS = ((1, 2), (3, 4, 5), (0,), (0, 1, 2))  # joints a detour may move first
+
+
+def _detour(
+    a: NDArray[np.float64],
+    b: NDArray[np.float64],
+    q_home: NDArray[np.float64],
+    world: PlanningWorld,
+    step: float,
+) -> NDArray[np.float64] | None:
+    """The fastest free way round for a straight move ``a → b`` that collides, or None.
+
+    Candidates, every segment straight and checked at ``step``: through the midpoint pulled
+    towards home by each of :data:`DETOUR_PULLS` (one waypoint), out towards home from ``a``
+    and in from the same pull before ``b`` (two waypoints), and one joint group of
+    :data:`DETOUR_GROUPS` moved first (shoulder and elbow, the wrist, the base). Via home itself is the pull 1 with
+    both waypoints at home; these stay nearer the bin and stop once or twice less. Ranked by
+    joint-space length (the longest joint's travel first), the first free one is taken.
+    """
+    mid = 0.5 * (a + b)
+    cands = [np.array([a, mid + lam * (q_home - mid), b]) for lam in DETOUR_PULLS]
+    cands += [np.array([a, a + lam * (q_home - a), b + lam * (q_home - b), b]) for lam in DETOUR_PULLS]
+    for group in DETOUR_GROUPS:  # one joint group moves first, then the rest
+        m = a.copy()
+        m[list(group)] = b[list(group)]
+        cands.append(np.array([a, m, b]))
+    cands.sort(key=lambda P: float(np.abs(np.diff(P, axis=0)).max(axis=1).sum()))
+    segs = [(P[i], P[i + 1]) for P in cands for i in range(len(P) - 1)]
+    ok = world.motion_free(np.array([x for x, _ in segs]), np.array([y for _, y in segs]), step)
+    at = 0
+    for P in cands:
+        k = len(P) - 1
+        if ok[at : at + k].all():
+            return P
+        at += k
+    return None
 
 
 ALTERNATIVES = 6  # other configurations per viewpoint the refinement weighs
@@ -760,12 +872,21 @@ def _alternatives(
     robot: RobotModel,
     world: PlanningWorld,
     accept: Callable[[int, NDArray[np.float64]], bool] | None,
+    half_turn: bool = False,
 ) -> NDArray[np.float64]:
     """Other free configurations that put the camera where ``q`` puts it (every IK branch, every
-    2π turn of a ±2π joint), the :data:`ALTERNATIVES` nearest to the neighbours ``near`` (K, 6)."""
-    from cellctl.planning.reach import _WRAPPABLE
+    2π turn of a ±2π joint), the :data:`ALTERNATIVES` nearest to the neighbours ``near`` (K, 6).
 
-    S = robot.ik_cam(robot.fk_cam(q[None])[0])
+    ``half_turn``: also those of the camera turned by π about its optical axis — the same view
+    when the principal point is the image centre (the image's rectangle onto itself): wrist 3
+    then need not turn by π between neighbours whose rolls differ by π."""
+    from cellctl.planning.reach import _WRAPPABLE, _rz
+
+    T = robot.fk_cam(q[None])[0]
+    S = robot.ik_cam(T)
+    if half_turn:
+        S2 = robot.ik_cam(T @ _rz(np.pi))
+        S = np.vstack([S.reshape(-1, 6), S2.reshape(-1, 6)])
     if len(S) == 0:
         return np.zeros((0, 6))
     out = [S]
@@ -798,6 +919,7 @@ def _refine_configurations(
     timing: TimingModel,
     q_home: NDArray[np.float64],
     step: float,
+    half_turn: bool = False,
 ) -> tuple[NDArray[np.float64], list[NDArray[np.float64]], list[float], int]:
     """The tour's order kept, each viewpoint's configuration chosen to make it fastest.
 
@@ -808,7 +930,8 @@ def _refine_configurations(
     not the original one must be straight and free at ``step`` (the sim arm's check): checked
     lazily, and a failing pair is barred and the programme re-solved (≤ 8 rounds, else the
     original configurations). Viewpoints next to a move that is not straight (via home) keep
-    theirs. The camera poses (and so what is seen) do not change.
+    theirs. The camera poses (and so what is seen) do not change; with ``half_turn`` a camera may
+    turn by π about its optical axis (:func:`_alternatives`: the same view for a centred image).
 
     Args:
         nodes: (n, 6) the tour's nodes: the start, then the selected viewpoints' configurations.
@@ -828,7 +951,7 @@ def _refine_configurations(
         q = nodes[seq[pos]]
         free_here = straight[pos - 1] and (pos == m - 1 or straight[pos])
         near = np.array([nodes[seq[pos - 1]], nodes[seq[pos + 1]] if pos < m - 1 else q_home])
-        extra = _alternatives(q, near, robot, world, accept) if free_here else np.zeros((0, 6))
+        extra = _alternatives(q, near, robot, world, accept, half_turn) if free_here else np.zeros((0, 6))
         alts.append(np.vstack([q[None], extra]))
     t_cache: dict[tuple[int, int, int], float] = {}
     barred: set[tuple[int, int, int]] = set()
@@ -1113,7 +1236,8 @@ def plan_whole(
                 # margin it is checked with at lookup.
                 ev.margin = p0.margin + params.odometry_m
         world, accept = station_world(c, ev.margin)
-        for surf, (filt, sf, _rng) in shared.items():
+        reached: dict[str, tuple[Any, Any, Any, Any, Any]] = {}
+        for surf, (filt, _sf, _rng) in shared.items():
             s = station_setup(c, surf, world)
             p = s.params
             near = distance_filter(filt.vp, c.T_bin_base[:3, 3], p.max_reach)
@@ -1137,14 +1261,22 @@ def plan_whole(
                 st.end()
             else:
                 found = pl.reach(s, vp, st)
-            con = connect(vp, found.reached, robot, world, T_base_bin, q_home, p.n_roll, accept, COARSE_STEP_RAD)
+            reached[surf] = (s, vp, f_s, st, found)
+        # one 2π window per ±2π joint for all the station's configurations (both surfaces): no
+        # full turns of a joint between neighbours, nor between the surfaces' tours
+        wrap = wrap_window(np.vstack([r[4].reached.q for r in reached.values()]), robot, q_home)
+        for surf, (s, vp, f_s, st, found) in reached.items():
+            found.reached.q[:] = wrap(found.reached.q)
+            con = connect(
+                vp, found.reached, robot, world, T_base_bin, q_home, s.params.n_roll, accept, COARSE_STEP_RAD, wrap
+            )
             ev.con[surf] = con
             ev.replaced += con.replaced
             ev.unconnected += con.unconnected
             found = pl.Reachability(con.reached, found.planner_queries, found.rrtconnect_fallbacks)
             vis = pl.measure(s, found.reached, st)
             ev.filt[surf], ev.found[surf], ev.vis[surf] = f_s, found, vis
-            ev.seen[surf] = vis.C.any(axis=1) if vis.C.shape[1] else np.zeros(len(sf), dtype=bool)
+            ev.seen[surf] = vis.C.any(axis=1) if vis.C.shape[1] else np.zeros(len(s.surf_faces), dtype=bool)
         return ev
 
     def evaluate_all(cs: list[Candidate], thin: int = 1) -> list[_StationEval]:
@@ -1158,9 +1290,9 @@ def plan_whole(
     # the chosen ones (± one station) are evaluated in full; the rule runs again over those.
     areas = {s: mesh.areas[shared[s][1]] for s in shared}
     bounds = {s: surfaces[s].bound_m2 for s in shared}
+    per_size: list[tuple[int, ...]] = []  # the best station set of each size (positions in evals)
     if params.estimate_thin > 1 and len(usable) > params.stations.max_stations:
         estimate = [e.seen for e in evaluate_all(usable, params.estimate_thin)]
-        per_size: list[tuple[int, ...]] = []
         first, _ = choose_stations(estimate, areas, bounds, params.stations, best_per_size=per_size)
         # the estimate's choice and its best subsets one station smaller and larger: the full masks
         # decide (the rule again, below) among those, so a thin estimate neither adds nor saves a
@@ -1177,7 +1309,9 @@ def plan_whole(
     else:  # every candidate in full (the default), choose on full masks
         done = dict(enumerate(evaluate_all(usable)))
         say("stations", 1.0)
-        chosen, scores = choose_stations([done[i].seen for i in sorted(done)], areas, bounds, params.stations)
+        chosen, scores = choose_stations(
+            [done[i].seen for i in sorted(done)], areas, bounds, params.stations, best_per_size=per_size
+        )
     evals = [done[i] for i in sorted(done)]
     pos = {i: k for k, i in enumerate(sorted(done))}
     chosen = [pos[i] for i in chosen]
@@ -1199,51 +1333,62 @@ def plan_whole(
     t = tick("choose_stations", t)
 
     # 4. viewpoint selection per surface over the chosen stations' pairs (Greedy Area + SA)
-    picked: dict[str, list[NDArray[np.int64]]] = {}
-    greedy_n: dict[str, int] = {}
-    for surf in shared:
-        blocks = [e.vis[surf].C for e in chosen_ev]
-        C = np.hstack(blocks)
-        owner = np.concatenate([np.full(b.shape[1], k) for k, b in enumerate(blocks)])
-        local = np.concatenate([np.arange(b.shape[1]) for b in blocks])
-        a = areas[surf]
-        picked[surf] = [np.zeros(0, np.int64) for _ in chosen_ev]
-        if C.shape[1] == 0:
-            continue
-        rng = np.random.default_rng([p0.seed, 17, SURFACES.index(surf)])
-        ga = _worthwhile(greedy_area(C, a), C, a, bounds[surf], params.view_min_gain_pct)
-        sa = simulated_annealing(C, a, ga, p0.sa_pct, rng, iterations=p0.sa_iterations)
-        cons_s = [e.con[surf] for e in chosen_ev]
-        # the selection plus the chain viewpoints its tours visit; the pair checks are kept
-        # between calls (the make-up and the floor call it again on a grown selection)
-        if params.chains == "needed":
-            close = partial(
-                _with_needed_ancestors,
-                owner=owner,
-                local=local,
-                cons=cons_s,
-                worlds=[e.setups[surf].world for e in chosen_ev],
-                q_home=q_home,
-                fine_step=step,
-                straight_cache=[{} for _ in chosen_ev],
-            )
-        else:
-            close = partial(_with_ancestors, owner=owner, local=local, parents=[c.parent for c in cons_s])
-        if params.chains == "needed":
-            every_chain = _with_ancestors(sa.selected, owner, local, [c.parent for c in cons_s])
-            chosen_cols, counts[f"made_up_{surf}"] = _needed_and_made_up(
-                sa.selected, every_chain, C, a, close, params.view_min_gain_pct / 100.0 * bounds[surf]
-            )
-        else:
-            chosen_cols = close(sa.selected)
-        floor = params.min_bound_pct.get(surf, 0.0) / 100.0 * bounds[surf]
-        if floor > 0:
-            chosen_cols, counts[f"floor_added_{surf}"] = _fill_to_floor(chosen_cols, C, a, floor, close)
-        counts[f"chain_added_{surf}"] = len(chosen_cols) - len(sa.selected)
-        greedy_n[surf] = len(ga)
-        picked[surf] = [np.sort(local[chosen_cols][owner[chosen_cols] == k]) for k in range(len(chosen_ev))]
-        seen = visible_area(C, a, chosen_cols)
-        surfaces[surf] = replace(surfaces[surf], seen_m2=seen, viewpoints=len(chosen_cols))
+    def select(
+        chosen_ev: list[_StationEval],
+    ) -> tuple[dict[str, list[NDArray[np.int64]]], dict[str, int], dict[str, int], dict[str, float]]:
+        """Per surface the chosen stations' shares (local columns), Greedy's length, counts, seen m²."""
+        picked: dict[str, list[NDArray[np.int64]]] = {}
+        greedy_n: dict[str, int] = {}
+        cnt: dict[str, int] = {}
+        seen_m2: dict[str, float] = {}
+        for surf in shared:
+            blocks = [e.vis[surf].C for e in chosen_ev]
+            C = np.hstack(blocks)
+            owner = np.concatenate([np.full(b.shape[1], k) for k, b in enumerate(blocks)])
+            local = np.concatenate([np.arange(b.shape[1]) for b in blocks])
+            a = areas[surf]
+            picked[surf] = [np.zeros(0, np.int64) for _ in chosen_ev]
+            seen_m2[surf] = 0.0
+            if C.shape[1] == 0:
+                continue
+            rng = np.random.default_rng([p0.seed, 17, SURFACES.index(surf)])
+            ga = _worthwhile(greedy_area(C, a), C, a, bounds[surf], params.view_min_gain_pct)
+            sa = simulated_annealing(C, a, ga, p0.sa_pct, rng, iterations=p0.sa_iterations)
+            cons_s = [e.con[surf] for e in chosen_ev]
+            # the selection plus the chain viewpoints its tours visit; the pair checks are kept
+            # between calls (the make-up and the floor call it again on a grown selection)
+            if params.chains == "needed":
+                close = partial(
+                    _with_needed_ancestors,
+                    owner=owner,
+                    local=local,
+                    cons=cons_s,
+                    worlds=[e.setups[surf].world for e in chosen_ev],
+                    q_home=q_home,
+                    fine_step=step,
+                    straight_cache=[{} for _ in chosen_ev],
+                )
+            else:
+                close = partial(_with_ancestors, owner=owner, local=local, parents=[c.parent for c in cons_s])
+            if params.chains == "needed":
+                every_chain = _with_ancestors(sa.selected, owner, local, [c.parent for c in cons_s])
+                chosen_cols, cnt[f"made_up_{surf}"] = _needed_and_made_up(
+                    sa.selected, every_chain, C, a, close, params.view_min_gain_pct / 100.0 * bounds[surf]
+                )
+            else:
+                chosen_cols = close(sa.selected)
+            floor = params.min_bound_pct.get(surf, 0.0) / 100.0 * bounds[surf]
+            if floor > 0:
+                chosen_cols, cnt[f"floor_added_{surf}"] = _fill_to_floor(chosen_cols, C, a, floor, close)
+            cnt[f"chain_added_{surf}"] = len(chosen_cols) - len(sa.selected)
+            greedy_n[surf] = len(ga)
+            picked[surf] = [np.sort(local[chosen_cols][owner[chosen_cols] == k]) for k in range(len(chosen_ev))]
+            seen_m2[surf] = visible_area(C, a, chosen_cols)
+        return picked, greedy_n, cnt, seen_m2
+
+    floors = {s: params.min_bound_pct.get(s, 0.0) / 100.0 * bounds[s] for s in shared}
+    picked, greedy_n, sel_counts, _ = select(chosen_ev)
+    counts.update(sel_counts)
     t = tick("selection", t)
 
     # 5. the exact (station, viewpoint) cover of what the selection sees, over the evaluated stations
@@ -1253,12 +1398,16 @@ def plan_whole(
     for surf in shared:
         offs[surf] = off
         off += len(areas[surf])
-    must = np.zeros(off, dtype=bool)
-    for surf in shared:
-        for k, e in enumerate(chosen_ev):
-            sel = picked[surf][k]
-            if len(sel):
-                must[offs[surf] : offs[surf] + len(areas[surf])] |= e.vis[surf].C[:, sel].any(axis=1)
+
+    def must_of(chosen_ev: list[_StationEval], picked: dict[str, list[NDArray[np.int64]]]) -> NDArray[np.bool_]:
+        must = np.zeros(off, dtype=bool)
+        for surf in shared:
+            for k, e in enumerate(chosen_ev):
+                sel = picked[surf][k]
+                if len(sel):
+                    must[offs[surf] : offs[surf] + len(areas[surf])] |= e.vis[surf].C[:, sel].any(axis=1)
+        return must
+
     for e in evals:
         for surf in shared:
             Cs = e.vis[surf].C
@@ -1267,7 +1416,7 @@ def plan_whole(
                 col[offs[surf] : offs[surf] + len(areas[surf])] = Cs[:, j]
                 cols.append((e.cand.index, col))
 
-    def exact_cover() -> Any:
+    def exact_cover(must: NDArray[np.bool_]) -> Any:
         try:
             return exact_station_cover(cols, must, params.exact_time_limit_s)
         except PlanningError:
@@ -1281,6 +1430,10 @@ def plan_whole(
     # worker ran which station and in what order.
     timing = params.timing
     per_vp = timing.settle_s + timing.capture_s
+    from cellctl.planning.reach import _rz
+
+    cam = p0.camera  # a centred image sees the same faces turned by π about its optical axis
+    half_turn = abs(cam.cx - cam.width / 2.0) < 1e-6 and abs(cam.cy - cam.height / 2.0) < 1e-6
 
     def station_tours(rank: int) -> tuple[StationPlan, dict[str, NDArray[np.int64]], dict[str, int]]:
         """Station ``rank``'s tours and plans; its (possibly chain-completed) picks and its counts."""
@@ -1296,9 +1449,12 @@ def plan_whole(
             hub = [q_now, q_home]
         plans: dict[str, Plan] = {}
         motion: dict[str, float] = {}
+        order_s = list(shared)
         for surf in shared:
             s, f_s, found, vis = e.setups[surf], e.filt[surf], e.found[surf], e.vis[surf]
             sel = sels[surf] = picked[surf][rank]
+            # the arm tucks home after the last surface scanned here; before, the next tour follows
+            tuck = not any(len(picked[s2][rank]) for s2 in order_s[order_s.index(surf) + 1 :])
             rng = np.random.default_rng([p0.seed, 23, e.cand.index, SURFACES.index(surf)])
             s = replace(s, q_start=q_now, rng=rng, params=replace(s.params, q_start=tuple(float(x) for x in q_now)))
             st = pl._Stages(None, False)
@@ -1311,7 +1467,7 @@ def plan_whole(
                 continue
             con = e.con[surf]
             order, Dr, paths, secs_e, n_straight, unverified, stuck = _timed_tour(
-                q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step
+                q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step, tuck
             )
             if unverified:
                 sel, got = _readd_chains(
@@ -1330,6 +1486,7 @@ def plan_whole(
                         rng=s.rng,
                         max_step=COARSE_STEP_RAD,
                         fine_step=step,
+                        tuck=tuck,
                     ),
                 )
                 if len(sel) > len(sels[surf]):
@@ -1339,8 +1496,14 @@ def plan_whole(
             q_chain = con.reached.q.copy()  # the chains home are straight between these configurations
             nodes = np.vstack([q_now[None], con.reached.q[sel]])
             new_q, paths, secs_e, n_changed = _refine_configurations(
-                nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step
+                nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step, half_turn
             )
+            turned = _half_turned(robot, con.reached.q[sel], new_q[1:])
+            if turned.any():  # the camera turned by π about its axis: the same view, its pose and roll
+                ids = sel[turned]
+                con.reached.T[ids] = con.reached.T[ids] @ _rz(np.pi)
+                con.reached.roll[ids] = np.mod(con.reached.roll[ids] + 2 * np.pi, 2 * np.pi) - np.pi
+                mine["half_turned"] = mine.get("half_turned", 0) + int(turned.sum())
             con.reached.q[sel] = new_q[1:]
             mine["reconfigured"] = mine.get("reconfigured", 0) + n_changed
             Dr = np.zeros_like(Dr)
@@ -1386,31 +1549,146 @@ def plan_whole(
         )
         return plan_k, sels, mine
 
+    # the chosen stations' configurations as evaluated: a tour run refines them in place (in
+    # process), and every run starts from these (the same plan on one worker or on several)
+    snap = {
+        (id(e), surf): (c.reached.q.copy(), c.reached.T.copy(), c.reached.roll.copy())
+        for e in evals
+        for surf, c in e.con.items()
+    }
+
+    def restore() -> None:
+        for e in evals:
+            for surf, c in e.con.items():
+                q0, T0, r0 = snap[(id(e), surf)]
+                c.reached.q, c.reached.T, c.reached.roll = q0.copy(), T0.copy(), r0.copy()
+
+    must_now = np.zeros(off, dtype=bool)
+
     # the MILP (its own time limit) is one more job beside the stations' tours, handed out first:
     # it only reads the selection, and the tours do not change what it covers
     def job(k: int) -> Any:
-        return exact_cover() if k < 0 else station_tours(k)
+        return exact_cover(must_now) if k < 0 else station_tours(k)
 
-    done_jobs = fork_map(job, [-1, *range(len(chosen_ev))], workers)
-    exact = done_jobs[0]
-    stations: list[StationPlan] = []
-    for plan_k, sels, mine in done_jobs[1:]:
-        stations.append(plan_k)
-        for surf, sel in sels.items():
-            picked[surf][plan_k.rank] = sel
-        for key, v in mine.items():
-            counts[key] = counts.get(key, 0) + v
-    for surf in shared:  # a station share may have taken its chains back (above)
-        seen_f = np.zeros(len(areas[surf]), dtype=bool)
-        for k, e in enumerate(chosen_ev):
-            if len(picked[surf][k]):
-                seen_f |= e.vis[surf].C[:, picked[surf][k]].any(axis=1)
-        n_vp = int(sum(len(x) for x in picked[surf]))
-        surfaces[surf] = replace(surfaces[surf], seen_m2=float(areas[surf][seen_f].sum()), viewpoints=n_vp)
-    moves = sum(
-        base_move_s(cands, a.candidate, b.candidate, params.stations)
-        for a, b in zip(stations[:-1], stations[1:], strict=True)
-    )
+    def run_tours(with_exact: bool) -> dict[str, Any]:
+        """Tours of ``chosen_ev`` / ``picked`` as they stand: stations, shares after chain re-adds, figures."""
+        restore()
+        done_jobs = fork_map(job, [-1, *range(len(chosen_ev))] if with_exact else list(range(len(chosen_ev))), workers)
+        exact = done_jobs[0] if with_exact else None
+        jobs_out = done_jobs[1:] if with_exact else done_jobs
+        return summarize(list(jobs_out), picked, chosen_ev, exact, sel_counts)
+
+    def summarize(
+        jobs_out: list[Any],
+        selection: dict[str, list[NDArray[np.int64]]],
+        chosen_ev: list[_StationEval],
+        exact: Any,
+        sel_counts: dict[str, int],
+    ) -> dict[str, Any]:
+        """The figures of one tour per station (``jobs_out``: station_tours' answers in rank order)."""
+        stations: list[StationPlan] = []
+        shares = {surf: list(v) for surf, v in selection.items()}
+        tour_counts: dict[str, int] = {}
+        for plan_k, sels, mine in jobs_out:
+            stations.append(plan_k)
+            for surf, sel in sels.items():
+                shares[surf][plan_k.rank] = sel
+            for key, v in mine.items():
+                tour_counts[key] = tour_counts.get(key, 0) + v
+        seen_m2: dict[str, tuple[float, int]] = {}
+        for surf in shared:  # a station share may have taken its chains back (above)
+            seen_f = np.zeros(len(areas[surf]), dtype=bool)
+            for k, e in enumerate(chosen_ev):
+                if len(shares[surf][k]):
+                    seen_f |= e.vis[surf].C[:, shares[surf][k]].any(axis=1)
+            seen_m2[surf] = (float(areas[surf][seen_f].sum()), int(sum(len(x) for x in shares[surf])))
+        moves = sum(
+            base_move_s(cands, a.candidate, b.candidate, params.stations)
+            for a, b in zip(stations[:-1], stations[1:], strict=True)
+        )
+        return {
+            "stations": stations,
+            "jobs": jobs_out,
+            "exact": exact,
+            "picked": shares,
+            "counts": tour_counts,
+            "seen": seen_m2,
+            "moves": float(moves),
+            "cycle": float(sum(s.cycle_s for s in stations) + moves),
+            "chosen_ev": chosen_ev,
+            "selection": selection,
+            "sel_counts": dict(sel_counts),
+        }
+
+    def mixed(new: dict[str, Any], old: dict[str, Any]) -> dict[str, Any]:
+        """Per station the trimmed tour where it is shorter with no more unverified moves, else the old one
+        (stations are independent; putting a station's viewpoints back only adds coverage)."""
+        jobs, selection = [], {surf: [] for surf in old["selection"]}
+        for k, (jn, jo) in enumerate(zip(new["jobs"], old["jobs"], strict=True)):
+            take = jn[0].cycle_s < jo[0].cycle_s and jn[2].get("unverified_moves", 0) <= jo[2].get(
+                "unverified_moves", 0
+            )
+            src = new if take else old
+            jobs.append(jn if take else jo)
+            for surf in selection:
+                selection[surf].append(src["selection"][surf][k])
+            changed = any(
+                not np.array_equal(new["selection"][surf][k], old["selection"][surf][k]) for surf in selection
+            )
+            if changed and not take:
+                rejected.add(k)
+        return summarize(jobs, selection, old["chosen_ev"], None, old["sel_counts"])
+
+    must_now = must_of(chosen_ev, picked)
+    res = run_tours(True)
+    exact = res["exact"]
+    budget = params.cycle_budget_s
+    if budget > 0 and res["cycle"] > budget:
+        # over the plant's takt: first one station fewer (the best such set, if its selection
+        # still sees every surface's floor), then the viewpoints that see least per second
+        if len(chosen_ev) > 1 and params.estimate_thin == 1 and len(per_size) >= len(chosen_ev) - 1:
+            fewer = _ring_order([evals[i] for i in per_size[len(chosen_ev) - 2]])
+            p_b, g_b, c_b, seen_b = select(fewer)
+            if all(seen_b[s] >= floors[s] - 1e-12 for s in shared):
+                keep = (chosen_ev, picked, sel_counts)
+                chosen_ev, picked, sel_counts = fewer, p_b, c_b
+                res_b = run_tours(False)
+                if _better(res_b, res, floors):
+                    res, greedy_n = res_b, g_b
+                    counts["budget_fewer_stations"] = 1
+                else:
+                    chosen_ev, picked, sel_counts = keep
+        rejected: set[int] = set()  # stations whose trimmed tour was not better: left as they are
+        for _round in range(4):
+            if res["cycle"] <= budget:
+                break
+            trimmed = _trim_to_budget(res, budget, floors, areas, params.timing, q_home, rejected)
+            if trimmed is None:
+                break
+            chosen_ev, picked = res["chosen_ev"], trimmed
+            sel_counts = res["sel_counts"]
+            res_t = mixed(run_tours(False), res)
+            if not _better(res_t, res, floors):
+                break
+            counts["budget_trimmed"] = (
+                counts.get("budget_trimmed", 0)
+                + sum(len(x) for v in res["picked"].values() for x in v)
+                - sum(len(x) for v in res_t["picked"].values() for x in v)
+            )
+            res = res_t
+        chosen_ev = res["chosen_ev"]
+        counts.update(res["sel_counts"])
+        final_must = must_of(chosen_ev, res["selection"])
+        if not np.array_equal(final_must, must_now):  # the exact cover of the selection kept
+            exact = exact_cover(final_must)
+    stations = res["stations"]
+    picked = res["picked"]
+    for key, v in res["counts"].items():
+        counts[key] = counts.get(key, 0) + v
+    for surf in shared:
+        seen_v, n_vp = res["seen"][surf]
+        surfaces[surf] = replace(surfaces[surf], seen_m2=seen_v, viewpoints=n_vp)
+    moves = res["moves"]
     t = tick("tours", t)  # the exact cover's MILP included (it runs beside the tours)
     counts["dropped_unconnected"] = 0
     counts["stations"] = len(stations)
@@ -1433,6 +1711,119 @@ def plan_whole(
         times_s=times,
         reason=reason,
     )
+
+
+def _better(new: dict[str, Any], old: dict[str, Any], floors: dict[str, float]) -> bool:
+    """A tour run that beats ``old`` for the budget: shorter, no more unverified moves, floors seen."""
+    return (
+        new["cycle"] < old["cycle"] - 1e-6
+        and new["counts"].get("unverified_moves", 0) <= old["counts"].get("unverified_moves", 0)
+        and all(new["seen"][s][0] >= floors.get(s, 0.0) - 1e-12 for s in new["seen"])
+    )
+
+
+BUDGET_SLACK_S = 2.0  # the trim aims this far below the budget (its savings are estimates)
+
+
+def _trim_to_budget(
+    res: dict[str, Any],
+    budget_s: float,
+    floors: dict[str, float],
+    areas: dict[str, NDArray[np.float64]],
+    timing: TimingModel,
+    q_home: NDArray[np.float64],
+    keep: set[int] | frozenset[int] = frozenset(),
+) -> dict[str, list[NDArray[np.int64]]] | None:
+    """The shares without the viewpoints that see least per modelled second, down to the budget.
+
+    A plant sizes its line by takt time: above ``budget_s`` a surface that sees more than its
+    floor (``floors``, m²) gives up viewpoints. Each round takes out the viewpoint with the least
+    area only it sees per second it costs — its settle and capture, and its moves in and out less
+    the straight move between its tour neighbours (an estimate; the tours are run again) — while
+    its surface still sees its floor, until the estimate is :data:`BUDGET_SLACK_S` below the
+    budget. A viewpoint on another selected one's chain home is kept, and so is every viewpoint
+    of the stations (ranks) in ``keep``. None: nothing to take out.
+    """
+    per_vp = timing.settle_s + timing.capture_s
+    chosen_ev, picked = res["chosen_ev"], res["picked"]
+    surfs = list(picked)
+    cnt = {
+        s: sum(
+            (chosen_ev[k].vis[s].C[:, picked[s][k]].sum(axis=1) for k in range(len(chosen_ev)) if len(picked[s][k])),
+            np.zeros(len(areas[s]), dtype=np.int64),
+        )
+        for s in surfs
+    }
+    seen = {s: float(areas[s][cnt[s] > 0].sum()) for s in surfs}
+    # per station: its visits in order (surface, column, joints) and each one's move in
+    seqs: list[list[list[Any]]] = []
+    starts: list[NDArray[np.float64]] = []
+    for st in res["stations"]:
+        seq: list[list[Any]] = []
+        q_prev = st.identify_q if st.identify_q is not None else q_home
+        starts.append(q_prev)
+        for surf, p in st.plans.items():
+            for v in p.viewpoints:
+                path = np.vstack([q_prev[None], v.approach, v.q[None]])
+                seq.append([surf, int(v.candidate), v.q, timing.motion_s(path)])
+                q_prev = v.q
+        seqs.append(seq)
+
+    def straight(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+        return timing.motion_s(np.array([a, b]))
+
+    removed: dict[str, list[set[int]]] = {s: [set() for _ in chosen_ev] for s in surfs}
+    est = float(res["cycle"])
+    while est > budget_s - BUDGET_SLACK_S:
+        best: tuple[float, float, int, int] | None = None
+        for k, seq in enumerate(seqs):
+            if k in keep:
+                continue
+            for i, (surf, col, q, t_in) in enumerate(seq):
+                par = chosen_ev[k].con[surf].parent
+                share = [c for sf, c, _q, _t in seq if sf == surf]
+                if any(int(par[c]) == col for c in share):
+                    continue  # on another one's chain home
+                Ck = chosen_ev[k].vis[surf].C[:, col]
+                only = float(areas[surf][Ck & (cnt[surf] == 1)].sum())
+                if seen[surf] - only < floors.get(surf, 0.0) - 1e-12:
+                    continue
+                prev = seq[i - 1][2] if i > 0 else starts[k]
+                nxt = seq[i + 1][2] if i + 1 < len(seq) else q_home
+                t_out = seq[i + 1][3] if i + 1 < len(seq) else straight(q, q_home)
+                saved = per_vp + t_in + t_out - straight(prev, nxt)
+                if saved <= 0:
+                    continue
+                key = (only / saved, -saved, k, i)
+                if best is None or key < best:
+                    best = key
+        if best is None:
+            break
+        _r, neg_saved, k, i = best
+        surf, col, _q, _t = seqs[k][i]
+        Ck = chosen_ev[k].vis[surf].C[:, col]
+        cnt[surf] = cnt[surf] - Ck
+        seen[surf] = float(areas[surf][cnt[surf] > 0].sum())
+        removed[surf][k].add(col)
+        prev = seqs[k][i - 1][2] if i > 0 else starts[k]
+        del seqs[k][i]
+        if i < len(seqs[k]):
+            seqs[k][i][3] = straight(prev, seqs[k][i][2])
+        est += neg_saved
+    if not any(r for v in removed.values() for r in v):
+        return None
+    return {
+        s: [np.array(sorted(set(picked[s][k].tolist()) - removed[s][k]), dtype=np.int64) for k in range(len(chosen_ev))]
+        for s in surfs
+    }
+
+
+def _half_turned(robot: RobotModel, Q0: NDArray[np.float64], Q1: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(n,) True where ``Q1`` puts the camera of ``Q0`` turned by π about its optical axis."""
+    if len(Q0) == 0:
+        return np.zeros(0, dtype=bool)
+    x0, x1 = robot.fk_cam(Q0)[:, :3, 0], robot.fk_cam(Q1)[:, :3, 0]
+    return np.einsum("ij,ij->i", x0, x1) < 0.0
 
 
 def _cpu_s(cpu0: float, ru0: Any) -> dict[str, float]:
