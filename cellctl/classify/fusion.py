@@ -59,11 +59,10 @@ BANK_SIZE = 1024
 """Coreset size per surface: latency is linear in it (256 patches × 1024 × 176 MACs ≈ 46 M)."""
 MAX_FILE_BYTES = 64 * 1024 * 1024
 DECISION_SCORES = ("fused", "supervised")
-SUPERVISED_MARGIN = 0.005
-"""The image decision uses the supervised head's largest logit alone (``decision_score``
-``supervised``; the heat map stays fused) only when, on the calibration pool, its accuracy at its
-own false-clean threshold beats the fused score's by at least this much (5 images of 1040): the
-clean-only bank stays in the decision unless the pool says it costs accuracy."""
+"""What the image decision thresholds: the fused patch logit (default) or the supervised head's
+largest logit alone (the heat map stays fused either way). Training reports both scores' pool
+accuracy in the card (``decision.pool_accuracy``); a pool-chosen switch to ``supervised`` was
+measured and not kept (``docs/classifier/detector.md``, round 6)."""
 SPLIT = (0.65, 0.2, 0.15)
 """Train/val/test shares: with 600 dirty images, 120 dirty validation images let a 1 % false-clean
 target allow one miss (at 90, the old 15 %, the single faintest label set the threshold)."""
@@ -306,6 +305,7 @@ def train_detector(
     threads: int | None = None,
     init_from: Path | str | None = None,
     calib: Path | str | None = None,
+    decision_score: str = "fused",
 ) -> dict[str, Any]:
     """Fit one surface's detector on a ``cellctl dataset contam`` folder; write weights + card.
 
@@ -317,6 +317,7 @@ def train_detector(
             another seed (never the shifted one): all its images join the validation split for
             the fusion, Platt scaling and threshold (the calibration pool), so the false-clean
             target rests on several hundred dirty images, not on the one or two faintest of 120.
+        decision_score: ``fused`` or ``supervised`` (:data:`DECISION_SCORES`).
         init_from: a format-2 detector of the same surface whose backbone and patch head the
             fine-tuning starts from (a continued training, e.g. after a label change: 12 epochs
             from ImageNet cost ~35 CPU min per surface); the bank, fusion, Platt scaling and
@@ -396,14 +397,15 @@ def train_detector(
     pv = _sig(platt[0] * zv + platt[1])
     threshold = choose_threshold(pv, yva, target_false_clean)
     band = UNCERTAIN_LOGIT_BAND
-    # the decision score: fused unless the head alone is clearly better on the pool (SUPERVISED_MARGIN)
+    # both candidate decision scores at their own threshold on the pool (the card records them)
     psv = _sig(platt_sup[0] * svmax + platt_sup[1])
     t_sup = choose_threshold(psv, yva, target_false_clean)
     pool_acc = {
         "fused": metrics(pv, yva, threshold, band)["accuracy"],
         "supervised": metrics(psv, yva, t_sup, band)["accuracy"],
     }
-    decision_score = "supervised" if pool_acc["supervised"] >= pool_acc["fused"] + SUPERVISED_MARGIN else "fused"
+    if decision_score not in DECISION_SCORES:
+        raise ClassifierError(f"decision_score {decision_score!r} is unknown; expected one of {DECISION_SCORES}")
     if decision_score == "supervised":
         pv, threshold = psv, t_sup
     calib_info = None
@@ -481,7 +483,6 @@ def train_detector(
             "rule": "dirty if p_dirty >= threshold; uncertain within band logits",
             "target_false_clean": target_false_clean,
             "score": decision_score,
-            "score_rule": f"supervised head alone if its pool accuracy beats the fused one's by >= {SUPERVISED_MARGIN}",
             "pool_accuracy": pool_acc,
         },
         "data": {
