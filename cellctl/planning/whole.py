@@ -1290,9 +1290,9 @@ def plan_whole(
     # the chosen ones (± one station) are evaluated in full; the rule runs again over those.
     areas = {s: mesh.areas[shared[s][1]] for s in shared}
     bounds = {s: surfaces[s].bound_m2 for s in shared}
-    per_size: list[tuple[int, ...]] = []  # the best station set of each size (positions in evals)
     if params.estimate_thin > 1 and len(usable) > params.stations.max_stations:
         estimate = [e.seen for e in evaluate_all(usable, params.estimate_thin)]
+        per_size: list[tuple[int, ...]] = []
         first, _ = choose_stations(estimate, areas, bounds, params.stations, best_per_size=per_size)
         # the estimate's choice and its best subsets one station smaller and larger: the full masks
         # decide (the rule again, below) among those, so a thin estimate neither adds nor saves a
@@ -1309,9 +1309,7 @@ def plan_whole(
     else:  # every candidate in full (the default), choose on full masks
         done = dict(enumerate(evaluate_all(usable)))
         say("stations", 1.0)
-        chosen, scores = choose_stations(
-            [done[i].seen for i in sorted(done)], areas, bounds, params.stations, best_per_size=per_size
-        )
+        chosen, scores = choose_stations([done[i].seen for i in sorted(done)], areas, bounds, params.stations)
     evals = [done[i] for i in sorted(done)]
     pos = {i: k for k, i in enumerate(sorted(done))}
     chosen = [pos[i] for i in chosen]
@@ -1646,10 +1644,13 @@ def plan_whole(
     if budget > 0 and res["cycle"] > budget:
         # over the plant's takt: first one station fewer (the best such set, if its selection
         # still sees every surface's floor), then the viewpoints that see least per second
-        if len(chosen_ev) > 1 and params.estimate_thin == 1 and len(per_size) >= len(chosen_ev) - 1:
-            fewer = _ring_order([evals[i] for i in per_size[len(chosen_ev) - 2]])
-            p_b, g_b, c_b, seen_b = select(fewer)
-            if all(seen_b[s] >= floors[s] - 1e-12 for s in shared):
+        if len(chosen_ev) > 1 and params.estimate_thin == 1:
+            # the sets one station smaller whose stations can see every floor, most seen first
+            for sub in _fewer_sets([e.seen for e in evals], areas, bounds, floors, len(chosen_ev) - 1):
+                fewer = _ring_order([evals[i] for i in sub])
+                p_b, g_b, c_b, seen_b = select(fewer)
+                if not all(seen_b[s] >= floors[s] - 1e-12 for s in shared):
+                    continue
                 keep = (chosen_ev, picked, sel_counts)
                 chosen_ev, picked, sel_counts = fewer, p_b, c_b
                 res_b = run_tours(False)
@@ -1658,6 +1659,7 @@ def plan_whole(
                     counts["budget_fewer_stations"] = 1
                 else:
                     chosen_ev, picked, sel_counts = keep
+                break
         rejected: set[int] = set()  # stations whose trimmed tour was not better: left as they are
         for _round in range(4):
             if res["cycle"] <= budget:
@@ -1711,6 +1713,36 @@ def plan_whole(
         times_s=times,
         reason=reason,
     )
+
+
+FEWER_TRIES = 3  # station sets one smaller a plan over its budget selects viewpoints for
+
+
+def _fewer_sets(
+    seen: list[dict[str, NDArray[np.bool_]]],
+    areas: dict[str, NDArray[np.float64]],
+    bounds: dict[str, float],
+    floors: dict[str, float],
+    size: int,
+) -> list[tuple[int, ...]]:
+    """Station sets of ``size`` whose stations' connected views see every surface's floor (m²),
+    the most seen (sum of bound fractions) first, at most :data:`FEWER_TRIES`: what a plan over
+    its budget tries with one station fewer (the selection decides whether a set holds)."""
+    import itertools
+
+    out: list[tuple[float, tuple[int, ...]]] = []
+    for sub in itertools.combinations(range(len(seen)), size):
+        total, ok = 0.0, True
+        for surf, a in areas.items():
+            m = np.zeros(len(a), dtype=bool)
+            for i in sub:
+                m |= seen[i][surf]
+            got = float(a[m].sum())
+            ok &= got >= floors.get(surf, 0.0) - 1e-12
+            total += got / bounds[surf] if bounds[surf] > 0 else 0.0
+        if ok:
+            out.append((-total, sub))
+    return [sub for _t, sub in sorted(out)[:FEWER_TRIES]]
 
 
 def _better(new: dict[str, Any], old: dict[str, Any], floors: dict[str, float]) -> bool:
