@@ -142,3 +142,32 @@ def test_the_bench_truth_finds_a_small_clump_between_the_ten_old_sample_points()
     field = PowderField(far[None], np.array([r]), np.zeros(1, np.uint8), np.array([[0.0, 0.0, 1.0]]), 3)
     assert not _dirty_faces_10pt(field, mesh)[0]
     assert _dirty_faces(field, mesh)[0]
+
+
+def test_the_case_study_board_occludes_the_patches_in_front_of_it() -> None:
+    from cellctl.classify.heatmap import board_quad
+    from cellctl.config import load_config
+    from cellctl.geometry.catalog import load_catalog
+
+    cfg = load_config()
+    catalog = load_catalog(cfg.path(cfg.catalog), cfg.root)
+    bt, mesh = catalog.get("case_study"), catalog.load_mesh("case_study")
+    Tb = np.asarray(bt.T_bin_board(), float)
+    w, h = bt.board.size_m
+    centre = (Tb @ np.array([w / 2, h / 2, 0.0, 1.0]))[:3]
+    T = np.eye(4)  # 0.4 m in front of the board, looking at it (the board's +z points into the wall)
+    T[:3, 0], T[:3, 2] = Tb[:3, 0], Tb[:3, 2]
+    T[:3, 1] = np.cross(T[:3, 2], T[:3, 0])
+    T[:3, 3] = centre - 0.4 * Tb[:3, 2]
+    intr = SimpleNamespace(fx=160.0, fy=160.0, cx=79.5, cy=79.5, width=160, height=160)
+    fp = footprint(MeshCaster(mesh, board_quad(bt)), T, intr, G)
+    assert (fp.face[fp.cell == 8 * G + 8] == ON_BOARD).all()
+    assert (fp.face >= 0).mean() > 0.1  # the wall around the board (the rim above it is past the bin)
+    views = [ViewEvidence(np.arange(mesh.n_faces), T, np.full((G, G), 0.99), 0.99)]
+    bare = fuse_config(views, mesh, intr, VerdictConfig())
+    boarded = fuse_config(views, mesh, intr, VerdictConfig(), bt)
+    # without the board every face the view's rays reach is hot; with it the faces whose patches
+    # touch the board (or neighbour one that does) are not, the wall farther out still is
+    assert boarded.dirty.sum() < bare.dirty.sum() and boarded.dirty.any()
+    near = np.isin(fp.cell, np.flatnonzero(np.bincount(fp.cell, fp.face == ON_BOARD, G * G) > 0))
+    assert not boarded.dirty[np.unique(fp.face[near & (fp.face >= 0)])].any()
