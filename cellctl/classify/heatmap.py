@@ -1,21 +1,26 @@
 """Heat maps: compact wire form, a viewable image, projection onto mesh faces, fusion, re-look poses.
 
-Light (numpy + OpenCV, no torch): the supervisor imports it.
+Light (numpy + OpenCV, embreex inside functions, no torch): the supervisor imports it.
 
 * :func:`encode_heat` / :func:`decode_heat` — a per-patch dirt-probability map as base64 of
   uint8 (p × 255), row-major; 16×16 = 344 characters.
 * :func:`heat_png` — the map colour-coded (``COLORMAP_INFERNO``) at the camera's aspect, for the
   cycle MCAP (a Foxglove ``CompressedImage``).
-* :func:`project_heat` — the probability each visible face gets from one view: face sample
-  points (centroid and three points half-way to the corners) projected with the camera pose
-  and pinhole intrinsics into the image, which the detector squashed to its square grid;
-  bilinear lookup, the largest of the face's samples.
+* :func:`footprint` / :func:`patch_evidence` — projection ``patches`` (the default of
+  ``classifier.verdict.projection``): a face-index render of the view (:class:`MeshCaster`,
+  Embree: the bin mesh and the ID board) casts rays through every patch of the map; each ray
+  carries the heat at it onto the barycentric cell of the face it hits, so a patch's heat lands
+  where its pixels are. Patches on (or next to) the board give nothing.
+* :func:`project_heat` — projection ``samples``: face sample points (centroid and three points
+  half-way to the corners) projected with the camera pose and pinhole intrinsics into the image,
+  which the detector squashed to its square grid; bilinear lookup, the largest of the samples.
 * :class:`FaceFusion` — fuses views per face in log-odds: the detector's patch probabilities
   are fitted on class-balanced patches, so ``logit(p)`` is a likelihood ratio, and independent
   views add; a face prior turns the sum back into a probability. Each view's ratio is clipped
   (±:data:`MAX_VIEW_LOGIT`) so one glaring view cannot settle a face alone.
 * :func:`fuse_views` → :class:`FaceMap` (its ``as_json`` is the CycleResult's ``dirt_map`` with
-  ``face_p``, one byte per face) and :func:`verdict` (the configurable bin rule).
+  ``face_p``, one byte per face; :func:`fuse_config` takes the settings from a
+  ``VerdictConfig``) and :func:`verdict` (the configurable bin rule).
 * :func:`relook_pose` — a nearby camera pose that keeps the same surface point in view: the
   camera swings by a glance angle about a point ``depth`` ahead of it and shifts sideways.
 """
