@@ -37,6 +37,24 @@ def test_every_family_draws_contamination_that_changes_the_image_only_where_it_l
         assert np.abs(img - base).max() > 0.02, name
 
 
+def test_dark_training_families_darken_the_steel_and_tarnish_keeps_its_texture() -> None:
+    """soot covers the steel with a dark matte layer; tarnish multiplies it by a transmission < 1,
+    so the brushed texture under it survives (scaled), unlike a covering layer."""
+    rng = np.random.default_rng(4)
+    base = closeup_steel("external", 96, 128, rng)
+    for name in ("soot", "tarnish"):
+        layer = draw_family(name, 96, 128, rng)
+        img, alpha = composite(base, layer)
+        core = alpha > 0.5 * alpha.max()
+        assert core.sum() > 20, name
+        assert img[core].mean() < 0.85 * base[core].mean(), name
+    layer = draw_family("tarnish", 96, 128, np.random.default_rng(5))
+    full = type(layer)(np.ones_like(layer.alpha), layer.rgb, layer.mode, layer.family, layer.params)
+    img, _ = composite(base, full)
+    assert np.allclose(img, base * layer.rgb, atol=1e-6)
+    assert 0.3 < img.std() / base.std() / float(layer.rgb.mean()) < 1.2
+
+
 def test_composite_respects_the_surface_pixels() -> None:
     rng = np.random.default_rng(1)
     base = closeup_steel("internal", 64, 64, rng)
