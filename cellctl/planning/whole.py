@@ -863,7 +863,7 @@ def _detour(
     return None
 
 
-ALTERNATIVES = 6  # other configurations per viewpoint the refinement weighs
+ALTERNATIVES = 10  # other configurations per viewpoint the refinement weighs
 
 
 def _alternatives(
@@ -1414,9 +1414,9 @@ def plan_whole(
                 col[offs[surf] : offs[surf] + len(areas[surf])] = Cs[:, j]
                 cols.append((e.cand.index, col))
 
-    def exact_cover(must: NDArray[np.bool_]) -> Any:
+    def exact_cover(must: NDArray[np.bool_], limit_s: float = params.exact_time_limit_s) -> Any:
         try:
-            return exact_station_cover(cols, must, params.exact_time_limit_s)
+            return exact_station_cover(cols, must, limit_s)
         except PlanningError:
             return None
 
@@ -1568,13 +1568,20 @@ def plan_whole(
     def job(k: int) -> Any:
         return exact_cover(must_now) if k < 0 else station_tours(k)
 
-    def run_tours(with_exact: bool) -> dict[str, Any]:
-        """Tours of ``chosen_ev`` / ``picked`` as they stand: stations, shares after chain re-adds, figures."""
+    def run_tours(with_exact: bool, reuse: dict[str, Any] | None = None) -> dict[str, Any]:
+        """Tours of ``chosen_ev`` / ``picked`` as they stand: stations, shares after chain re-adds, figures.
+
+        ``reuse``: a run of the same stations whose tours are taken for every station whose share
+        of ``picked`` is the same (a station's tours depend on its own share only)."""
         restore()
-        done_jobs = fork_map(job, [-1, *range(len(chosen_ev))] if with_exact else list(range(len(chosen_ev))), workers)
+        ranks = list(range(len(chosen_ev)))
+        if reuse is not None:
+            ranks = [k for k in ranks if any(not np.array_equal(picked[s][k], reuse["picked"][s][k]) for s in picked)]
+        done_jobs = fork_map(job, [-1, *ranks] if with_exact else ranks, workers)
         exact = done_jobs[0] if with_exact else None
-        jobs_out = done_jobs[1:] if with_exact else done_jobs
-        return summarize(list(jobs_out), picked, chosen_ev, exact, sel_counts)
+        got = dict(zip(ranks, done_jobs[1:] if with_exact else done_jobs, strict=True))
+        jobs_out = [got[k] if k in got else reuse["jobs"][k] for k in range(len(chosen_ev))]  # type: ignore[index]
+        return summarize(jobs_out, picked, chosen_ev, exact, sel_counts)
 
     def summarize(
         jobs_out: list[Any],
@@ -1630,11 +1637,9 @@ def plan_whole(
             jobs.append(jn if take else jo)
             for surf in selection:
                 selection[surf].append(src["selection"][surf][k])
-            changed = any(
-                not np.array_equal(new["selection"][surf][k], old["selection"][surf][k]) for surf in selection
-            )
-            if changed and not take:
-                rejected.add(k)
+            if jn is not jo and not take:  # toured again and refused: next round at most half as many out
+                n_out = max(0, sum(len(old["picked"][s][k]) - len(new["selection"][s][k]) for s in selection))
+                caps[k] = min(caps.get(k, n_out), n_out) // 2
         return summarize(jobs, selection, old["chosen_ev"], None, old["sel_counts"])
 
     must_now = must_of(chosen_ev, picked)
@@ -1660,18 +1665,21 @@ def plan_whole(
                 else:
                     chosen_ev, picked, sel_counts = keep
                 break
-        rejected: set[int] = set()  # stations whose trimmed tour was not better: left as they are
-        for _round in range(4):
+        caps: dict[int, int] = {}  # stations whose trimmed tour was not better: at most this many out next
+        for _round in range(BUDGET_ROUNDS):
             if res["cycle"] <= budget:
                 break
-            trimmed = _trim_to_budget(res, budget, floors, areas, params.timing, q_home, rejected)
+            trimmed = _trim_to_budget(res, budget, floors, areas, params.timing, q_home, caps)
             if trimmed is None:
                 break
             chosen_ev, picked = res["chosen_ev"], trimmed
             sel_counts = res["sel_counts"]
-            res_t = mixed(run_tours(False), res)
+            caps_before = dict(caps)
+            res_t = mixed(run_tours(False, reuse=res), res)
             if not _better(res_t, res, floors):
-                break
+                if caps == caps_before:
+                    break
+                continue  # every trimmed station refused: again with at most half as many out of them
             counts["budget_trimmed"] = (
                 counts.get("budget_trimmed", 0)
                 + sum(len(x) for v in res["picked"].values() for x in v)
@@ -1682,7 +1690,7 @@ def plan_whole(
         counts.update(res["sel_counts"])
         final_must = must_of(chosen_ev, res["selection"])
         if not np.array_equal(final_must, must_now):  # the exact cover of the selection kept
-            exact = exact_cover(final_must)
+            exact = exact_cover(final_must, min(params.exact_time_limit_s, BUDGET_EXACT_S))
     stations = res["stations"]
     picked = res["picked"]
     for key, v in res["counts"].items():
@@ -1715,7 +1723,9 @@ def plan_whole(
     )
 
 
-FEWER_TRIES = 3  # station sets one smaller a plan over its budget selects viewpoints for
+FEWER_TRIES = 2  # station sets one smaller a plan over its budget selects viewpoints for
+BUDGET_ROUNDS = 3  # trim-and-tour rounds of a plan over its budget
+BUDGET_EXACT_S = 2.0  # the exact cover of a selection the budget changed: its MILP's time limit
 
 
 def _fewer_sets(
@@ -1764,7 +1774,7 @@ def _trim_to_budget(
     areas: dict[str, NDArray[np.float64]],
     timing: TimingModel,
     q_home: NDArray[np.float64],
-    keep: set[int] | frozenset[int] = frozenset(),
+    caps: dict[int, int] | None = None,
 ) -> dict[str, list[NDArray[np.int64]]] | None:
     """The shares without the viewpoints that see least per modelled second, down to the budget.
 
@@ -1773,8 +1783,8 @@ def _trim_to_budget(
     area only it sees per second it costs — its settle and capture, and its moves in and out less
     the straight move between its tour neighbours (an estimate; the tours are run again) — while
     its surface still sees its floor, until the estimate is :data:`BUDGET_SLACK_S` below the
-    budget. A viewpoint on another selected one's chain home is kept, and so is every viewpoint
-    of the stations (ranks) in ``keep``. None: nothing to take out.
+    budget. A viewpoint on another selected one's chain home is kept, and at most ``caps[k]``
+    viewpoints leave station (rank) k (a station whose last trim was refused). None: nothing to take out.
     """
     per_vp = timing.settle_s + timing.capture_s
     chosen_ev, picked = res["chosen_ev"], res["picked"]
@@ -1809,7 +1819,7 @@ def _trim_to_budget(
     while est > budget_s - BUDGET_SLACK_S:
         best: tuple[float, float, int, int] | None = None
         for k, seq in enumerate(seqs):
-            if k in keep:
+            if caps is not None and sum(len(r[k]) for r in removed.values()) >= caps.get(k, len(seq) + 1):
                 continue
             for i, (surf, col, q, t_in) in enumerate(seq):
                 par = chosen_ev[k].con[surf].parent
