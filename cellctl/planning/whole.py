@@ -1519,8 +1519,10 @@ def plan_whole(
             selection = pl.Selection(sel, sel, _NoSA)
             allowed = np.ones(vis.C.shape[1], dtype=bool)
             ordered = pl.Ordered(selection, tour, allowed, 0)
-            n_opt, proven, secs = min_set_cover(vis.C[:, allowed], min(2.0, p0.cover_time_limit_s))
-            cover = pl.Cover(n_opt, proven, secs)
+            cover = station_covers.get((e.cand.index, surf))  # the same for every tour run of the station
+            if cover is None:
+                n_opt, proven, secs = min_set_cover(vis.C[:, allowed], min(2.0, p0.cover_time_limit_s))
+                cover = pl.Cover(n_opt, proven, secs)
             plan = pl.assemble(s, hd, st, f_s, found, vis, ordered, cover)
             plans[surf] = replace(plan, job_id=job_id)
             mt = float(sum(secs_e))
@@ -1568,6 +1570,24 @@ def plan_whole(
     def job(k: int) -> Any:
         return exact_cover(must_now) if k < 0 else station_tours(k)
 
+    # per (station, surface) the single-station exact cover over all its reachable candidates: it does
+    # not depend on the selection, so a budget's tour runs take it from the first run (kept here, where
+    # the forked workers of the next run inherit it)
+    station_covers: dict[tuple[int, str], Any] = {}
+
+    def keep_covers(jobs_out: list[Any]) -> None:
+        for plan_k, _sels, _mine in jobs_out:
+            for surf, p in plan_k.plans.items():
+                if p.viewpoints and p.counts.optimal_cover is not None:
+                    station_covers.setdefault(
+                        (plan_k.candidate, surf),
+                        pl.Cover(
+                            p.counts.optimal_cover,
+                            bool(p.stage_counts.optimal_cover_proven),
+                            float(p.times_s.exact_cover_s or 0.0),
+                        ),
+                    )
+
     def run_tours(with_exact: bool, reuse: dict[str, Any] | None = None) -> dict[str, Any]:
         """Tours of ``chosen_ev`` / ``picked`` as they stand: stations, shares after chain re-adds, figures.
 
@@ -1581,6 +1601,7 @@ def plan_whole(
         exact = done_jobs[0] if with_exact else None
         got = dict(zip(ranks, done_jobs[1:] if with_exact else done_jobs, strict=True))
         jobs_out = [got[k] if k in got else reuse["jobs"][k] for k in range(len(chosen_ev))]  # type: ignore[index]
+        keep_covers(jobs_out)
         return summarize(jobs_out, picked, chosen_ev, exact, sel_counts)
 
     def summarize(
