@@ -233,9 +233,9 @@ class WashConfig(_Model):
 class VerdictConfig(_Model):
     """How a cycle's per-face dirt evidence becomes the bin verdict (docs/classifier/inspect.md)."""
 
-    # "views" by default: on bench inspect the faces rule missed 6.8 % of dirty bins (9/132, round 5:
-    # 8 external and 1 internal one-spot bins; a false clean sends a contaminated bin back to
-    # production); the per-face map is still computed and shown.
+    # "views" by default: on bench inspect the faces rule missed 7.6 % of dirty bins (10/132, round 6:
+    # 9 external and 1 internal one-spot bins, six of them clumps no view's heat shows; a false clean
+    # sends a contaminated bin back to production); the per-face map is still computed and shown.
     rule: Literal["faces", "views"] = Field(
         default="views", description="faces: fused per-face probabilities; views: dirty if any view is dirty"
     )
