@@ -429,6 +429,49 @@ def test_a_dirty_view_whose_planned_faces_were_all_washed_marks_the_faces_its_im
     assert dm["seen_dirty"] == [] and dm["seen_clean"] == listed
 
 
+def test_the_re_inspection_map_fuses_heat_maps_with_the_scans_projection(cfg, case) -> None:  # noqa: ANN001
+    """A re-inspection view with a heat map is fused as the scan's map is (``classifier.verdict``:
+    projection, face cells, the ID board as occluder), so washing and inspection judge a face alike."""
+    from cellctl.classify.heatmap import encode_heat, fuse_config
+    from cellctl.geometry.camera import CameraModel
+    from cellctl.messages import PoseMsg, ViewpointResult
+    from cellctl.supervisor.steps.reporting import view_evidence
+
+    cat, mesh, T_base_bin = case
+    n = mesh.n_faces
+    leg = 4371  # a large leg face of the case-study bin, normal -x
+    c, nrm = mesh.centroids[leg], mesh.normals[leg]
+    pose = PoseMsg.from_matrix(T_base_bin @ _look_at(c + 0.4 * nrm, c))
+    # hotter to the frame's right: where each projection reads the heat on the face tells them apart
+    heat = np.tile(np.linspace(0.02, 0.99, 16), (16, 1))
+    v = ViewpointResult(
+        index=0, camera_pose=pose, label="dirty", p_dirty=0.99, wash_round=1, heatmap=encode_heat(heat), heat_grid=16
+    )
+    maps = {}
+    for projection in ("samples", "patches"):
+        vc = cfg.classifier.verdict.model_copy(update={"projection": projection})
+        c2 = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"verdict": vc})})
+        ctx = _ctx(c2, case, np.zeros(n, bool))
+        ctx.plan = PlanLookupReply(
+            hit=True,
+            plan_id="p",
+            viewpoints=[PlannedViewpoint(index=0, camera_pose=pose, joints=[0.1] * 6, faces=[leg])],
+            mesh_faces=n,
+        )
+        dm = Verifying._dirt_map(ctx, mesh, [v], np.zeros(n, bool), np.zeros(n, bool))
+        ref = fuse_config(
+            view_evidence(ctx.plan, [v], T_base_bin),
+            mesh,
+            CameraModel.from_config(c2.camera),
+            vc,
+            cat.get("case_study"),
+        )
+        assert dm == ref.as_json()
+        maps[projection] = dm
+    # the two projections give different maps here, so the equality above is the config's, not chance
+    assert maps["samples"] != maps["patches"]
+
+
 def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) -> None:  # noqa: ANN001
     dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
     ctx = _ctx(cfg, case, dirty)

@@ -304,21 +304,22 @@ class Verifying(Step):
     ) -> dict[str, Any]:
         """The re-inspection's own map: heat maps fused per face, else each view's label laid on its faces
         (a dirty view on the faces it sees that were dirty and not washed, when it sees any)."""
-        from cellctl.supervisor.steps.reporting import _faces_by_view, view_evidence
+        from cellctl.supervisor.steps.reporting import _bin_type, _faces_by_view, view_evidence
 
         whole = ctx.whole and bool(ctx.station_order)
         plans = ctx.plans if whole else None
         if any(v.heatmap for v in views):
-            from cellctl.classify.heatmap import fuse_views
+            from cellctl.classify.heatmap import fuse_config
             from cellctl.geometry.camera import CameraModel
 
-            vc = ctx.cfg.classifier.verdict
-            fm = fuse_views(
+            # the scan's own fusion settings (projection, board occluder), so the re-inspection map and
+            # the scan's map judge a face the same way
+            fm = fuse_config(
                 view_evidence(ctx.plan, views, ctx.T_base_bin, plans, ctx.bin_poses if whole else None),
                 mesh,
                 CameraModel.from_config(ctx.cfg.camera),
-                prior=vc.face_prior,
-                face_threshold=vc.face_threshold,
+                ctx.cfg.classifier.verdict,
+                _bin_type(ctx),
             )
             return fm.as_json()
         from cellctl.supervisor.steps.classifying import Classifying, view_key
