@@ -693,11 +693,16 @@ def _timed_tour(
     max_step: float,
     fine_step: float,
     tuck: bool = True,
+    q_sel: NDArray[np.float64] | None = None,
+    init: NDArray[np.int64] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], list[NDArray[np.float64]], list[float], int, int]:
     """Order ``[start, *Q[sel]]`` by motion time; every move straight or via home along the chains.
 
     ``tuck``: the arm goes home after this tour (False: another surface's tour follows from its
     end, so a last viewpoint without a free straight way home is no move the arm must make).
+    ``q_sel``: the viewpoints' configurations (len(sel), 6) instead of ``Q[sel]`` (a refined
+    tour's); one that differs from ``Q[sel]`` goes home straight only (its chain starts elsewhere).
+    ``init``: a node order to start 2-opt from instead of the ant colony's (a second order).
 
     Ant colony + 2-opt on the motion-time matrix (pairs checked at ``max_step``; a colliding
     pair costs its way via home: both ends' chains of straight motions, known free). The moves
@@ -715,9 +720,15 @@ def _timed_tour(
     from cellctl.planning.tour import ant_colony, two_opt
 
     Qall = con.reached.q
-    nodes = np.vstack([q_start[None], Qall[sel]])
+    Qs = Qall[sel] if q_sel is None else q_sel
+    nodes = np.vstack([q_start[None], Qs])
     n = len(nodes)
-    hubs = [np.array(start_hub)] + [np.array([*chain_to_start(int(k), con.parent, Qall), q_home]) for k in sel]
+    hubs = [np.array(start_hub)] + [
+        np.array([*chain_to_start(int(k), con.parent, Qall), q_home])
+        if np.array_equal(q, Qall[k])
+        else np.array([q, q_home])
+        for k, q in zip(sel, Qs, strict=True)
+    ]
     home_t = np.array([timing.motion_s(h) for h in hubs])
     # "direct": one straight motion home, free at the sim arm's step. Only between direct nodes may
     # a move go via home: that is the sim arm's own fallback (plan_path(a, home), plan_path(home, b)),
@@ -740,7 +751,8 @@ def _timed_tour(
             straight[i, j] = straight[j, i] = True
         else:
             Tm[i, j] = Tm[j, i] = float(home_t[i] + home_t[j]) if direct[i] and direct[j] else NO_MOVE_S
-    full = np.asarray(two_opt(Tm, ant_colony(Tm, rng)), dtype=np.int64)
+    first = ant_colony(Tm, rng) if init is None else np.r_[np.asarray(init, dtype=np.int64), n]
+    full = np.asarray(two_opt(Tm, first), dtype=np.int64)
     ends_home = int(full[-1]) == n
     order = full[full != n]
     checked: set[tuple[int, int]] = set()
@@ -863,6 +875,25 @@ def _detour(
     return None
 
 
+def _end_s(
+    order: NDArray[np.int64],
+    q: NDArray[np.float64],
+    sel: NDArray[np.int64],
+    parent: NDArray[np.int64],
+    Q: NDArray[np.float64],
+    q_home: NDArray[np.float64],
+    timing: TimingModel,
+) -> float:
+    """Seconds home from a tour's last node (configurations ``q`` per node): along its chain when
+    its configuration is the reached one, else straight."""
+    last = int(order[-1])
+    k = int(sel[last - 1])
+    if np.array_equal(q[last], Q[k]):
+        return timing.motion_s(np.array([*chain_to_start(k, parent, Q), q_home]))
+    return timing.motion_s(np.array([q[last], q_home]))
+
+
+RETOUR = True  # order a station's tour again over its refined configurations (kept when faster)
 ALTERNATIVES = 10  # other configurations per viewpoint the refinement weighs
 
 
@@ -1496,6 +1527,23 @@ def plan_whole(
             new_q, paths, secs_e, n_changed = _refine_configurations(
                 nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step, half_turn
             )
+            if RETOUR and n_changed and len(sel) > 2:  # a second order over the refined configurations
+                # 2-opt from the refined tour's order (no ant colony, no second refinement: ~CPU)
+                o2, Dr2, p2, t2, ns2, u2, _stuck2 = _timed_tour(
+                    q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step, tuck, new_q[1:], order
+                )
+                q2 = new_q
+
+                Q0 = con.reached.q
+                t_new = sum(t2) + _end_s(o2, q2, sel, con.parent, Q0, q_home, timing)
+                if (
+                    u2 <= unverified
+                    and t_new < sum(secs_e) + _end_s(order, new_q, sel, con.parent, Q0, q_home, timing) - 1e-6
+                ):
+                    order, Dr, paths, secs_e, n_straight, unverified = o2, Dr2, p2, t2, ns2, u2
+                    new_q = q2
+                    n_changed = int(np.any(np.abs(q2[1:] - con.reached.q[sel]) > 0, axis=1).sum())
+                    mine["retoured"] = mine.get("retoured", 0) + 1
             turned = _half_turned(robot, con.reached.q[sel], new_q[1:])
             if turned.any():  # the camera turned by π about its axis: the same view, its pose and roll
                 ids = sel[turned]

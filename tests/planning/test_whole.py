@@ -432,3 +432,29 @@ def test_refinement_takes_the_turn_of_a_joint_nearest_the_tour_neighbour(box, ro
     assert np.allclose(robot.fk_cam(out[2][None])[0], robot.fk_cam(b[None])[0])  # same camera pose
     assert new_secs[1] < 0.5 * secs[1] and len(new_paths[1]) == 2
     assert world.motion_free(new_paths[1][:1], new_paths[1][1:], STEP_RAD).all()
+
+
+def test_a_second_tour_runs_over_the_refined_configurations_given(box, robot, T_bin_base):
+    from types import SimpleNamespace
+
+    from cellctl.planning.collision import PlanningWorld
+    from cellctl.planning.whole import TimingModel, _timed_tour
+    from cellctl.sim.motion import STEP_RAD
+
+    world = PlanningWorld(box, robot, T_bin_base)
+    timing = TimingModel()
+    home = robot.q_home
+    start = home + np.array([0.0, 0.3, 0.6, -0.9, -1.2, 0.0])
+    a = start + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.3])
+    far = a + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.2 - 2 * np.pi])  # reached: wrist 3 turned the long way
+    near = a + np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.2])  # the refined one: the same camera pose
+    assert world.robot_free(np.array([start, a, far, near])).all()
+    con = SimpleNamespace(reached=SimpleNamespace(q=np.array([a, far])), parent=np.array([-1, -1]))
+    sel = np.array([0, 1])
+    args = (start, [start, home], sel, con, home, world, timing)
+    first = _timed_tour(*args, np.random.default_rng(0), 0.02, STEP_RAD, True)
+    again = _timed_tour(*args, np.random.default_rng(0), 0.02, STEP_RAD, True, np.array([a, near]))
+    assert sum(again[3]) < sum(first[3]) - 1.0  # the refined configuration's moves, not the reached one's
+    ends = {tuple(np.round(p[k], 9)) for p in again[2] for k in (0, -1)}
+    assert tuple(np.round(near, 9)) in ends and tuple(np.round(far, 9)) not in ends
+    assert again[5] == 0
