@@ -893,7 +893,6 @@ def _end_s(
     return timing.motion_s(np.array([q[last], q_home]))
 
 
-RETOUR = True  # order a station's tour again over its refined configurations (kept when faster)
 ALTERNATIVES = 10  # other configurations per viewpoint the refinement weighs
 
 
@@ -1527,22 +1526,19 @@ def plan_whole(
             new_q, paths, secs_e, n_changed = _refine_configurations(
                 nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step, half_turn
             )
-            if RETOUR and n_changed and len(sel) > 2:  # a second order over the refined configurations
+            if n_changed and len(sel) > 2:  # a second order over the refined configurations
                 # 2-opt from the refined tour's order (no ant colony, no second refinement: ~CPU)
                 o2, Dr2, p2, t2, ns2, u2, _stuck2 = _timed_tour(
                     q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step, tuck, new_q[1:], order
                 )
-                q2 = new_q
-
                 Q0 = con.reached.q
-                t_new = sum(t2) + _end_s(o2, q2, sel, con.parent, Q0, q_home, timing)
+                t_new = sum(t2) + _end_s(o2, new_q, sel, con.parent, Q0, q_home, timing)
                 if (
                     u2 <= unverified
                     and t_new < sum(secs_e) + _end_s(order, new_q, sel, con.parent, Q0, q_home, timing) - 1e-6
                 ):
                     order, Dr, paths, secs_e, n_straight, unverified = o2, Dr2, p2, t2, ns2, u2
-                    new_q = q2
-                    n_changed = int(np.any(np.abs(q2[1:] - con.reached.q[sel]) > 0, axis=1).sum())
+                    n_changed = int(np.any(np.abs(new_q[1:] - con.reached.q[sel]) > 0, axis=1).sum())
                     mine["retoured"] = mine.get("retoured", 0) + 1
             turned = _half_turned(robot, con.reached.q[sel], new_q[1:])
             if turned.any():  # the camera turned by π about its axis: the same view, its pose and roll
