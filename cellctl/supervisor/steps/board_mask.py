@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from cellctl.classify.heatmap import board_quad
 from cellctl.errors import CellError
 from cellctl.geometry.transforms import invert
 from cellctl.images import decode_image
@@ -33,13 +34,10 @@ def board_polygon(bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray,
     rectangle over steel the camera does see, which the detector rightly calls a film (the
     bench's external false-dirty bins: 13 of 15 filled views in one clean cycle were such).
     """
-    w, h = bin_type.board.size_m
-    m = MARGIN_M
-    corners = np.array([[-m, -m, 0, 1], [w + m, -m, 0, 1], [w + m, h + m, 0, 1], [-m, h + m, 0, 1]], dtype=float)
-    T_cam_board = invert(T_base_cam) @ np.asarray(T_base_bin) @ bin_type.T_bin_board()
-    if invert(T_cam_board)[2, 3] >= 0.0:
+    T_cam_bin = invert(T_base_cam) @ np.asarray(T_base_bin)
+    if invert(T_cam_bin @ bin_type.T_bin_board())[2, 3] >= 0.0:
         return None  # the board's back: the camera cannot see the pattern
-    p = (T_cam_board @ corners.T)[:3]
+    p = T_cam_bin[:3, :3] @ board_quad(bin_type, MARGIN_M).T + T_cam_bin[:3, 3:]
     if np.any(p[2] <= 0.01):
         return None
     uv = intr.K() @ (p / p[2])
