@@ -119,13 +119,14 @@ def _table(rows: list[Row]) -> str:
 
 def _fill(row: Row, res: Any) -> None:
     """The table row's figures from a CycleResult."""
+    from cellctl.reliability.soak import refused_viewpoints
     from cellctl.surface import SURFACES
 
     row.outcome = res.outcome.value
     row.verdict = res.verdict or "-"
     row.viewpoints = str(len(res.viewpoints)) if res.viewpoints else "-"
     row.coverage = f"{res.coverage:.0%}" if res.coverage is not None else "-"
-    row.refused = sum(1 for v in res.viewpoints if v.error is not None and v.relook_of is None)
+    row.refused = refused_viewpoints(res)[0]  # counted as the soak counts them
     cov = res.coverage_by_surface
     if cov:
         row.surfaces = "/".join(f"{cov[s]:.0%}" if cov.get(s) is not None else "-" for s in SURFACES)

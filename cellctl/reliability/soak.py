@@ -75,7 +75,7 @@ def growth(samples: list[dict[str, Any]], name: str, metric: str) -> dict[str, A
 
 
 def refused_viewpoints(res: Any) -> tuple[int, list[str]]:
-    """Viewpoints of a CycleResult the arm refused (not re-looks), and why; the demo counts the same.
+    """Viewpoints of a CycleResult the arm refused (not re-looks), and why; `cellctl demo` counts with it too.
 
     A refused viewpoint is one the scan could not reach at its planned joints, by IK nor at a
     nearby pose: its ``error`` is set. A whole-bin cycle also reports per station (``refused``
