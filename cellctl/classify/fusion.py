@@ -333,6 +333,9 @@ def train_detector(
     out = Path(out)
     if not out.name.endswith(".detect.pt"):
         raise ClassifierError(f"output {str(out)!r} must end in .detect.pt")
+    # a bad score is refused before the training, not after it
+    if decision_score not in DECISION_SCORES:
+        raise ClassifierError(f"decision_score {decision_score!r} is unknown; expected one of {DECISION_SCORES}")
     torch.set_num_threads(threads or 1)
     t0 = time.perf_counter()
     split = split_dataset(data, surface, seed=seed, fractions=SPLIT)
@@ -404,8 +407,6 @@ def train_detector(
         "fused": metrics(pv, yva, threshold, band)["accuracy"],
         "supervised": metrics(psv, yva, t_sup, band)["accuracy"],
     }
-    if decision_score not in DECISION_SCORES:
-        raise ClassifierError(f"decision_score {decision_score!r} is unknown; expected one of {DECISION_SCORES}")
     if decision_score == "supervised":
         pv, threshold = psv, t_sup
     calib_info = None
