@@ -13,7 +13,6 @@ from typing import Any
 
 import numpy as np
 
-from cellctl.classify.heatmap import board_quad
 from cellctl.errors import CellError
 from cellctl.geometry.transforms import invert
 from cellctl.images import decode_image
@@ -34,6 +33,8 @@ def board_polygon(bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray,
     rectangle over steel the camera does see, which the detector rightly calls a film (the
     bench's external false-dirty bins: 13 of 15 filled views in one clean cycle were such).
     """
+    from cellctl.classify.heatmap import board_quad  # heatmap imports OpenCV; the gateway imports this module light
+
     T_cam_bin = invert(T_base_cam) @ np.asarray(T_base_bin)
     if invert(T_cam_bin @ bin_type.T_bin_board())[2, 3] >= 0.0:
         return None  # the board's back: the camera cannot see the pattern
