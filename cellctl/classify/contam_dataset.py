@@ -28,6 +28,7 @@ import csv
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +54,7 @@ from cellctl.classify.shifted import HELD_OUT_FAMILIES, ShiftedOptics
 from cellctl.classify.texture import Look
 from cellctl.errors import ClassifierError
 
-__all__ = ["GENERATOR", "contam_dataset"]
+__all__ = ["GENERATOR", "append_provenance", "contam_dataset", "write_draws"]
 
 GENERATOR = "cellctl-contam/3"
 """Version of this generator, recorded in ``synth.json`` and the model cards (2: the visible mask
@@ -107,21 +108,64 @@ def contam_dataset(
     tag = "shifted" if shifted else "contam"
     intents = np.r_[np.zeros(n - n // 2, bool), np.ones(n // 2, bool)]
     rng.shuffle(intents)
+    t0 = time.perf_counter()
+
+    def draw(dirty: bool) -> tuple[np.ndarray, np.ndarray, str, dict[str, Any]] | None:
+        return _draw(dirty, surface, size, rng, twin, twin_fraction, twin_powder, families, look, shifted)
+
+    desc = f"contam {surface}{' shifted' if shifted else ''}"
+    drawn = write_draws(base_dir, f"{tag}_{surface}_{seed}", intents, draw, max_tries, desc)
+    summary = {
+        "generator": GENERATOR,
+        "out": str(base_dir),
+        "surface": surface,
+        "source": source,
+        "shifted": shifted,
+        "seed": seed,
+        "size": size,
+        "n": n,
+        "twin_fraction": twin_fraction if twin is not None else 0.0,
+        "twin_powder": twin_powder,
+        "families": sorted(families) + (["twin_powder"] if twin is not None and twin_powder > 0 else []),
+        **drawn,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    append_provenance(base_dir, summary)
+    return summary
+
+
+def write_draws(
+    base_dir: Path,
+    stem: str,
+    intents: np.ndarray,
+    draw: Callable[[bool], tuple[np.ndarray, np.ndarray, str, dict[str, Any]] | None],
+    max_tries: int,
+    desc: str,
+) -> dict[str, Any]:
+    """Draw one image per intent (True = dirty) into ``base_dir/<label>/<stem>_<i>.png`` (+ mask
+    for dirty images), redrawing ambiguous draws, and append their rows to ``labels.csv``.
+
+    ``draw(dirty)`` returns ``(rgb, visible mask, label, info)`` or None (ambiguous); ``info``
+    names ``family`` and ``base`` and may carry ``params``. Returns ``counts`` per label,
+    ``by_family`` and ``discarded_ambiguous`` (draws redrawn), as the provenance records them.
+
+    Raises:
+        ClassifierError: ``max_tries`` ambiguous draws in a row.
+    """
     counts = {lab: 0 for lab in LABELS}
     by_family: dict[str, int] = {}
     discarded = 0
     rows = []
-    t0 = time.perf_counter()
-    for i, dirty in enumerate(tqdm(intents, desc=f"contam {surface}{' shifted' if shifted else ''}", file=sys.stderr)):
+    for i, dirty in enumerate(tqdm(intents, desc=desc, file=sys.stderr)):
         for _ in range(max_tries):
-            d = _draw(bool(dirty), surface, size, rng, twin, twin_fraction, twin_powder, families, look, shifted)
+            d = draw(bool(dirty))
             if d is not None:
                 break
             discarded += 1
         else:
             raise ClassifierError(f"image {i}: {max_tries} draws in a row were ambiguous; check the generator")
         rgb, mask, label, info = d
-        name = f"{tag}_{surface}_{seed}_{i:05d}.png"
+        name = f"{stem}_{i:05d}.png"
         cv2.imwrite(str(base_dir / label / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         if label == "dirty":
             cv2.imwrite(str(base_dir / "masks" / name), (mask > 0.5).astype(np.uint8) * 255)
@@ -144,27 +188,14 @@ def contam_dataset(
         if f.tell() == 0:
             w.writeheader()
         w.writerows(rows)
-    summary = {
-        "generator": GENERATOR,
-        "out": str(base_dir),
-        "surface": surface,
-        "source": source,
-        "shifted": shifted,
-        "seed": seed,
-        "size": size,
-        "n": n,
-        "twin_fraction": twin_fraction if twin is not None else 0.0,
-        "twin_powder": twin_powder,
-        "families": sorted(families) + (["twin_powder"] if twin is not None and twin_powder > 0 else []),
-        "counts": counts,
-        "by_family": by_family,
-        "discarded_ambiguous": discarded,
-        "seconds": round(time.perf_counter() - t0, 1),
-    }
+    return {"counts": counts, "by_family": by_family, "discarded_ambiguous": discarded}
+
+
+def append_provenance(base_dir: Path, summary: dict[str, Any]) -> None:
+    """Append one generator run's summary to ``base_dir/synth.json`` (a list of runs)."""
     prov = base_dir / "synth.json"
     runs = json.loads(prov.read_text()) if prov.is_file() else []
     prov.write_text(json.dumps([*runs, summary], indent=1) + "\n")
-    return summary
 
 
 def _draw(
