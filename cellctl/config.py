@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, 
 
 from cellctl.bus.keys import ROLES, check_cell_id
 from cellctl.errors import ConfigError
+from cellctl.images import MAX_IMAGE_PIXELS, MIN_IMAGE_SIDE
 from cellctl.surface import Surface
 
 __all__ = [
@@ -183,6 +184,12 @@ class CameraConfig(_Model):
     cx: float | None = Field(default=None, description="px; None: image centre")
     cy: float | None = Field(default=None, description="px; None: image centre")
     noise_sigma: float = Field(default=2.0, ge=0, le=50, description="sim: sensor noise, 8-bit grey levels")
+    max_image_pixels: int = Field(
+        default=MAX_IMAGE_PIXELS,
+        ge=MIN_IMAGE_SIDE * MIN_IMAGE_SIDE,
+        description="pixel budget (width × height) of any image decoded (captures, classify, folder), checked "
+        "from the PNG/JPEG header before decoding; a bigger one is refused (decompression bombs)",
+    )
 
 
 class NozzleConfig(_Model):
@@ -264,6 +271,16 @@ class VerdictConfig(_Model):
         le=0.2,
         description="patches: heat-map patches whose rays hit the ID board or this margin around it give no evidence",
     )
+    # 0.6 each: the catalog's and the foreign bins' whole-bin plans see at worst 65 % of the tote's external surface
+    # (its bottom stands on the floor) and 72 % of the case study's internal one at the planner's floors
+    # (planner.whole.min_bound_pct); 0.6 leaves a refused view or two of room, while one station's one surface
+    # (34 % of the case study) or a hopper the arm cannot look into (44 % internal) is `incomplete`
+    # (docs/decisions.md, "Whole bin by default")
+    min_seen_fraction: dict[Surface, Annotated[float, Field(ge=0, le=1)]] = Field(
+        default_factory=lambda: {"external": 0.6, "internal": 0.6},
+        description="per surface, the share of its area the cycle must have seen for `clean`; below it a cycle "
+        "that saw no dirt ends `incomplete` (0 / absent: no minimum)",
+    )
 
 
 class RelookConfig(_Model):
@@ -321,9 +338,10 @@ class WholeBinConfig(_Model):
     """Whole-bin plans (cellctl.planning.stations / whole): stations around the bin, cycle-time model."""
 
     enabled: StrictBool = Field(
-        default=False,
+        default=True,
         description="the cycle visits every station of the newest whole-bin plan and scans both surfaces; "
-        "false: one station, one surface (planner.surface)",
+        "false: one station, one surface (planner.surface), which classifier.verdict.min_seen_fraction calls "
+        "`incomplete` rather than `clean`",
     )
     candidates: int = Field(default=8, ge=1, le=36, description="station candidates around the bin")
     max_stations: int = Field(default=4, ge=1, le=36)

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from cellctl.classify.collect import LABELS, SURFACES, check_surface
 from cellctl.errors import ClassifierError
-from cellctl.images import decode_image
+from cellctl.images import MAX_IMAGE_PIXELS, decode_image
 
 __all__ = [
     "IMAGE_EXTS",
@@ -41,18 +41,22 @@ __all__ = [
 IMAGE_EXTS = (".png", ".jpg", ".jpeg")
 
 
-def load_image(path: Path | str) -> NDArray[np.uint8]:
+def load_image(path: Path | str, max_pixels: int = MAX_IMAGE_PIXELS) -> NDArray[np.uint8]:
     """Read an image file as RGB uint8 ``(H, W, 3)``.
 
+    Args:
+        path: the PNG/JPEG file.
+        max_pixels: pixel budget checked from the header before decoding (``camera.max_image_pixels``).
+
     Raises:
-        ClassifierError: the file is missing or not a usable image.
+        ClassifierError: the file is missing, not a usable image or over the pixel budget.
     """
     p = Path(path)
     try:
         data = p.read_bytes()
     except OSError as err:
         raise ClassifierError(f"image file {str(p)!r} cannot be read: {err}") from err
-    return decode_image(data, repr(str(p)), error=ClassifierError)
+    return decode_image(data, repr(str(p)), error=ClassifierError, max_pixels=max_pixels)
 
 
 def prepare(img: NDArray[np.uint8], size: int) -> NDArray[np.float32]:

@@ -148,6 +148,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     dl.add_argument("--model", type=Path, default=None, help="the observer (default models/classifier/S.detect.pt)")
     dl.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     dl.set_defaults(func=run_label_check)
+    dn = dv.add_parser(
+        "enroll",
+        help="adapt a surface's detector to a site's clean images (merged clean bank, threshold from held-out "
+        "clean scores); writes one file (docs/classifier/detector.md, 'Site enrollment')",
+    )
+    dn.add_argument("--surface", required=True, choices=SURFACES)
+    dn.add_argument("--images", required=True, type=Path, help="folder of clean PNG/JPEG views (recursive, any size)")
+    dn.add_argument("--out", required=True, type=Path, help="the enrolled detector file to write")
+    dn.add_argument("--detector", type=Path, default=None, help="base (default <classifier.models_dir>/S.detect.pt)")
+    dn.add_argument("--seed", type=int, default=0, help="fit / held-out split")
+    add_config_arguments(dn)
+    dn.set_defaults(func=run_detector_enroll)
 
     c = sub.add_parser("classify", help="classify image files")
     c.add_argument("images", nargs="+")
@@ -155,6 +167,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--model", default=None)
     c.add_argument("--variant", choices=("fp32", "fused"), default="fp32")
     c.add_argument("--json", action="store_true", help="one JSON object per line")
+    c.add_argument(
+        "--detector", default=None, metavar="FILE", help="this detector file (shipped or `detector enroll`ed) decides"
+    )
     c.add_argument(
         "--decision",
         choices=("auto", "detector", "supervised"),
@@ -340,6 +355,21 @@ def run_label_check(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_detector_enroll(args: argparse.Namespace) -> int:
+    from cellctl.classify.enroll import enroll_detector, folder_images, save_enrolled
+    from cellctl.classify.fusion import Detector, detector_path
+
+    cfg = config_from_args(args)
+    images = folder_images(args.images)  # a bad folder is refused before the detector loads
+    base = args.detector or detector_path(cfg.path(cfg.classifier.models_dir), args.surface)
+    det = enroll_detector(
+        Detector.load(base, surface=args.surface), images, args.surface, seed=args.seed, source=args.images
+    )
+    save_enrolled(det, args.out)
+    print(json.dumps({"out": str(args.out), "model_id": det.model_id, **(det.enrollment or {})}))
+    return 0
+
+
 def run_classify(args: argparse.Namespace) -> int:
     from cellctl.classify.data import load_image
     from cellctl.classify.fusion import Detector, detector_path
@@ -348,14 +378,16 @@ def run_classify(args: argparse.Namespace) -> int:
 
     cfg = config_from_args(args)
     det_file = detector_path(cfg.path(cfg.classifier.models_dir), args.surface)
-    if args.decision == "detector" or (args.decision == "auto" and det_file.is_file() and not args.model):
+    if args.detector:
+        model = Detector.load(args.detector, surface=args.surface)
+    elif args.decision == "detector" or (args.decision == "auto" and det_file.is_file() and not args.model):
         model = Detector.load(det_file, surface=args.surface)
     else:
         model = SurfaceModel.load(_model_path(args), surface=args.surface, variant=args.variant)
     rc = 0
     for path in args.images:
         try:
-            pred = model.predict([load_image(path)])[0]
+            pred = model.predict([load_image(path, cfg.camera.max_image_pixels)])[0]
             out = {"image": path, **pred.as_dict()}
         except CellError as err:
             out = {"image": path, "error": str(err)}

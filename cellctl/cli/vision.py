@@ -145,17 +145,17 @@ def _draw(path: str, image: Any, intr: Any, ident: Any) -> None:
 
 
 def run_identify(args: argparse.Namespace) -> int:
-    import cv2
-
     from cellctl.errors import IdentificationError
+    from cellctl.images import decode_image
     from cellctl.vision import identify
 
     cfg = config_from_args(args)
     if not Path(args.image).is_file():
         raise CellError(f"image {args.image!r} does not exist")
-    image = cv2.imread(args.image, cv2.IMREAD_COLOR)
-    if image is None:
-        raise CellError(f"image {args.image!r} does not exist or is not a readable image")
+    # the shared decoder: the header's size is checked against the budget before any pixel is decoded
+    image = decode_image(
+        Path(args.image).read_bytes(), repr(args.image), order="bgr", max_pixels=cfg.camera.max_image_pixels
+    )
     intr = parse_intrinsics(args.intrinsics, image.shape[1], image.shape[0])
     T_base_cam = parse_camera_pose(args.camera_pose)
     catalog = _catalog(args, cfg)

@@ -32,6 +32,24 @@ def _string(buf: bytes, at: int) -> tuple[str, int]:
     return buf[at + 4 : at + 4 + n].decode("utf-8", "replace"), at + 4 + n
 
 
+def _decode_bgr(data: bytes) -> Any:
+    """OpenCV's BGR image, or None for a damaged one or one over the pixel budget (read from its header
+    first: these bytes come off the bus or a log, and a decompression bomb must not reach the decoder)."""
+    import cv2
+    import numpy as np
+
+    from cellctl.errors import CellError
+    from cellctl.images import MAX_IMAGE_PIXELS, image_size
+
+    try:
+        w, h = image_size(data)
+    except CellError:
+        return None
+    if w * h > MAX_IMAGE_PIXELS:
+        return None
+    return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+
+
 def blend_heat(image: bytes | None, heat: bytes) -> bytes:
     """A heat-map PNG (:func:`cellctl.classify.heatmap.heat_png`) blended over its view's image.
 
@@ -39,10 +57,9 @@ def blend_heat(image: bytes | None, heat: bytes) -> bytes:
     patch lies over the pixels it scored. Without a readable image, the heat map alone.
     """
     import cv2
-    import numpy as np
 
-    colour = cv2.imdecode(np.frombuffer(heat, np.uint8), cv2.IMREAD_COLOR)
-    base = cv2.imdecode(np.frombuffer(image, np.uint8), cv2.IMREAD_COLOR) if image else None
+    colour = _decode_bgr(heat)
+    base = _decode_bgr(image) if image else None
     if base is None or colour is None:
         return heat
     h, w = base.shape[:2]

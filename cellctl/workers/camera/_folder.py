@@ -25,6 +25,7 @@ class FolderCamera(Camera):
     def __init__(self, cfg: CellConfig) -> None:
         self.folder = cfg.path(cfg.camera.folder) if cfg.camera.folder is not None else None
         self.intrinsics = CameraModel.from_config(cfg.camera).intrinsics()
+        self.max_pixels = cfg.camera.max_image_pixels
         self._files: list[Path] = []
         self._next = itertools.count()
 
@@ -46,7 +47,8 @@ class FolderCamera(Camera):
         self._require_connected()
         path = self._files[next(self._next) % len(self._files)]
         data = path.read_bytes()
-        rgb = decode_image(data, repr(str(path)), error=CameraError)  # refuse a broken file even when passed on as is
+        # refuse a broken or oversized file even when passed on as is
+        rgb = decode_image(data, repr(str(path)), error=CameraError, max_pixels=self.max_pixels)
         if EXTENSIONS[path.suffix.lower()] != fmt:
             data = encode_image(rgb, fmt, CameraError)
         return CaptureReply(format=fmt, intrinsics=self.intrinsics), data

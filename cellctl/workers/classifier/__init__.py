@@ -28,7 +28,7 @@ from cellctl.bus import keys
 from cellctl.bus.codec import MAX_PAYLOAD_BYTES, decode_as, encode
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, ClassifierError, ConfigError, ProtocolError
-from cellctl.images import MAX_IMAGE_BYTES, decode_image
+from cellctl.images import MAX_IMAGE_BYTES, MAX_IMAGE_PIXELS, decode_image
 from cellctl.messages import ClassifyReply, ClassifyRequest, ErrorReply
 from cellctl.surface import check_surface
 
@@ -47,10 +47,16 @@ class ClassifierService:
         models_dir: folder holding ``external.pt`` and ``internal.pt``.
         variant: ``fp32`` or ``fused``.
         threads: torch CPU threads (None: all cores).
+        max_pixels: pixel budget of a request's image, checked from its header before decoding.
     """
 
     def __init__(
-        self, models_dir: Path, variant: str = "fused", threads: int | None = None, decision: str = "auto"
+        self,
+        models_dir: Path,
+        variant: str = "fused",
+        threads: int | None = None,
+        decision: str = "auto",
+        max_pixels: int = MAX_IMAGE_PIXELS,
     ) -> None:
         import os
 
@@ -71,6 +77,7 @@ class ClassifierService:
         for s, why in self.problems.items():
             log.warning("classifier: no model for surface %s: %s", s, why)
         self._lock = threading.Lock()
+        self.max_pixels = max_pixels
 
     def classify(self, items: list[tuple[ClassifyRequest, bytes]]) -> list[ClassifyReply | CellError]:
         """Classify a batch; each item gets a reply or the error that refuses it."""
@@ -83,7 +90,9 @@ class ClassifierService:
                     raise ClassifierError(f"no model for surface {req.surface!r}: {self.problems.get(req.surface)}")
                 if len(data) > MAX_IMAGE_BYTES:
                     raise ClassifierError(f"image of {len(data)} bytes exceeds the limit of {MAX_IMAGE_BYTES} bytes")
-                img = decode_image(data, f"({req.format}, {len(data)} bytes)", error=ClassifierError)
+                img = decode_image(
+                    data, f"({req.format}, {len(data)} bytes)", error=ClassifierError, max_pixels=self.max_pixels
+                )
                 groups.setdefault(req.surface, []).append((i, img))
             except CellError as err:
                 out[i] = err
@@ -218,7 +227,7 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
     if name not in BACKENDS:
         raise ConfigError(f"classifier backend {name!r} is unknown; expected one of {list(BACKENDS)}")
     c = cfg.classifier
-    service = ClassifierService(cfg.path(c.models_dir), c.variant, c.threads, c.decision)
+    service = ClassifierService(cfg.path(c.models_dir), c.variant, c.threads, c.decision, cfg.camera.max_image_pixels)
     session = open_session(cfg, "client")
     try:
         server = BatchingClassifyServer(session, cfg.cell_id, service, c.max_batch)
