@@ -74,13 +74,17 @@ class PatchFeatures(nn.Module):
         return F.avg_pool2d(f, 3, stride=1, padding=1, count_include_pad=False)
 
 
-def greedy_coreset(x: torch.Tensor, k: int, seed: int = 0, proj_dim: int = 64) -> torch.Tensor:
+def greedy_coreset(x: torch.Tensor, k: int, seed: int = 0, proj_dim: int = 64, fixed: int = 0) -> torch.Tensor:
     """Indices of a greedy k-centre coreset of the rows of ``x`` ``(M, D)``.
 
     Distances are taken in a seeded random projection to ``proj_dim`` dimensions (PatchCore's
     speed-up; Johnson–Lindenstrauss keeps the ordering roughly). Each step adds the row
     farthest from everything chosen so far, so rare clean textures (a highlight, a weld) keep
     a representative instead of being outvoted.
+
+    ``fixed``: the first ``fixed`` rows count as chosen already (an existing bank the greedy
+    continues from: site enrollment adds the new steel's patches the bank does not cover yet);
+    they lead the returned indices.
     """
     m = x.shape[0]
     if k >= m:
@@ -88,10 +92,15 @@ def greedy_coreset(x: torch.Tensor, k: int, seed: int = 0, proj_dim: int = 64) -
     g = torch.Generator().manual_seed(seed)
     p = torch.randn(x.shape[1], proj_dim, generator=g) / proj_dim**0.5
     z = x.float() @ p
-    first = int(torch.randint(m, (1,), generator=g))
-    chosen = [first]
-    d = ((z - z[first]) ** 2).sum(1)
-    for _ in range(k - 1):
+    if fixed > 0:
+        chosen = list(range(fixed))
+        # chunked: 60 000 candidates × a 1024-entry bank would be a 245 MB matrix at once
+        d = torch.cat([torch.cdist(z[i : i + 4096], z[:fixed]).min(1).values ** 2 for i in range(0, m, 4096)])
+    else:
+        first = int(torch.randint(m, (1,), generator=g))
+        chosen = [first]
+        d = ((z - z[first]) ** 2).sum(1)
+    for _ in range(k - len(chosen)):
         i = int(torch.argmax(d))
         chosen.append(i)
         d = torch.minimum(d, ((z - z[i]) ** 2).sum(1))

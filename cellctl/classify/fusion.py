@@ -131,6 +131,10 @@ class Detector:
             )
         self.model_id = model_id
         self.card = card
+        # the blob stays with the detector: site enrollment (cellctl.classify.enroll) writes a
+        # new file from it, and the traced backbone cannot give its state dict back
+        self.blob = blob
+        self.enrollment: dict[str, Any] | None = blob.get("enrollment")
 
     def maps(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Supervised logit map and anomaly distance map ``(N, GRID, GRID)`` of a batch in [0, 1]."""
@@ -214,7 +218,14 @@ class Detector:
         sha = bytes_sha256(raw)
         card = None
         cp = p.with_suffix(".json")
-        if cp.is_file():
+        kind = "detect"
+        if "enrollment" in blob:
+            # a site-enrolled file carries its card inside (one file, cellctl.classify.enroll)
+            from cellctl.classify.enroll import check_enrollment
+
+            card = check_enrollment(blob, p)
+            kind = "enrolled"
+        elif cp.is_file():
             card = json.loads(cp.read_text())
             if card.get("sha256") not in (None, sha):
                 raise ClassifierError(f"model card {str(cp)!r} belongs to other weights than {p.name}")
@@ -224,7 +235,7 @@ class Detector:
             det = Detector(
                 fast_features(own) if own is not None else features if features is not None else fast_features(),
                 blob,
-                f"{blob['surface']}-detect-{sha[:12]}",
+                f"{blob['surface']}-{kind}-{sha[:12]}",
                 card,
             )
         except (KeyError, RuntimeError, TypeError) as err:

@@ -54,12 +54,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--source", choices=("mixed", "closeup"), default="mixed", help="closeup: no twin renders")
     m.add_argument("--twin-fraction", type=float, default=0.4, help="share of draws on a twin render")
     m.add_argument("--size", type=int, default=256)
-    m.add_argument(
-        "--site",
-        choices=("unseen",),
-        default=None,
-        help="another site's steel, light and camera (cellctl.classify.site; testing enrollment only, never training)",
-    )
     add_config_arguments(m)
     m.set_defaults(func=run_contam)
 
@@ -209,16 +203,6 @@ def run_synth(args: argparse.Namespace) -> int:
 def run_contam(args: argparse.Namespace) -> int:
     from cellctl.classify.contam_dataset import contam_dataset
 
-    if args.site is not None:
-        from cellctl.classify.site import site_dataset
-
-        if args.shifted:
-            print("error: --site and --shifted are separate generators; give one", file=sys.stderr)
-            return 2
-        n_dirty = args.n // 2
-        summary = site_dataset(args.out, args.surface, args.n - n_dirty, n_dirty, seed=args.seed, size=args.size)
-        print(json.dumps(summary))
-        return 0
     summary = contam_dataset(
         args.out,
         args.surface,
@@ -387,7 +371,7 @@ def run_classify(args: argparse.Namespace) -> int:
     rc = 0
     for path in args.images:
         try:
-            pred = model.predict([load_image(path, cfg.camera.max_image_pixels)])[0]
+            pred = model.predict([load_image(path)])[0]
             out = {"image": path, **pred.as_dict()}
         except CellError as err:
             out = {"image": path, "error": str(err)}
