@@ -204,6 +204,22 @@ class Command(WireMessage):
         default=None, max_length=MAX_USER_CHARS, description="who sent it, e.g. 'hmi:alice' (printable)"
     )
     params: dict[str, Any] = Field(default_factory=dict)
+    stamp: str | None = Field(
+        default=None,
+        description="when the sender sent it (ISO-8601 with a UTC offset); the supervisor refuses a stale one",
+    )
+
+    @field_validator("stamp")
+    @classmethod
+    def _aware_time(cls, v: str | None) -> str | None:
+        if v is not None:
+            try:
+                t = _dt.datetime.fromisoformat(v)
+            except ValueError:
+                raise ValueError(f"stamp {v[:40]!r} is not an ISO-8601 time, e.g. {now_iso()!r}") from None
+            if t.tzinfo is None:
+                raise ValueError(f"stamp {v[:40]!r} has no UTC offset, e.g. {now_iso()!r}")
+        return v
 
     @field_validator("cntrl_cmd", mode="before")
     @classmethod

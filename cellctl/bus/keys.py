@@ -19,6 +19,7 @@ __all__ = [
     "classifier_classify",
     "cmd",
     "cmd_ack",
+    "command_keys",
     "events",
     "cell_from_key",
     "planner_job_progress",
@@ -31,6 +32,8 @@ __all__ = [
     "pool_done",
     "pool_stats",
     "prefix",
+    "replay_all",
+    "replay_prefix",
     "result",
     "role_from_alive_key",
     "robot_joints",
@@ -69,6 +72,11 @@ def cmd(cell_id: str) -> str:
 
 def cmd_ack(cell_id: str) -> str:
     return f"{prefix(cell_id)}/cmd/ack"
+
+
+def command_keys(cell_id: str) -> tuple[str, str]:
+    """The command exchange of a cell (``cmd`` and ``cmd/ack``): what a replay onto live keys never publishes."""
+    return cmd(cell_id), cmd_ack(cell_id)
 
 
 def status(cell_id: str) -> str:
@@ -158,6 +166,25 @@ def cell_from_key(key: str) -> str:
     if len(parts) < 3 or parts[0] != "cell":
         raise ConfigError(f"key {key!r} is not a cell key; expected 'cell/<id>/...'")
     return check_cell_id(parts[1])
+
+
+_REPLAY = "replay"
+"""Where ``cellctl replay`` republishes a recorded cycle: outside every cell's keys, so no supervisor,
+worker or PLC of a live cell hears it (issue 32: a replay drove a live cell)."""
+_CHUNK_UNSAFE = re.compile(r"[^A-Za-z0-9._-]")
+
+
+def replay_prefix(name: str) -> str:
+    """The key prefix of one replayed log, ``replay/<name>/`` (``name``: its cycle id or file stem; any
+    character that may not stand in a key chunk becomes ``_``). A recorded key ``cell/cell1/status`` is
+    republished as ``replay/<name>/cell/cell1/status``."""
+    chunk = _CHUNK_UNSAFE.sub("_", str(name))[:64] or "_"
+    return f"{_REPLAY}/{chunk}/"
+
+
+def replay_all() -> str:
+    """Every replayed key, ``replay/**`` (the replay principal's only grant to publish)."""
+    return f"{_REPLAY}/**"
 
 
 _POOL = "pool/planner"

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import queue
+import secrets
 import time
 from collections.abc import Callable
 from typing import Any
@@ -19,7 +20,7 @@ from cellctl.bus.codec import decode_as, encode
 from cellctl.bus.session import open_session
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, WorkerTimeout
-from cellctl.messages import Ack, Command, CycleResult, Event, PlanJobProgress, Status, UnitModeName
+from cellctl.messages import Ack, Command, CycleResult, Event, PlanJobProgress, Status, UnitModeName, now_iso
 
 __all__ = ["PlcClient"]
 
@@ -43,6 +44,8 @@ class PlcClient:
         self.progress: queue.Queue[PlanJobProgress] = queue.Queue()
         self.last_status: Status | None = None
         self._seq = itertools.count(1)
+        # ids stay unique across this client's restarts: the supervisor refuses an id it already acted on
+        self._boot = secrets.token_hex(3)
         c = self.cell
 
         def on_status(sample: Any) -> None:
@@ -73,14 +76,14 @@ class PlcClient:
         Raises:
             WorkerTimeout: no Ack within ``timeout`` (the daemon is not running or not answering).
         """
-        return self.send(Command(command=name, request_id=self._next_id(), params=params), timeout)
+        return self.send(Command(command=name, request_id=self._next_id(), params=params, stamp=now_iso()), timeout)
 
     def unit_mode(self, mode: UnitModeName, timeout: float = 10.0, user: str | None = None) -> Ack:
         """Request a PackML unit mode (``production``, ``maintenance``, ``manual``) and return the Ack."""
-        return self.send(Command(unit_mode=mode, user=user, request_id=self._next_id()), timeout)
+        return self.send(Command(unit_mode=mode, user=user, request_id=self._next_id(), stamp=now_iso()), timeout)
 
     def _next_id(self) -> str:
-        return f"{self.name}-{next(self._seq)}"
+        return f"{self.name}-{self._boot}-{next(self._seq)}"
 
     def send(self, cmd: Command, timeout: float = 10.0) -> Ack:
         """Send a built Command by query (the path with a guaranteed reply) and return its Ack."""

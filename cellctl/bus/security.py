@@ -84,6 +84,12 @@ PRINCIPALS: dict[str, Principal] = {
         ),
         Principal("viewer", ("status",), "dashboards: the status key only"),
         Principal(
+            "replay",
+            ("replay", "watch-supervisor"),
+            "cellctl replay: publishes only under replay/** (never a cell's keys, no command grant); may ask"
+            " whether the cell's supervisor is alive",
+        ),
+        Principal(
             "engineer",
             ("observe", "maintain"),
             "commissioning tools (vision collect, sim scenarios): query worker ops directly, bypassing PackML",
@@ -139,6 +145,12 @@ def _grant_rules(cell_id: str) -> dict[str, list[tuple[str, list[str], list[str]
         "robot-maintenance": [
             ("ingress", ["query"], [keys.robot_op(c, "maintenance")]),
             ("egress", ["reply"], [keys.robot_op(c, "maintenance")]),
+        ],
+        # A recorded log republished: under its own prefix only, so a replay can never drive a cell
+        # (issue 32). Subscriber declarations egress: a client drops puts nobody it knows of subscribes to.
+        "replay": [
+            ("ingress", ["put"], [keys.replay_all()]),
+            ("egress", ["declare_subscriber"], [keys.replay_all()]),
         ],
         "sim-view": [("ingress", ["query"], [keys.sim_state(c)]), ("egress", ["reply"], [keys.sim_state(c)])],
         "maintain": [

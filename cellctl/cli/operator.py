@@ -71,7 +71,7 @@ def run_cmd(args: argparse.Namespace) -> int:
     from cellctl.bus.codec import decode_as, encode
     from cellctl.bus.security import acl_hint
     from cellctl.bus.session import open_session
-    from cellctl.messages import Ack, Command, Status
+    from cellctl.messages import Ack, Command, Status, now_iso
 
     cfg = config_from_args(args)
     given = [x for x in (args.command, args.unit_mode, args.base_parked) if x is not None]
@@ -86,6 +86,7 @@ def run_cmd(args: argparse.Namespace) -> int:
         user=args.user,
         request_id=f"cli-{time.time_ns()}",
         params=_parse_params(args.param),
+        stamp=now_iso(),
     )
     with open_session(cfg, "client") as s:
         statuses: queue.Queue[Status] = queue.Queue()

@@ -15,6 +15,10 @@ import threading
 from pathlib import Path
 
 from cellctl.cli import add_config_arguments, config_from_args
+from cellctl.errors import RecordingError
+
+LIVE_CHECK_S = 2.0
+"""How long ``--live`` waits for a supervisor's liveliness token to answer (s); a router answers from its table."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,7 +28,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--loop", action="store_true")
     p.add_argument("--start-offset", type=float, default=0.0, metavar="S", help="skip the first S seconds")
     p.add_argument("--topics", nargs="+", default=None, metavar="K", help="only these topics")
-    p.add_argument("--prefix", default="", metavar="P", help="prepend P to every key (e.g. replay/)")
+    p.add_argument(
+        "--prefix",
+        default=None,
+        metavar="P",
+        help="prepend P to every key (default: replay/<cycle id>/, outside every cell's keys)",
+    )
+    p.add_argument(
+        "--live",
+        action="store_true",
+        help="publish on the recorded keys themselves (never commands or acks); refused while the cell's"
+        " supervisor is alive",
+    )
     p.add_argument(
         "--verify", action="store_true", help="re-run the supervisor on the recorded replies; exit 1 on a difference"
     )
@@ -92,7 +107,11 @@ def run_replay(args: argparse.Namespace) -> int:
     from cellctl.cli.worker import install_stop_signals
 
     install_stop_signals(stop)
+    if args.live and args.prefix:
+        raise RecordingError(f"--prefix {args.prefix!r} and --live exclude each other")
     with open_session(cfg, "client") as s:
+        if args.live:
+            _refuse_live_cells(s, sorted({*rec.cells(), cfg.cell_id}))
         n = republish(
             rec,
             s,
@@ -101,18 +120,42 @@ def run_replay(args: argparse.Namespace) -> int:
             start_offset_s=args.start_offset,
             topics=args.topics,
             prefix=args.prefix,
+            live=args.live,
             stop=stop,
         )
+    from cellctl.bus import keys
+
+    under = "" if args.live else keys.replay_prefix(rec.name) if args.prefix is None else args.prefix
     print(
-        json.dumps({"published": n, "messages": len(rec.messages), "truncated": rec.truncated, "skipped": rec.skipped})
+        json.dumps(
+            {
+                "published": n,
+                "under": under or "(the recorded keys, commands left out)",
+                "messages": len(rec.messages),
+                "truncated": rec.truncated,
+                "skipped": rec.skipped,
+            }
+        )
     )
     return 0
+
+
+def _refuse_live_cells(session, cells: list[str]) -> None:  # noqa: ANN001 - zenoh.Session, imported lazily
+    """Raise if the supervisor of any of ``cells`` holds its liveliness token: its keys are live."""
+    from cellctl.bus import keys
+
+    for cell in cells:
+        key = keys.alive(cell, "supervisor")
+        if any(r.ok is not None for r in session.liveliness().get(key, timeout=LIVE_CHECK_S)):
+            raise RecordingError(
+                f"cell {cell!r} has a live supervisor ({key!r} answered): --live replay onto its keys is refused;"
+                " replay under the default replay/<cycle>/ prefix, or stop that cell's daemon first"
+            )
 
 
 def run_report(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from cellctl.errors import RecordingError
     from cellctl.geometry.catalog import load_catalog
     from cellctl.recording.audit import checked_log, find_cycle
     from cellctl.recording.dirt_map import draw_dirt_map
@@ -162,7 +205,6 @@ def run_report(args: argparse.Namespace) -> int:
 
 def _report_interrupted(row, rec, png: str | None) -> int:  # noqa: ANN001 - CycleRow, RecordedCycle
     """An interrupted cycle has no CycleResult: say what its recovered log holds, up to the cut."""
-    from cellctl.errors import RecordingError
 
     statuses = [m.json() for m in rec.messages if m.schema == "cellctl/Status"]
     last = statuses[-1] if statuses else {}

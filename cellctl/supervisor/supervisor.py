@@ -36,6 +36,7 @@ from cellctl.supervisor.inbox import declare_inbox, undeclare_all
 from cellctl.supervisor.machine import CellModel, build_machine
 from cellctl.supervisor.publisher import Outbox, make_status, reply
 from cellctl.supervisor.registry import load_definitions
+from cellctl.supervisor.replay_guard import ReplayGuard
 from cellctl.supervisor.roster import ACTIVE_STATES, RECONCILE_S, WorkerRoster, liveliness_query
 from cellctl.supervisor.runner import Runner, run_step
 from cellctl.supervisor.steps import STEPS
@@ -86,6 +87,7 @@ class Supervisor:
         self.model = CellModel()
         self.machine = build_machine(self.packml, self.cycle, self.model, self.cycles.saved_step, self._entered)
         self.unit_mode = UnitMode.production
+        self.replay_guard = ReplayGuard()
         self.last_error: str | None = None
         self.on_state_change: Callable[[Status], None] | None = None
         self._status: Status | None = None
@@ -196,6 +198,17 @@ class Supervisor:
         )  # fmt: skip
         if not isinstance(checked, Accepted):
             return checked
+        if refusal := self.replay_guard.refusal(checked.cmd):
+            return Ack(
+                request_id=checked.cmd.request_id, command=checked.cmd.name if checked.mode is None else None,
+                accepted=False, reason=refusal, state=before, user=checked.cmd.user, unit_mode=self.unit_mode.name,
+            )  # fmt: skip
+        ack = self._apply(checked, before)
+        if ack.accepted:
+            self.replay_guard.acted(checked.cmd)
+        return ack
+
+    def _apply(self, checked: Accepted, before: str) -> Ack:
         cmd, by = checked.cmd, f" by {checked.cmd.user}" if checked.cmd.user else ""
         if checked.base_station is not None:
             return self._confirm_base(checked, before, by)
