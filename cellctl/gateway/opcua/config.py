@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, 
 from cellctl.bus.keys import check_cell_id
 from cellctl.config import apply_overrides, explain_validation, safe_yaml_load
 from cellctl.errors import ConfigError
+from cellctl.login_throttle import ThrottleConfig
 
 __all__ = ["DEFAULT_ENDPOINT", "OpcuaConfig", "SecurityMode", "load_gateway_config"]
 
@@ -59,6 +60,9 @@ class OpcuaConfig(BaseModel):
         default=3.5, gt=0, le=600, description="no Status for this long: StateCurrent 0 (daemon down)"
     )
     reconnect_s: float = Field(default=1.0, gt=0, le=60, description="retry period while the bus is unreachable")
+    login: ThrottleConfig = Field(
+        default_factory=ThrottleConfig, description="back-off of wrong passwords per (user, address) and per address"
+    )
 
     @field_validator("endpoint")
     @classmethod

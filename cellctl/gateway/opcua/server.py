@@ -20,6 +20,7 @@ import itertools
 import logging
 import secrets
 import threading
+import time
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -48,6 +49,7 @@ from cellctl.gateway.opcua.space import (
     CellSpace,
     build_cell_space,
 )
+from cellctl.login_throttle import LoginThrottle
 from cellctl.messages import Ack, Command, CycleResult, Event, PackMLCommand, Status, UnitMode
 from cellctl.supervisor.definition import PackMLState
 from cellctl.surface import SURFACES
@@ -116,26 +118,75 @@ def read_users(path: Path) -> dict[str, str]:
     return users
 
 
-class _Users(UserManager):
-    """Username/password sessions: commanders get role User, readers and anonymous role Anonymous."""
+_PEER: contextvars.ContextVar[str] = contextvars.ContextVar("opcua_peer", default="?")
+"""The client address of the session being activated: asyncua hands ``get_user`` no session, but
+calls it synchronously inside ``activate_session``, which :func:`_tag_peer` wraps to set this."""
 
-    def __init__(self, commanders: dict[str, str], readers: dict[str, str], allow_anonymous: bool) -> None:
+
+def _tag_peer(iserver: Any) -> None:
+    """Make each new session's ``activate_session`` publish its client address in :data:`_PEER`."""
+    create = iserver.create_session
+
+    def create_session(name: Any, *args: Any, **kwargs: Any) -> Any:
+        session = create(name, *args, **kwargs)
+        activate = session.activate_session
+        host = str(name[0]) if isinstance(name, tuple) and name else str(name)
+
+        def activate_session(*a: Any, **kw: Any) -> Any:
+            token = _PEER.set(host)
+            try:
+                return activate(*a, **kw)
+            finally:
+                _PEER.reset(token)
+
+        session.activate_session = activate_session
+        return session
+
+    iserver.create_session = create_session
+
+
+class _QuietRefusals(logging.Filter):
+    """Drops asyncua's per-try ERROR line for a refused login (the throttle logs those, bounded)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (str(record.msg).startswith("sending service fault") and "BadUserAccessDenied" in str(record.args))
+
+
+class _Users(UserManager):
+    """Username/password sessions: commanders get role User, readers and anonymous role Anonymous.
+
+    Wrong passwords are throttled per (user, client address) and per address (:mod:`cellctl.login_throttle`);
+    a try during a back-off is refused without checking the password.
+    """
+
+    def __init__(
+        self, commanders: dict[str, str], readers: dict[str, str], allow_anonymous: bool, throttle: LoginThrottle
+    ) -> None:
         self.commanders = commanders
         self.readers = readers
         self.allow_anonymous = allow_anonymous
+        self.throttle = throttle
 
     def get_user(self, iserver: Any, username: str | None = None, password: Any = None, certificate: Any = None):  # noqa: ANN201
         if username is None:
             # ``certificate`` is the secure channel's client certificate, not an identity: ignored
             return User(role=UserRole.Anonymous) if self.allow_anonymous else None
+        address = _PEER.get()
+        if self.throttle.retry_after(username, address) > 0:
+            return None  # backing off: refused unchecked, not logged (the throttle's lines summarise)
         pw = password.decode("utf-8", "replace") if isinstance(password, bytes) else str(password or "")
         for table, role in ((self.commanders, UserRole.User), (self.readers, UserRole.Anonymous)):
             known = table.get(username)
             if known is not None and secrets.compare_digest(known.encode(), pw.encode()):
+                self.throttle.succeeded(username, address)
                 return User(role=role, name=username)
-        log.warning("OPC UA session refused: unknown user or wrong password for %r", username[:64])
+        log.debug("OPC UA session refused: unknown user or wrong password for %r from %s", username[:64], address)
+        self.throttle.failed(username, address)
         return None  # asyncua answers BadUserAccessDenied
 
+
+_QUIET_REFUSALS = _QuietRefusals()
+"""One instance, so that starting several gateways in a process adds the filter once."""
 
 _INTERNAL = User(role=UserRole.Admin)
 """The server's own session (asyncua's default user of an internal write)."""
@@ -212,8 +263,9 @@ class OpcuaGateway:
     (tests and benches). :attr:`commands_sent` counts the Commands put on the bus.
     """
 
-    def __init__(self, cell_cfg: CellConfig, cfg: OpcuaConfig) -> None:
+    def __init__(self, cell_cfg: CellConfig, cfg: OpcuaConfig, clock: Callable[[], float] = time.monotonic) -> None:
         self.cfg = cfg
+        self.throttle = LoginThrottle(cfg.login, "OPC UA", clock)
         self.cells = list(cfg.cells) or [cell_cfg.cell_id]
         bus = cell_cfg.bus
         if bus.security_dir is not None and bus.principal != cfg.principal:
@@ -250,7 +302,7 @@ class OpcuaGateway:
                     (commanders if "command" in grants else readers)[name] = pw
         if self.cfg.users_file is not None:
             commanders.update(read_users(self.cell_cfg.path(self.cfg.users_file)))
-        return _Users(commanders, readers, self.cfg.allow_anonymous)
+        return _Users(commanders, readers, self.cfg.allow_anonymous, self.throttle)
 
     def _cert_paths(self) -> tuple[Path | None, Path | None]:
         sec = self.cell_cfg.bus.security_dir
@@ -264,6 +316,8 @@ class OpcuaGateway:
     async def _make_server(self) -> Server:
         server = Server(user_manager=self._users())
         await server.init()
+        _tag_peer(server.iserver)
+        logging.getLogger("asyncua.server.uaprocessor").addFilter(_QUIET_REFUSALS)
         server.set_endpoint(self.cfg.endpoint)
         server.set_server_name("cellctl OPC UA PackML gateway")
         await server.set_application_uri(APPLICATION_URI)
@@ -442,6 +496,10 @@ class OpcuaGateway:
         started = loop.time()
         while True:
             await asyncio.sleep(min(0.5, self.cfg.stale_after_s / 2))
+            counters = self.throttle.counters
+            for cell in self.cells:  # the gateway's login counters, on every cell's Admin node
+                await self._set(cell, "Admin/LoginFailures", min(counters.failures, 2**32 - 1))
+                await self._set(cell, "Admin/LoginsThrottled", min(counters.throttled, 2**32 - 1))
             for cell in self.cells:
                 if self._link_reason is not None:
                     await self._mark_down(cell, self._link_reason)

@@ -93,6 +93,8 @@ VARIABLES: tuple[VarSpec, ...] = (
     VarSpec("Admin/StopReason", V.String, "", description="why the cell last went to Stopped/Aborted/Held"),
     VarSpec("Admin/Warning", V.String, [], description="current warnings"),
     VarSpec("Admin/LastError", V.String, ""),
+    VarSpec("Admin/LoginFailures", V.UInt32, 0, description="wrong OPC UA passwords since the gateway started"),
+    VarSpec("Admin/LoginsThrottled", V.UInt32, 0, description="logins refused unchecked during a back-off"),
     *(VarSpec(f"Admin/Workers/{r}", V.Boolean, False, description=f"{r} worker alive") for r in ROLES),
     VarSpec("Admin/LastCycle/CycleId", V.String, ""),
     VarSpec("Admin/LastCycle/Outcome", V.String, ""),
