@@ -31,6 +31,8 @@ class BenchOptions:
         config: cell config YAML; None = ``config/cell.yaml``.
         overrides: ``KEY.PATH=VALUE`` config overrides, applied after the bench's own.
         out: where the CLI also writes the JSON; benches that make a figure put it beside it.
+        family: ``bench whole-bin --family [F[:A-B]]``: plan meshes A..B of the shape family F
+            (:mod:`cellctl.geometry.family`) instead of the catalog; None = the catalog.
     """
 
     n: int | None = None
@@ -38,6 +40,7 @@ class BenchOptions:
     config: str | None = None
     overrides: tuple[str, ...] = ()
     out: Path | None = None
+    family: str | None = None
 
     def __post_init__(self) -> None:
         if self.n is not None and (isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 1):

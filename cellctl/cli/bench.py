@@ -71,6 +71,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cycles", type=int, default=None, help="soak: cycles to run (same as --n)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default=None, help="also write the JSON to this file")
+    p.add_argument(
+        "--family",
+        nargs="?",
+        const="mixed",
+        default=None,
+        help="whole-bin: plan the shape family's meshes instead of the catalog (F[:A-B], default mixed:0-11)",
+    )
     add_config_arguments(p)
     p.set_defaults(func=run)
 
@@ -83,6 +90,7 @@ def options_from_args(args: argparse.Namespace) -> BenchOptions:
         config=args.config,
         overrides=tuple(args.overrides),
         out=Path(args.out) if args.out else None,
+        family=args.family,
     )
 
 

@@ -208,7 +208,12 @@ def _whole_task(task: tuple[str, int, str, tuple[str, ...], Any]) -> tuple[str, 
 def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
     """``cellctl bench whole-bin``: the three catalog bins and two foreign meshes, ≥ 10 seeds each, p_SP 10.
 
-    See :func:`bench_bins` (all bins)."""
+    See :func:`bench_bins` (all bins). With ``--family`` the shape family's meshes instead
+    (:func:`cellctl.planning.family_bench.bench_family`)."""
+    if opts.family is not None:
+        from cellctl.planning.family_bench import bench_family
+
+        return bench_family(opts)
     return bench_bins(opts, None)
 
 

@@ -104,6 +104,10 @@ def mesh_from_arrays(
 def load_bin_mesh(path: str | Path, *, name: str | None = None, internal: NDArray[np.bool_] | None = None) -> BinMesh:
     """Load a mesh file (STL/OBJ/PLY/…) in metres, bin frame.
 
+    Surface tags: ``internal`` if given, else a sidecar ``<file>.surface.npy`` (one tag per face,
+    the catalog's convention; ``cellctl geometry generate`` writes one), else inferred
+    (:func:`infer_surface_tags`).
+
     Raises:
         PlanningError: the file is missing, unreadable, not a single triangle mesh, or bad
             (see :func:`mesh_from_arrays`).
@@ -119,6 +123,15 @@ def load_bin_mesh(path: str | Path, *, name: str | None = None, internal: NDArra
         raise PlanningError(f"mesh file {str(p)!r} cannot be read: {type(err).__name__}: {err}") from err
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise PlanningError(f"mesh file {str(p)!r} holds no triangles")
+    side = p.with_suffix(p.suffix + ".surface.npy")
+    if internal is None and side.is_file():
+        tags = np.load(side)
+        if tags.shape != (len(loaded.faces),) or not np.isin(tags, (EXTERNAL, INTERNAL)).all():
+            raise PlanningError(
+                f"surface tags {str(side)!r}: shape {tags.shape}, values {sorted(set(np.unique(tags).tolist()))[:5]}; "
+                f"expected ({len(loaded.faces)},) of {EXTERNAL} (external) / {INTERNAL} (internal)"
+            )
+        internal = tags == INTERNAL
     return mesh_from_arrays(
         loaded.vertices,
         loaded.faces,

@@ -256,6 +256,11 @@ class SurfaceSummary:
         bound_m2: the upper bound: area properly visible from any filtered camera pose (no arm).
         seen_m2: area the selected viewpoints (all stations) properly see.
         viewpoints: selected viewpoints, all stations.
+        reachable_m2: the **arm-aware bound**: area properly seen by some reachable, collision-free,
+            parking-robust camera pose joined to home, from any evaluated candidate station (every
+            candidate unless ``estimate_thin`` > 1). ``seen_m2 ≤ reachable_m2 ≤ bound_m2``: below
+            the bound, "no arm at these stations could" (bound − reachable) and "the planner did
+            not" (reachable − seen).
         reason: why the surface is not planned (e.g. the mesh has none of its faces).
     """
 
@@ -274,10 +279,16 @@ class SurfaceSummary:
     def bound_fraction(self) -> float:
         return self.seen_m2 / self.bound_m2 if self.bound_m2 > 0 else 0.0
 
+    @property
+    def arm_bound_fraction(self) -> float:
+        """Seen area over the arm-aware bound (:attr:`reachable_m2`)."""
+        return self.seen_m2 / self.reachable_m2 if self.reachable_m2 > 0 else 0.0
+
     def to_json(self) -> dict[str, Any]:
         return {
             "area_fraction": self.area_fraction,
             "bound_fraction": self.bound_fraction,
+            "arm_bound_fraction": self.arm_bound_fraction,
             "viewpoints": self.viewpoints,
             "area_m2": self.area_m2,
             "bound_m2": self.bound_m2,
