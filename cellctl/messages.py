@@ -19,6 +19,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator, model_validator
 
+from cellctl.seen import Verdict
 from cellctl.surface import SURFACES, Surface
 
 __all__ = [
@@ -396,6 +397,25 @@ class LastCycle(BaseModel):
     verdict: str | None = None
     coverage: float | None = None
     finished: str
+    coverage_by_surface: dict[str, float | None] | None = Field(
+        default=None, description="area fraction of each surface seen (CycleResult.coverage_by_surface)"
+    )
+    min_seen_fraction: dict[str, float] | None = Field(
+        default=None, description="the share of each surface `clean` needed (verdict `incomplete` below it)"
+    )
+
+    @classmethod
+    def of(cls, res: CycleResult) -> LastCycle:
+        """The Admin view of a finished cycle (the daemon's Status and the OPC UA gateway read the same)."""
+        return cls(
+            cycle_id=res.cycle_id,
+            outcome=res.outcome.value,
+            verdict=res.verdict,
+            coverage=res.coverage,
+            finished=res.finished,
+            coverage_by_surface=res.coverage_by_surface,
+            min_seen_fraction=res.min_seen_fraction,
+        )
 
 
 MAX_WARNINGS = 20
@@ -561,7 +581,11 @@ class CycleResult(WireMessage):
     plan_id: str | None = None
     plan_adjusted: bool | None = Field(default=None, description="viewpoints re-expressed at the measured bin pose")
     planner_job_id: str | None = None
-    verdict: Literal["clean", "dirty"] | None = None
+    verdict: Verdict | None = Field(
+        default=None,
+        description="completed cycles: clean, dirty (dirt seen, however little of the bin was), or incomplete (no "
+        "dirt seen, but some surface seen less than min_seen_fraction; `reason` gives the fractions)",
+    )
     viewpoints: list[ViewpointResult] = Field(default_factory=list)
     coverage: float | None = None
     dirt_map: dict[str, Any] | None = None
@@ -570,7 +594,11 @@ class CycleResult(WireMessage):
     started: str | None = None
     whole_plan_id: str | None = Field(default=None, description="whole-bin cycle: the whole-bin plan it followed")
     coverage_by_surface: dict[str, float | None] | None = Field(
-        default=None, description="whole-bin cycle: area fraction of each surface seen, all stations"
+        default=None, description="area fraction of each surface seen (a whole-bin cycle: all stations)"
+    )
+    min_seen_fraction: dict[str, float] | None = Field(
+        default=None,
+        description="classifier.verdict.min_seen_fraction: the share of each surface `clean` needed (incomplete below)",
     )
     stations: list[StationResult] | None = Field(default=None, description="whole-bin cycle: per station")
     modelled_cycle_s: float | None = Field(
@@ -906,8 +934,11 @@ class WashResult(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    verdict: Literal["clean", "dirty"] | None = None
-    reason: str | None = Field(default=None, description="why the bin ends dirty (unwashable, rounds exhausted)")
+    verdict: Verdict | None = None
+    reason: str | None = Field(
+        default=None,
+        description="why the bin ends dirty (unwashable, rounds exhausted) or incomplete (too little seen)",
+    )
     rounds: list[WashRound] = Field(default_factory=list)
     remaining_faces: list[int] = Field(default_factory=list, description="faces still dirty at the end")
     remaining_m2: float = 0.0

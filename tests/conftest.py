@@ -43,10 +43,15 @@ def cfg_overrides(tmp_path: Path, port: int) -> list[str]:
         f"planner.plans_dir={tmp_path / 'plans'}",
         "supervisor.status_period_s=0.2",
         "robot.settle_s=0",
+        # the worker doubles (tests/fakes) answer one station's plan and see a few faces: single-station
+        # cycles with no coverage minimum; the whole-bin default and the gate have their own tests
+        # (tests/supervisor/test_whole_default.py)
+        "planner.whole.enabled=false",
+        "classifier.verdict.min_seen_fraction={}",
     ]
 
 
 @pytest.fixture
 def cfg(tmp_path: Path, port: int) -> CellConfig:
-    """The default cell config on a private port, logging under tmp_path, fast timeouts."""
+    """The default cell config on a private port, logging under tmp_path, fast timeouts, single-station."""
     return load_config(None, cfg_overrides(tmp_path, port))

@@ -14,7 +14,8 @@ class AdminBook:
     """Bins inspected and bins dirty, the last stop reason, current warnings, the last cycle.
 
     The counters start from the cycle index (so they survive a daemon restart) and count every
-    cycle that ended with outcome ``completed``; ``prod_defective_count`` those with verdict dirty.
+    cycle that ended with outcome ``completed``; ``prod_defective_count`` those with verdict dirty (an
+    ``incomplete`` bin is inspected, not defective: ``last_cycle`` says how much of it was seen).
     """
 
     def __init__(self, index: CycleIndex | None = None) -> None:
@@ -37,13 +38,7 @@ class AdminBook:
         if res.outcome == CycleOutcome.completed:
             self.processed += 1
             self.defective += res.verdict == "dirty"
-        self.last = LastCycle(
-            cycle_id=res.cycle_id,
-            outcome=res.outcome.value,
-            verdict=res.verdict,
-            coverage=res.coverage,
-            finished=res.finished,
-        )
+        self.last = LastCycle.of(res)
 
     def warn(self, key: str, text: str | None) -> None:
         """Set (or with None clear) the warning ``key``; at most :data:`MAX_WARNINGS` are kept."""

@@ -34,6 +34,7 @@ from cellctl.messages import (
     WashRound,
     WireMessage,
 )
+from cellctl.seen import Verdict
 from cellctl.supervisor.recorder import Recorder
 from cellctl.surface import SURFACES
 
@@ -105,7 +106,7 @@ class CycleContext:
     next_viewpoint: int = 0
     viewpoints: list[ViewpointResult] = field(default_factory=list)
     classifications: dict[int, Future[ClassifyReply]] = field(default_factory=dict)
-    verdict: Literal["clean", "dirty"] | None = None
+    verdict: Verdict | None = None
     coverage: float | None = None
     dirt_map: dict[str, Any] | None = None  # JSON for the CycleResult, as recording.dirt_map reads it
     outcome: CycleOutcome | None = None

@@ -8,6 +8,7 @@ one cycle (MCAP via :class:`~cellctl.recording.cycle_log.CycleLog` plus the inde
 from __future__ import annotations
 
 import datetime as _dt
+import json
 from abc import ABC, abstractmethod
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -100,6 +101,8 @@ class CycleRecorder(Recorder):
             "relook_max_views": str(cfg.classifier.relook.max_views),
             "relook_confirm_dirty": cfg.classifier.relook.confirm_dirty,
             "whole_bin": str(cfg.planner.whole.enabled).lower(),
+            # the verdict's coverage gate (cellctl.seen): replay gates with the minimum the cycle ran with
+            "min_seen_fraction": json.dumps(cfg.classifier.verdict.min_seen_fraction, sort_keys=True),
         }
         self._log = CycleLog(self.path, cycle_id, meta)
 
@@ -160,7 +163,12 @@ def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: st
         started=ctx.started,
         wash=ctx.wash,
         whole_plan_id=ctx.whole_plan_id if whole else None,
-        coverage_by_surface=ctx.coverage_by_surface if whole else None,
+        coverage_by_surface=ctx.coverage_by_surface,
+        min_seen_fraction=(
+            dict(ctx.cfg.classifier.verdict.min_seen_fraction)
+            if outcome == CycleOutcome.completed and ctx.verdict is not None
+            else None
+        ),
         stations=station_results(ctx) if whole else None,
         modelled_cycle_s=ctx.modelled_cycle_s if whole else None,
     )

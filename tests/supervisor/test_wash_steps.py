@@ -521,6 +521,8 @@ def _overrides(cfg) -> list[str]:  # noqa: ANN001
         f"recording.dir={cfg.recording.dir}",
         f"planner.plans_dir={cfg.planner.plans_dir}",
         "robot.settle_s=0",
+        "planner.whole.enabled=false",  # as the fixture: one station's plan, a few faces seen
+        "classifier.verdict.min_seen_fraction={}",
     ]
 
 
@@ -584,8 +586,9 @@ def test_an_uncertain_re_inspection_view_is_re_looked_even_without_confirming(cf
 
 
 def test_clean_needs_the_configured_share_of_the_bin_seen(cfg, case) -> None:  # noqa: ANN001
-    """No dirt seen on a map that saw too little of the bin is not a clean bin: ``dirty``, reason
-    "unverified", the seen share reported; the same map seeing enough of the bin ends clean."""
+    """No dirt seen on a map that saw too little of the bin is not a clean bin: ``incomplete``, reason
+    "unverified", the seen share reported; the same map seeing enough of the bin ends clean, unless a
+    surface is below ``classifier.verdict.min_seen_fraction`` (``incomplete`` with the fractions)."""
     _, mesh, _ = case
     n = mesh.n_faces
     a = mesh.areas
@@ -596,7 +599,8 @@ def test_clean_needs_the_configured_share_of_the_bin_seen(cfg, case) -> None:  #
     ctx.dirt_map = {"seen_dirty": [], "seen_clean": half}
     run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done" and run.calls == []
-    assert ctx.verdict == "dirty" and ctx.wash.verdict == "dirty" and ctx.wash.reason.startswith("unverified")
+    assert ctx.verdict == "incomplete" and ctx.wash.verdict == "incomplete" and ctx.reason == ctx.wash.reason
+    assert ctx.wash.reason.startswith("unverified")
     assert 0.5 <= ctx.wash.seen_fraction < 0.6 and ctx.wash.min_seen_fraction == 0.6
     assert f"{ctx.wash.seen_fraction:.0%}" in ctx.wash.reason
     ctx = _ctx(cfg, case, np.zeros(n, bool), min_seen=0.5)
@@ -605,6 +609,16 @@ def test_clean_needs_the_configured_share_of_the_bin_seen(cfg, case) -> None:  #
     assert WashCheck()(run) == "done"
     assert ctx.verdict == "clean" and ctx.wash.verdict == "clean" and ctx.wash.reason is None
     assert ctx.wash.seen_fraction >= 0.5
+    seen = ctx.coverage_by_surface
+    assert set(seen) == {"external", "internal"} and all(0 < f < 1 for f in seen.values())
+    # the same map against a per-surface minimum above what it saw of the internal surface
+    ctx = _ctx(cfg, case, np.zeros(n, bool), min_seen=0.5)
+    vc = cfg.classifier.verdict.model_copy(update={"min_seen_fraction": {"internal": seen["internal"] + 0.01}})
+    ctx.cfg = ctx.cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"verdict": vc})})
+    ctx.dirt_map = {"seen_dirty": [], "seen_clean": half}
+    assert WashCheck()(ScriptedRun(ctx, _script(cfg))) == "done"
+    assert ctx.verdict == "incomplete" and ctx.wash.verdict == "incomplete"
+    assert ctx.wash.reason.startswith("incomplete: no dirt seen, but internal") and "external" not in ctx.wash.reason
     # a heat-map dirt map: seen is where a face has a probability
     p = np.full(n, np.nan)
     p[half] = 0.01

@@ -48,9 +48,10 @@ from cellctl.gateway.opcua.space import (
     VARIABLES,
     CellSpace,
     build_cell_space,
+    last_cycle_values,
 )
 from cellctl.login_throttle import LoginThrottle
-from cellctl.messages import Ack, Command, CycleResult, Event, PackMLCommand, Status, UnitMode
+from cellctl.messages import Ack, Command, CycleResult, Event, LastCycle, PackMLCommand, Status, UnitMode
 from cellctl.supervisor.definition import PackMLState
 from cellctl.surface import SURFACES
 
@@ -409,13 +410,7 @@ class OpcuaGateway:
             *((f"Admin/Workers/{r}", bool(st.workers.get(r, False))) for r in keys.ROLES),
         ]
         if last is not None:
-            values += [
-                ("Admin/LastCycle/CycleId", last.cycle_id),
-                ("Admin/LastCycle/Outcome", last.outcome),
-                ("Admin/LastCycle/Verdict", last.verdict or ""),
-                ("Admin/LastCycle/Coverage", float(last.coverage or 0.0)),
-                ("Admin/LastCycle/Finished", last.finished),
-            ]
+            values += last_cycle_values(last)
         for path, v in values:
             await self._set(cell, path, v, ts)
         if self._down.get(cell):
@@ -424,13 +419,7 @@ class OpcuaGateway:
 
     async def _apply_result(self, cell: str, res: CycleResult) -> None:
         ts = _stamp(res.finished)
-        for path, v in (
-            ("Admin/LastCycle/CycleId", res.cycle_id),
-            ("Admin/LastCycle/Outcome", res.outcome.value),
-            ("Admin/LastCycle/Verdict", res.verdict or ""),
-            ("Admin/LastCycle/Coverage", float(res.coverage or 0.0)),
-            ("Admin/LastCycle/Finished", res.finished),
-        ):
+        for path, v in last_cycle_values(LastCycle.of(res)):
             await self._set(cell, path, v, ts)
 
     async def _mark_down(self, cell: str, reason: str) -> None:

@@ -14,7 +14,9 @@ from typing import Any
 from asyncua import Node, Server, ua
 
 from cellctl.bus.keys import ROLES
-from cellctl.messages import PackMLCommand
+from cellctl.messages import LastCycle, PackMLCommand
+from cellctl.seen import VERDICTS
+from cellctl.surface import SURFACES
 
 __all__ = [
     "BASE_PARKED_METHOD",
@@ -98,9 +100,13 @@ VARIABLES: tuple[VarSpec, ...] = (
     *(VarSpec(f"Admin/Workers/{r}", V.Boolean, False, description=f"{r} worker alive") for r in ROLES),
     VarSpec("Admin/LastCycle/CycleId", V.String, ""),
     VarSpec("Admin/LastCycle/Outcome", V.String, ""),
-    VarSpec("Admin/LastCycle/Verdict", V.String, ""),
+    VarSpec("Admin/LastCycle/Verdict", V.String, "", description=f"'', {', '.join(VERDICTS)}"),
     VarSpec("Admin/LastCycle/Coverage", V.Double, 0.0),
     VarSpec("Admin/LastCycle/Finished", V.String, ""),
+    *(VarSpec(f"Admin/LastCycle/Seen/{s}", V.Double, -1.0, description=f"share of the {s} surface seen (-1: "
+              "unknown)") for s in SURFACES),
+    *(VarSpec(f"Admin/LastCycle/MinSeen/{s}", V.Double, 0.0, description=f"share of the {s} surface 'clean' "
+              "needs (below it: 'incomplete')") for s in SURFACES),
     VarSpec("Command/CntrlCmd", V.Int32, 0, True, "CntrlCmd 1 Reset … 10 Complete, then CmdChangeRequest"),
     VarSpec("Command/CmdChangeRequest", V.Boolean, False, True, "true: the gateway sends CntrlCmd, then resets it"),
     VarSpec("Command/UnitMode", V.Int32, 0, True, "requested unit mode 1..3; then set UnitModeChangeRequest"),
@@ -110,6 +116,21 @@ VARIABLES: tuple[VarSpec, ...] = (
     VarSpec("Command/Parameter/Label", V.String, "", True, "Start param label (collect): '', clean, dirty"),
 )  # fmt: skip
 """Every variable under a cell object, by path; the Command ones are the only writable nodes."""
+
+
+def last_cycle_values(last: LastCycle) -> list[tuple[str, Any]]:
+    """The ``Admin/LastCycle/*`` values of a finished cycle (from a Status's admin or a CycleResult)."""
+    seen = last.coverage_by_surface or {}
+    need = last.min_seen_fraction or {}
+    return [
+        ("Admin/LastCycle/CycleId", last.cycle_id),
+        ("Admin/LastCycle/Outcome", last.outcome),
+        ("Admin/LastCycle/Verdict", last.verdict or ""),
+        ("Admin/LastCycle/Coverage", float(last.coverage or 0.0)),
+        ("Admin/LastCycle/Finished", last.finished),
+        *((f"Admin/LastCycle/Seen/{s}", float(seen[s]) if seen.get(s) is not None else -1.0) for s in SURFACES),
+        *((f"Admin/LastCycle/MinSeen/{s}", float(need.get(s, 0.0))) for s in SURFACES),
+    ]
 
 
 @dataclass

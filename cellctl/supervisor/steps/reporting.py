@@ -10,7 +10,11 @@ faces with their ``p_dirty`` (the coarse map of before). The verdict rule is
 A whole-bin cycle's views come from several plans (one per station and surface) and several
 base frames: each view's faces come from its own (station, surface) plan and its camera pose is
 taken into the bin frame through its own station's bin pose. Coverage is then the area of both
-surfaces seen, with ``coverage_by_surface`` and each station's share beside it.
+surfaces seen, with each station's share beside it.
+
+Every cycle reports ``coverage_by_surface`` (a single-station cycle too: the surface it did not
+inspect is what makes it partial), and a ``clean`` verdict below
+``classifier.verdict.min_seen_fraction`` on any surface becomes ``incomplete`` (:mod:`cellctl.seen`).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import numpy as np
 
 from cellctl.bus import topics
 from cellctl.messages import CycleOutcome
+from cellctl.seen import gate_verdict
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 from cellctl.supervisor.steps.classifying import view_key
@@ -115,9 +120,22 @@ def _coverage(mesh, seen_ids: np.ndarray, surface: Surface | None) -> float | No
     return float(areas[seen_ids][on_surface[seen_ids]].sum() / areas[on_surface].sum()) if on_surface.any() else None
 
 
+def surface_fractions(mesh, seen_ids: np.ndarray) -> dict[str, float | None]:  # noqa: ANN001
+    """Area fraction of each surface among the faces ``seen_ids`` (what min_seen_fraction is checked on)."""
+    return {s: _coverage(mesh, seen_ids, s) for s in SURFACES}
+
+
+def gate(run: StepRun, seen: dict[str, float | None] | None) -> None:
+    """A ``clean`` verdict below ``classifier.verdict.min_seen_fraction`` on any surface becomes ``incomplete``."""
+    ctx = run.ctx
+    ctx.verdict, why = gate_verdict(ctx.verdict, seen, ctx.cfg.classifier.verdict.min_seen_fraction)
+    if why is not None:
+        ctx.reason = why
+        run.event("warning", f"verdict incomplete: {why}")
+
+
 def _whole_coverage(ctx, mesh, seen: np.ndarray) -> None:  # noqa: ANN001
-    """Per-surface coverage of the whole cycle (``seen``: face ids) and each (station, surface)'s own share."""
-    ctx.coverage_by_surface = {s: _coverage(mesh, seen, s) for s in SURFACES}
+    """Each (station, surface)'s own share of a whole-bin cycle's coverage (``seen``: face ids)."""
     faces_by = {k: set(f) for k, f in _faces_by_view(ctx.plan, ctx.plans).items()}
     for st, surf in ctx.plans:
         mine: set[int] = set()
@@ -132,7 +150,7 @@ class Reporting(Step):
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "per-face dirt map (heat maps fused over views) + coverage; verdict by the configured rule"
     READS = ("plan", "viewpoints", "params")
-    WRITES = ("dirt_map", "coverage", "outcome", "verdict", "viewpoints")
+    WRITES = ("dirt_map", "coverage", "coverage_by_surface", "outcome", "verdict", "viewpoints", "reason")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
@@ -175,6 +193,8 @@ class Reporting(Step):
                 if mesh is not None
                 else None
             )
+        if mesh is not None and seen_ids is not None:
+            ctx.coverage_by_surface = surface_fractions(mesh, seen_ids)
         if whole and mesh is not None and seen_ids is not None:
             _whole_coverage(ctx, mesh, seen_ids)
             ctx.dirt_map = {**ctx.dirt_map, "coverage_by_surface": ctx.coverage_by_surface}
@@ -186,6 +206,8 @@ class Reporting(Step):
             )
         if mesh is not None:
             self._scene(ctx, mesh)
+        if ctx.mode != "wash_and_verify":  # wash_check gates the verdict the re-inspections end with
+            gate(run, ctx.coverage_by_surface)
         ctx.outcome = CycleOutcome.completed
         return "succeeded"
 

@@ -1,12 +1,14 @@
 """wash_check and washing: Start mode ``wash_and_verify`` (issue 17).
 
 After reporting, ``wash_check`` reads the cycle's dirt map: no dirty face → the bin is
-``clean``; dirt left after ``wash.max_rounds`` rounds, or dirt no nozzle pose reaches from
-where the base is parked → ``dirty`` with the reason and the remaining faces; else it plans the
-round's wash (the planner worker's ``wash_plan`` op, :func:`cellctl.washing.plan.plan_wash` at
-the measured bin pose from the arm's joints now: the supervisor never imports the planning
-stack) and ``washing`` runs it: one robot ``wash`` request per sweep, so a Hold resumes at
-the next sweep and a sweep the robot refuses costs only its faces. ``verifying``
+``clean`` when the scan and re-inspections saw enough of it (``wash.min_seen_fraction`` of its area and
+``classifier.verdict.min_seen_fraction`` of each surface), else ``incomplete``; dirt left after
+``wash.max_rounds`` rounds, or dirt no nozzle pose reaches from where the base is parked → ``dirty``
+with the reason and the remaining faces; else it plans the round's wash (the planner worker's
+``wash_plan`` op, :func:`cellctl.washing.plan.plan_wash` at the measured bin pose from the arm's
+joints now: the supervisor never imports the planning stack) and ``washing`` runs it: one robot
+``wash`` request per sweep, so a Hold resumes at the next sweep and a sweep the robot refuses
+costs only its faces. ``verifying``
 (:mod:`cellctl.supervisor.steps.verifying`) re-inspects what was washed and loops back here.
 
 **Whole-bin cycles** (``planner.whole.enabled``): the round's plan is asked for every station the
@@ -45,8 +47,10 @@ from cellctl.messages import (
     WashResult,
     WashSweep,
 )
+from cellctl.seen import gate_verdict
 from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps.reporting import surface_fractions
 
 __all__ = [
     "WashCheck",
@@ -228,6 +232,8 @@ class WashCheck(Step):
         "wash_plan",
         "wash",
         "verdict",
+        "reason",
+        "coverage_by_surface",
         "wash_queue",
         "verify_queue",
         "wash_phase",
@@ -259,8 +265,11 @@ class WashCheck(Step):
                     f"unverified: no dirt seen, but the scan and re-inspections saw {seen:.0%} of the bin's area, "
                     f"below wash.min_seen_fraction {wc.min_seen_fraction:.0%}: the rest is not known clean"
                 )
-                return self._end(run, "dirty", why, dirty, mesh)
-            return self._end(run, "clean", None, dirty, mesh)  # WashResult.seen_fraction: what clean covers
+                return self._end(run, "incomplete", why, dirty, mesh)
+            # the surfaces as the re-inspections leave them: CycleResult.coverage_by_surface says what clean covers
+            ctx.coverage_by_surface = surface_fractions(mesh, np.flatnonzero(face_state(ctx.dirt_map, mesh.n_faces)[1]))
+            verdict, why = gate_verdict("clean", ctx.coverage_by_surface, ctx.cfg.classifier.verdict.min_seen_fraction)
+            return self._end(run, verdict, why, dirty, mesh)  # WashResult.seen_fraction: what clean covers
         area = float(mesh.areas[dirty].sum())
         if done >= wc.max_rounds:
             why = f"dirt left after {done} wash round(s) (wash.max_rounds): {int(dirty.sum())} faces"
@@ -358,6 +367,8 @@ class WashCheck(Step):
         ctx.wash_plan = None
         if verdict is not None:
             ctx.verdict = verdict  # type: ignore[assignment]
+        if verdict == "incomplete":
+            ctx.reason = reason
         n = len(ctx.wash_rounds)
         run.event(
             "info" if verdict == "clean" else "warning",
