@@ -1,13 +1,9 @@
 """The cell configuration: YAML parsed into typed models that reject unknown keys.
 
-``config/cell.yaml`` is the default simulated cell. Which file a command reads
-(:func:`resolve_config_path`): ``--config``, else ``$CELLCTL_CONFIG``, else ``./config/cell.yaml``
-in the working directory, else the packaged defaults with every output (logs, index, plans) under
-``./logs`` — nothing is written into the install. Relative paths in a config file are resolved
-against the config's own folder — the file's folder, or the folder above it when the file sits
-in a ``config/`` folder (a cell's folder: ``config/``, ``logs/``, ``states/``) — never against the
-working directory. Read-only resources the file does not name (the bin catalog, the classifier
-models, ``states/``) come from the install when the config's folder has none.
+``config/cell.yaml`` is the default simulated cell. Relative paths in a config file are
+resolved against the project root, the folder that holds the config file's ``config/``
+folder (or the config file's own folder when it is not in a ``config/`` folder), so the
+daemon may be started from any working directory.
 """
 
 from __future__ import annotations
@@ -45,7 +41,6 @@ __all__ = [
     "load_config",
     "output_overrides",
     "project_root",
-    "resolve_config_path",
     "safe_yaml_load",
 ]
 
@@ -64,28 +59,6 @@ def output_overrides(folder: Path | str) -> list[str]:
 
 def default_config_path() -> Path:
     return PROJECT_ROOT / "config" / "cell.yaml"
-
-
-CONFIG_ENV = "CELLCTL_CONFIG"
-PACKAGED = "packaged defaults"
-"""The source :func:`resolve_config_path` names when no config was found: outputs go under ``./logs``."""
-
-
-def resolve_config_path(given: Path | str | None, cwd: Path | None = None) -> tuple[Path, str]:
-    """The config file a command uses and where that choice came from, in this order:
-    ``given`` (``--config``), ``$CELLCTL_CONFIG``, ``./config/cell.yaml`` in ``cwd`` (default: the
-    working directory), else the packaged ``config/cell.yaml`` (source :data:`PACKAGED`: the caller
-    moves the outputs out of the install, :func:`output_overrides`)."""
-    import os
-
-    if given:
-        return Path(given), "named on the command line"
-    if env := os.environ.get(CONFIG_ENV):
-        return Path(env), f"${CONFIG_ENV}"
-    local = (cwd or Path.cwd()) / "config" / "cell.yaml"
-    if local.is_file():
-        return local, "./config/cell.yaml in the working directory"
-    return default_config_path(), PACKAGED
 
 
 class _Model(BaseModel):
@@ -346,18 +319,7 @@ class ClassifierConfig(_Model):
         default="fused", description="fused: batch norm folded + frozen graph (same outputs, faster)"
     )
     max_batch: int = Field(default=16, ge=1, le=256, description="queued classify requests run as one batch")
-    threads: int | None = Field(
-        default=None,
-        ge=1,
-        le=256,
-        description="inference CPU threads: torch (default: all cores) and ONNX Runtime intra-op (default: 1 on "
-        "a 2-core host, else 2; cellctl.classify.runtime.default_threads)",
-    )
-    runtime: Literal["auto", "onnx", "torch"] = Field(
-        default="auto",
-        description="what runs the detector's networks: onnx = ONNX Runtime on <surface>.detect.onnx (`cellctl "
-        "detector export`), torch = PyTorch, auto = onnx when the export exists (a stale export is refused)",
-    )
+    threads: int | None = Field(default=None, ge=1, le=256, description="torch CPU threads (default: all cores)")
     dataset_dir: Path = Field(default=Path("data/collected"), description="collect mode: where images are stored")
 
 
@@ -663,9 +625,4 @@ def load_config(path: Path | str | None = None, overrides: list[str] | None = No
         cfg = CellConfig.model_validate({**data, "root": root})
     except ValidationError as err:
         raise ConfigError(explain_validation(err, CellConfig, str(p))) from err
-    # a cell folder outside the install names what it has; what it does not name is the install's
-    if "catalog" not in data and not cfg.path(cfg.catalog).exists():
-        cfg.catalog = PROJECT_ROOT / cfg.catalog
-    if "models_dir" not in (data.get("classifier") or {}) and not cfg.path(cfg.classifier.models_dir).exists():
-        cfg.classifier.models_dir = PROJECT_ROOT / cfg.classifier.models_dir
     return cfg
