@@ -48,7 +48,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def add_config_arguments(p: argparse.ArgumentParser) -> None:
     """``--config FILE`` and repeatable ``--set KEY.PATH=VALUE`` (shared by every verb)."""
-    p.add_argument("--config", "-c", default=None, help="cell config YAML (default: config/cell.yaml)")
+    p.add_argument(
+        "--config",
+        "-c",
+        default=None,
+        help="cell config YAML (default: $CELLCTL_CONFIG, else ./config/cell.yaml, else the packaged defaults"
+        " with outputs under ./logs)",
+    )
     p.add_argument(
         "--set",
         dest="overrides",
@@ -57,6 +63,25 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="override a config key, e.g. --set supervisor.auto_reset=true (repeatable)",
     )
+
+
+def resolve_config_args(args: argparse.Namespace) -> None:
+    """Pin the config file a verb with ``--config`` reads (:func:`cellctl.config.resolve_config_path`)
+    and say which on stderr; with the packaged defaults, outputs go under ``./logs``, not the install.
+
+    Pinned once, so child processes (``run --with-workers``) and re-reads use the same file."""
+    if not hasattr(args, "config") or not hasattr(args, "overrides"):
+        return
+    from pathlib import Path
+
+    from cellctl.config import PACKAGED, output_overrides, resolve_config_path
+
+    path, source = resolve_config_path(args.config)
+    args.config = str(path)
+    if source == PACKAGED:
+        args.overrides = [*output_overrides(Path.cwd() / "logs"), *args.overrides]
+        source += "; outputs under ./logs"
+    print(f"cellctl {args.verb}: config {path.resolve()} ({source})", file=sys.stderr)
 
 
 def config_from_args(args: argparse.Namespace):  # noqa: ANN201 - CellConfig, imported lazily
@@ -71,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     try:
+        resolve_config_args(args)
         return int(args.func(args) or 0)
     except CellError as err:
         print(f"cellctl {args.verb}: error: {err}", file=sys.stderr)

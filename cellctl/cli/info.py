@@ -16,8 +16,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--mermaid", action="store_true", help="as a Mermaid stateDiagram-v2")
     s.set_defaults(func=run_states)
 
-    v = sub.add_parser("validate", help="validate a cell config file (and the state machines)")
-    v.add_argument("file", nargs="?", default=None)
+    v = sub.add_parser("validate", help="validate a cell config file (and the state machines) as `run` reads it")
+    v.add_argument(
+        "file", nargs="?", default=None, help="default: $CELLCTL_CONFIG, else ./config/cell.yaml, else the packaged one"
+    )
     v.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     v.set_defaults(func=run_validate)
 
@@ -55,10 +57,21 @@ def run_states(args: argparse.Namespace) -> int:
 
 
 def run_validate(args: argparse.Namespace) -> int:
+    from cellctl.cli import resolve_config_args
+
+    # the file is positional here; pinned like every other verb's --config (and said on stderr)
+    ns = argparse.Namespace(verb=args.verb, config=args.file, overrides=list(args.overrides))
+    resolve_config_args(ns)
+    cfg = load_run_config(ns.config, ns.overrides)
+    print(f"ok: {Path(ns.config).resolve()} (cell {cfg.cell_id!r}) and its state machines are valid")
+    return 0
+
+
+def load_run_config(path: str, overrides: list[str]):  # noqa: ANN201 - CellConfig, imported lazily
+    """The config and state machines exactly as ``cellctl run`` loads them (ConfigError otherwise)."""
     from cellctl.config import load_config
     from cellctl.supervisor.supervisor import load_definitions
 
-    cfg = load_config(Path(args.file) if args.file else None, args.overrides)
+    cfg = load_config(path, overrides)
     load_definitions(cfg.root)
-    print(f"ok: {args.file or 'config/cell.yaml'} (cell {cfg.cell_id!r}) and states/*.yaml are valid")
-    return 0
+    return cfg

@@ -16,8 +16,11 @@ STEP_IO: dict[str, StepIO] = {k: StepIO(frozenset(v.READS), frozenset(v.WRITES))
 
 
 def load_definitions(cfg_root: Path | None = None) -> tuple[PackMLDefinition, CycleDefinition]:
-    """Load both YAML machines (``<cfg_root>/states/``, else the shipped ones), validated against this code."""
-    root = cfg_root / "states" if cfg_root else None
+    """Load both YAML machines (``<cfg_root>/states/``, else the shipped ones), validated against this code.
+
+    A config folder without a ``states/`` folder runs the shipped machines (a cell's own folder names
+    only what it changes)."""
+    root = cfg_root / "states" if cfg_root and (cfg_root / "states").is_dir() else None
     packml = load_packml(root / "packml.yaml" if root else None, BEHAVIOURS)
     cycle = load_cycle(
         root / "cycle.yaml" if root else None,
