@@ -39,6 +39,8 @@ def test_the_single_station_story_adds_its_wash_cycle() -> None:
     assert [s.params.get("mode") for s in washed].count("wash_and_verify") == 1
     assert len(washed) == len(plain) + 1
     assert washed[-1].expect == plain[-1].expect
+    # one surface from one park: no clean certificate (classifier.verdict.min_seen_fraction)
+    assert {s.expect.verdict for s in plain if s.expect.outcome == "completed"} == {"incomplete", "dirty"}
 
 
 def test_the_whole_bin_wash_cycle_must_end_clean_after_a_wash_round() -> None:

@@ -259,5 +259,7 @@ class LiveCycle:
             "outcome": res.get("outcome"),
             "verdict": res.get("verdict"),
             "coverage": res.get("coverage"),
+            "coverage_by_surface": res.get("coverage_by_surface"),
+            "min_seen_fraction": res.get("min_seen_fraction"),
             "reason": res.get("reason"),
         }

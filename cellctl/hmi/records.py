@@ -23,6 +23,7 @@ from cellctl.bus import keys, topics
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, RecordingError
 from cellctl.recording.index import CycleRow
+from cellctl.seen import VERDICTS as SEEN_VERDICTS
 
 __all__ = ["CYCLE_ID", "CycleFilter", "CycleRecords", "NotFound"]
 
@@ -33,7 +34,8 @@ CYCLE_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 """What a cycle id may look like in a URL (the supervisor's ids are ``<time>-<ms>-<n>``)."""
 
 OUTCOMES = ("completed", "replan_required", "aborted", "failed", "interrupted", "running")
-VERDICTS = ("clean", "dirty", "none")
+VERDICTS = (*SEEN_VERDICTS, "none")
+"""The history filter's verdicts: a bin's (cellctl.seen), or none (the cycle gave no verdict)."""
 
 
 class NotFound(CellError):

@@ -27,9 +27,11 @@ FAST_SIM = [
     "robot.plan_timeout_s=1.0",
     "camera.width=640",
     "camera.height=360",
+    "planner.whole.enabled=false",
 ]
 """Sim settings for benches about the controller, not motion time: zero settle, motions ×1000,
-640×360 frames, 1 s RRTConnect budget."""
+640×360 frames, 1 s RRTConnect budget, single-station cycles (one plan, a short cycle: a whole-bin
+cycle is the shipped default, ``--set planner.whole.enabled=true`` brings it back)."""
 
 
 @dataclass

@@ -54,6 +54,7 @@ def bench_cycle(opts: BenchOptions) -> dict[str, Any]:
             "speed_scale": cfg.robot.speed_scale,
             "camera": f"{cfg.camera.width}x{cfg.camera.height}",
             "seed_pct": cfg.planner.seed_pct,
+            "whole_bin": cfg.planner.whole.enabled,  # the shipped default: every station, both surfaces
         },
         "cycles": runs,
         "overhead_ms_per_viewpoint": {

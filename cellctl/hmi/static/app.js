@@ -26,6 +26,13 @@ function nonce() {
 }
 function time(iso) { if (!iso) return "—"; const d = new Date(iso); return isNaN(d) ? iso : d.toLocaleString(); }
 function pct(x) { return x == null ? "—" : (100 * x).toFixed(2) + " %"; }
+// each surface's seen share against what `clean` needs: "external 34 % (needs 60 %), internal 0 % (needs 60 %)"
+function seenText(seen, need) {
+  if (!seen) return "—";
+  return Object.entries(seen).map(([s, f]) => `${s} ${f == null ? "?" : (100 * f).toFixed(0) + " %"}`
+    + (need && need[s] ? ` (needs ${(100 * need[s]).toFixed(0)} %)` : "")).join(", ");
+}
+function verdictClass(v) { return v === "dirty" ? "verdict-dirty" : v === "incomplete" ? "verdict-incomplete" : ""; }
 
 async function post(url, body) {
   const r = await fetch(url, {
@@ -190,7 +197,8 @@ function renderOverview(d) {
   setText("ad-stop", ad.stop_reason || "none");
   const lc = ad.last_cycle;
   const link = $("ad-last"); link.replaceChildren();
-  if (lc) link.append(el("a", { href: `/history?cycle=${encodeURIComponent(lc.cycle_id)}` }, lc.cycle_id), ` ${lc.outcome}${lc.verdict ? ", " + lc.verdict : ""}`);
+  if (lc) link.append(el("a", { href: `/history?cycle=${encodeURIComponent(lc.cycle_id)}` }, lc.cycle_id), ` ${lc.outcome}${lc.verdict ? ", " + lc.verdict : ""}`,
+    ...(lc.verdict === "incomplete" ? [el("span", { class: "verdict-incomplete" }, ` seen: ${seenText(lc.coverage_by_surface, lc.min_seen_fraction)}`)] : []));
   else link.textContent = "—";
   $("ad-warnings").textContent = (ad.warnings || []).join("; ") || "none";
   $("ad-warnings").className = (ad.warnings || []).length ? "warn" : "";
@@ -227,7 +235,8 @@ function renderLive(d) {
   $("lv-bar").style.width = `${(100 * frac).toFixed(1)}%`;
   const state = st && (st.cycle_id === lv.cycle_id || finished) ? st.state : lv.state;
   let text = state || "—";
-  if (finished) text += ` — ${lv.outcome}${lv.verdict ? ", verdict " + lv.verdict : ""}${lv.coverage != null ? ", coverage " + pct(lv.coverage) : ""}`;
+  if (finished) text += ` — ${lv.outcome}${lv.verdict ? ", verdict " + lv.verdict : ""}${lv.coverage != null ? ", coverage " + pct(lv.coverage) : ""}`
+    + (lv.verdict === "incomplete" ? ` (seen: ${seenText(lv.coverage_by_surface, lv.min_seen_fraction)})` : "");
   const oc = $("lv-outcome"); oc.textContent = text;
   oc.className = "outcome" + (ABNORMAL.has(state) || lv.outcome === "failed" || lv.outcome === "aborted" ? " state-chip abnormal" : "");
   if (lv.image_seq != null && lv.image_seq !== liveImageSeq) {
@@ -276,7 +285,7 @@ async function loadHistory(older = false) {
       el("td", { class: "mono" }, c.cycle_id), el("td", {}, time(c.started)),
       el("td", { class: "nowrap" }, c.duration_s == null ? "—" : `${c.duration_s.toFixed(1)} s`),
       el("td", { class: c.outcome === "failed" || c.outcome === "aborted" || c.outcome === "interrupted" ? "level-error" : "" }, c.outcome || "running"),
-      el("td", { class: c.verdict === "dirty" ? "verdict-dirty" : "" }, c.verdict || "—"),
+      el("td", { class: verdictClass(c.verdict) }, c.verdict || "—"),
       el("td", {}, c.bin_type || "—"), el("td", { class: "small" }, (c.reason || "").slice(0, 90)));
     if (c.cycle_id === selected) tr.classList.add("selected");
     return tr;
@@ -294,8 +303,9 @@ async function openCycle(id) {
   setText("dt-id", id);
   setText("dt-outcome", `${row.outcome || "running"}${row.reason ? " — " + row.reason : ""}`);
   setText("dt-verdict", row.verdict);
-  $("dt-verdict").className = row.verdict === "dirty" ? "verdict-dirty" : "";
+  $("dt-verdict").className = verdictClass(row.verdict);
   setText("dt-coverage", pct(res.coverage));
+  setText("dt-seen", seenText(res.coverage_by_surface, res.min_seen_fraction));
   setText("dt-time", `${time(row.started)} → ${time(row.finished)}${row.duration_s != null ? ` (${row.duration_s.toFixed(1)} s)` : ""}`);
   setText("dt-bin", row.bin_type);
   setText("dt-plan", `${row.plan_id || "—"}${res.plan_adjusted ? " (adjusted to the measured pose)" : ""}`);
