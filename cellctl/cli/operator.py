@@ -72,7 +72,12 @@ def run_cmd(args: argparse.Namespace) -> int:
     from cellctl.bus.security import acl_hint
     from cellctl.bus.session import open_session
     from cellctl.messages import Ack, Command, Status, now_iso
+    from cellctl.supervisor.definition import PackMLState
 
+    states = [s.name for s in PackMLState if s != PackMLState.Undefined]
+    if args.wait is not None and args.wait not in states:
+        # refused before anything is sent: a command sent with a wait that can never end is worse than none
+        raise CellError(f"--wait {args.wait!r} is not a PackML state; expected one of {states}")
     cfg = config_from_args(args)
     given = [x for x in (args.command, args.unit_mode, args.base_parked) if x is not None]
     if len(given) != 1:
@@ -179,6 +184,8 @@ def run_cycles(args: argparse.Namespace) -> int:
 
     from cellctl.recording.index import CycleIndex
 
+    if args.last < 1:
+        raise CellError(f"--last {args.last}: expected a number of cycles >= 1")
     cfg = config_from_args(args)
     idx = CycleIndex(cfg.path(cfg.recording.index))
     rows = idx.last(args.last)

@@ -1,4 +1,4 @@
-"""Logins of the HMI: password hashes, sessions with CSRF tokens, login rate limiting.
+"""Logins of the HMI: password hashes, sessions with CSRF tokens (login back-off: cellctl.login_throttle).
 
 Passwords are stored only as ``scrypt$n$r$p$salt$hash`` (``hashlib.scrypt``, n=2^14, r=8, p=1:
 ~16 MB and ~50 ms per check, which also slows guessing). A session is a random token in an
@@ -16,13 +16,13 @@ import hmac
 import secrets
 import threading
 import time
-from collections import OrderedDict, deque
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from cellctl.errors import ConfigError
 
-__all__ = ["LoginLimiter", "Session", "SessionStore", "hash_password", "verify_password"]
+__all__ = ["Session", "SessionStore", "hash_password", "verify_password"]
 
 _SCRYPT = {"n": 1 << 14, "r": 8, "p": 1}
 NONCES_KEPT = 4096
@@ -135,46 +135,3 @@ class SessionStore:
         dead = [t for t, s in self._sessions.items() if now - s.last_seen > self.idle_s or now - s.created > self.max_s]
         for t in dead:
             del self._sessions[t]
-
-
-class LoginLimiter:
-    """At most ``failures`` failed logins per ``window_s`` per key (a user name, a client address).
-
-    A key over the limit is refused without checking the password, so guessing costs the
-    attacker the window, not one scrypt each.
-    """
-
-    def __init__(self, failures: int, window_s: float, clock: Callable[[], float] = time.monotonic) -> None:
-        self.failures = failures
-        self.window_s = window_s
-        self._clock = clock
-        self._lock = threading.Lock()
-        self._fails: dict[str, deque[float]] = {}
-
-    def retry_after(self, *keys: str) -> float:
-        """Seconds until every key may try again (0: may try now)."""
-        now = self._clock()
-        wait = 0.0
-        with self._lock:
-            for k in keys:
-                q = self._fails.get(k)
-                if not q:
-                    continue
-                while q and now - q[0] > self.window_s:
-                    q.popleft()
-                if len(q) >= self.failures:
-                    wait = max(wait, self.window_s - (now - q[0]))
-        return wait
-
-    def failed(self, *keys: str) -> None:
-        now = self._clock()
-        with self._lock:
-            if len(self._fails) > 10000:  # a flood of made-up names must not grow memory without bound
-                self._fails = {k: q for k, q in self._fails.items() if q and now - q[-1] <= self.window_s}
-            for k in keys:
-                self._fails.setdefault(k, deque()).append(now)
-
-    def succeeded(self, *keys: str) -> None:
-        with self._lock:
-            for k in keys:
-                self._fails.pop(k, None)

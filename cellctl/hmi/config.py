@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, 
 
 from cellctl.config import apply_overrides, explain_validation, project_root, safe_yaml_load
 from cellctl.errors import ConfigError
+from cellctl.login_throttle import ThrottleConfig
 
 __all__ = ["ROLES", "FoxgloveConfig", "HmiConfig", "HmiUser", "default_hmi_config_path", "load_hmi_config"]
 
@@ -55,8 +56,26 @@ class HmiConfig(_Model):
     session_idle_s: float = Field(default=1800.0, gt=0, le=7 * 86400, description="logout after this idle time")
     session_max_s: float = Field(default=12 * 3600.0, gt=0, le=30 * 86400, description="a shift, at most")
     cookie_secure: StrictBool = Field(default=False, description="set the cookie's Secure flag (behind HTTPS)")
-    login_failures: int = Field(default=5, ge=1, le=100, description="failed logins allowed per window ...")
-    login_window_s: float = Field(default=60.0, gt=0, le=3600, description="... per user name and per client")
+    login: ThrottleConfig = Field(
+        default_factory=ThrottleConfig,
+        description="back-off of wrong passwords per (user, client address) and, looser, per address",
+    )
+    trusted_proxies: list[str] = Field(
+        default_factory=list,
+        description="addresses of reverse proxies whose X-Forwarded-For is believed; none by default (not even "
+        "loopback): the client address is the socket's",
+    )
+    allowed_hosts: list[str] = Field(
+        default_factory=list,
+        description="host names the browser may use (Host header; DNS rebinding); empty: localhost, 127.0.0.1, ::1 "
+        "and `host`",
+    )
+    header_timeout_s: float = Field(
+        default=10.0, gt=0, le=300, description="a request's headers and body must arrive within this (slow clients)"
+    )
+    keepalive_s: int = Field(default=5, ge=1, le=300, description="an idle kept-alive connection is closed after")
+    max_header_bytes: int = Field(default=16384, ge=1024, le=1 << 20, description="larger request heads get 400")
+    max_connections: int = Field(default=200, ge=4, le=10000, description="beyond this, new requests get 503")
     command_timeout_s: float = Field(default=5.0, gt=0, le=60, description="wait this long for the Ack")
     stale_s: float = Field(default=3.0, gt=0, le=60, description="no Status for this long: 'cell unreachable'")
     events_kept: int = Field(default=500, ge=10, le=100000)
@@ -72,6 +91,11 @@ class HmiConfig(_Model):
         if dup:
             raise ValueError(f"user names must be unique; repeated: {dup}")
         return v
+
+    def host_names(self) -> frozenset[str]:
+        """The Host header names accepted (lower case, without the port)."""
+        names = self.allowed_hosts or ["localhost", "127.0.0.1", "::1", self.host]
+        return frozenset(n.lower().strip("[]") for n in names if n not in ("0.0.0.0", "::"))
 
     def user(self, name: str) -> HmiUser | None:
         return next((u for u in self.users if u.name == name), None)

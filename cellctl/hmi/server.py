@@ -24,19 +24,21 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from fastapi import FastAPI, Request
+from fastapi import FastAPI, Query, Request
+from fastapi import Path as FastApiPath
 from fastapi.responses import FileResponse, JSONResponse, Response, StreamingResponse
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr, ValidationError
 
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, WorkerTimeout, WorkerUnavailable
-from cellctl.hmi.auth import LoginLimiter, SessionStore, hash_password, verify_password
+from cellctl.hmi.auth import SessionStore, hash_password, verify_password
 from cellctl.hmi.config import HmiConfig
 from cellctl.hmi.link import CellLink
 from cellctl.hmi.live import LiveCycle, McapTail
 from cellctl.hmi.records import CycleFilter, CycleRecords, NotFound
+from cellctl.login_throttle import LoginThrottle
 from cellctl.messages import Command, now_iso
 
 __all__ = ["Hmi", "HmiServer", "LiveWatcher", "build_app"]
@@ -64,8 +66,8 @@ class _Body(BaseModel):
 
 
 class LoginRequest(_Body):
-    user: str = Field(max_length=64)
-    password: str = Field(max_length=256)
+    user: StrictStr = Field(max_length=64)
+    password: StrictStr = Field(max_length=256)
 
 
 class CommandRequest(_Body):
@@ -73,10 +75,11 @@ class CommandRequest(_Body):
 
     type: Literal["cellctl/Command"] = "cellctl/Command"
     v: Literal[1] = 1
-    command: str | None = None
-    cntrl_cmd: int | None = None
-    unit_mode: str | None = None
-    unit_mode_code: int | None = None
+    # strict: "1" or true is not a command code (JSON has integers; a client sending strings is confused)
+    command: StrictStr | None = None
+    cntrl_cmd: StrictInt | None = None
+    unit_mode: StrictStr | None = None
+    unit_mode_code: StrictInt | None = None
     params: dict[str, Any] = Field(default_factory=dict)
     nonce: str = Field(min_length=16, max_length=64, pattern=r"^[A-Za-z0-9_-]+$", description="fresh per request")
 
@@ -166,7 +169,7 @@ class Hmi:
     """Everything one HMI process holds; :func:`build_app` serves it.
 
     Args:
-        clock: monotonic seconds for sessions and the login limiter (injected in tests).
+        clock: monotonic seconds for sessions and the login throttle (injected in tests).
     """
 
     def __init__(self, cfg: CellConfig, hcfg: HmiConfig, clock: Callable[[], float] = time.monotonic) -> None:
@@ -180,7 +183,7 @@ class Hmi:
             self.foxglove = FoxgloveLive(cfg, hcfg.foxglove, self.link)
         self.watcher = LiveWatcher(self.link, self.records, on_message=self.foxglove.forward if self.foxglove else None)
         self.sessions = SessionStore(hcfg.session_idle_s, hcfg.session_max_s, clock)
-        self.limiter = LoginLimiter(hcfg.login_failures, hcfg.login_window_s, clock)
+        self.throttle = LoginThrottle(hcfg.login, "HMI", clock)
         self.journal_path = cfg.path(cfg.recording.dir) / "hmi-journal.jsonl"
         self._journal_lock = threading.Lock()
         self.packml = _packml_graph()
@@ -250,9 +253,23 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
     async def _not_found(request: Request, err: NotFound) -> JSONResponse:
         return JSONResponse({"error": str(err)}, status_code=404)
 
-    @app.exception_handler(404)
-    async def _no_route(request: Request, err: Exception) -> JSONResponse:
-        return JSONResponse({"error": f"no such page or API: {request.url.path[:200]!r}"}, status_code=404)
+    from starlette.exceptions import HTTPException as StarletteHTTPException
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _starlette(request: Request, err: StarletteHTTPException) -> JSONResponse:
+        # one error shape: 404 (no route), 405 (wrong method) … are {"error"} too, never {"detail"}
+        msg = f"no such page or API: {request.url.path[:200]!r}" if err.status_code == 404 else str(err.detail)
+        return JSONResponse({"error": msg}, status_code=err.status_code, headers=getattr(err, "headers", None))
+
+    @app.exception_handler(CellError)
+    async def _cell_error(request: Request, err: CellError) -> JSONResponse:
+        # e.g. an unreadable index: the message names server paths, which stay in the HMI's log
+        log.warning("HMI %s %s: %s", request.method, request.url.path[:200], err)
+        return JSONResponse({"error": f"the cell's records cannot be read ({type(err).__name__})"}, status_code=503)
+
+    @app.exception_handler(Exception)
+    async def _bug(request: Request, err: Exception) -> JSONResponse:
+        return JSONResponse({"error": "internal error (see the HMI log)"}, status_code=500)
 
     from fastapi.exceptions import RequestValidationError
 
@@ -262,10 +279,17 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         for e in err.errors():
             loc = ".".join(str(x) for x in e.get("loc", ()) if x != "body")
             msgs.append(f"{loc or 'body'}: {e.get('msg')}")
-        return JSONResponse({"error": "; ".join(msgs)[:1000]}, status_code=422)
+        # a malformed URL (query or path parameter) is the request's fault: 400; a body that fails its model: 422
+        in_url = any(e.get("loc", ("",))[0] in ("query", "path") for e in err.errors())
+        return JSONResponse({"error": "; ".join(msgs)[:1000]}, status_code=400 if in_url else 422)
+
+    hosts = hc.host_names()
 
     @app.middleware("http")
     async def _guard(request: Request, call_next: Callable) -> Response:
+        host = _host_name(request.headers.get("host", ""))
+        if host not in hosts:  # DNS rebinding: evil.example resolving to this HMI passes the Origin check
+            return JSONResponse({"error": f"Host {host[:100]!r} is not one of this HMI's names"}, status_code=400)
         qs = request.scope.get("query_string", b"")
         if len(qs) > hc.max_query_bytes:
             return JSONResponse(
@@ -318,18 +342,17 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
     async def login(request: Request, body: LoginRequest) -> JSONResponse:
         """Log in; sets the session cookie and returns the CSRF token."""
         client = request.client.host if request.client else "?"
-        keys = (f"user:{body.user}", f"addr:{client}")
-        wait = hmi.limiter.retry_after(*keys)
+        wait = hmi.throttle.retry_after(body.user, client)
         if wait > 0:
             raise HttpError(429, f"too many failed logins; try again in {wait:.0f} s", retry_after=max(1, wait))
         user = hc.user(body.user)
         # Check a dummy hash for unknown users too, so the answer time does not tell which names exist.
         ok = await asyncio.to_thread(verify_password, body.password, user.password_hash if user else _DUMMY_HASH)
         if user is None or not ok:
-            hmi.limiter.failed(*keys)
+            hmi.throttle.failed(body.user, client)
             hmi.journal(kind="login_failed", user=body.user[:64], client=client)
             raise HttpError(401, "wrong user name or password")
-        hmi.limiter.succeeded(f"user:{body.user}")
+        hmi.throttle.succeeded(body.user, client)
         s = hmi.sessions.create(user.name, user.role)
         hmi.journal(kind="login", user=user.name, role=user.role, client=client)
         hmi.link.note("info", f"{user.name} ({user.role}) logged in", f"hmi:{user.name}")
@@ -423,7 +446,7 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})
 
     @app.get("/api/events", tags=["events"])
-    async def events(limit: int = 200) -> dict[str, Any]:
+    async def events(limit: int = Query(default=200, ge=1, le=1_000_000)) -> dict[str, Any]:
         return {"events": hmi.link.events(max(1, min(limit, hc.events_kept)))}
 
     @app.get("/api/alarms", tags=["events"])
@@ -431,7 +454,9 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         return {"alarms": hmi.link.alarms()}
 
     @app.post("/api/alarms/{alarm_id}/ack", tags=["events"])
-    async def ack_alarm(alarm_id: int, request: Request, body: NonceRequest) -> dict[str, Any]:
+    async def ack_alarm(
+        alarm_id: Annotated[int, FastApiPath(ge=0, le=2**63 - 1)], request: Request, body: NonceRequest
+    ) -> dict[str, Any]:
         s = need_user(request, body.nonce)
         a = hmi.link.ack_alarm(alarm_id, s.user)
         if a is None:
@@ -484,7 +509,7 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         since: str | None = None,
         until: str | None = None,
         limit: int = 50,
-        before: int | None = None,
+        before: int | None = Query(default=None, ge=1, le=2**63 - 1),  # SQLite's integer range
     ) -> dict[str, Any]:
         """Cycles of the index, newest first; filter by outcome, verdict, bin type, start date."""
         if not 1 <= limit <= 500:
@@ -525,12 +550,12 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         return Response(hmi.records.dirt_map_png(cycle_id), media_type="image/png")
 
     @app.get("/api/cycles/{cycle_id}/images/{n}", tags=["records"])
-    def cycle_image(cycle_id: str, n: int) -> Response:
+    def cycle_image(cycle_id: str, n: Annotated[int, FastApiPath(ge=0, le=1_000_000)]) -> Response:
         data, fmt = hmi.records.image(cycle_id, n)
         return Response(data, media_type=f"image/{fmt}", headers={"Cache-Control": "max-age=3600"})
 
     @app.get("/api/cycles/{cycle_id}/heatmaps/{n}", tags=["records"])
-    def cycle_heatmap(cycle_id: str, n: int) -> Response:
+    def cycle_heatmap(cycle_id: str, n: Annotated[int, FastApiPath(ge=0, le=1_000_000)]) -> Response:
         """The heat map of the view whose image is ``/images/{n}``, over that image (PNG)."""
         png = hmi.records.heat_image(cycle_id, n)
         return Response(png, media_type="image/png", headers={"Cache-Control": "max-age=3600"})
@@ -579,6 +604,14 @@ def _explain(err: ValidationError) -> str:
     return "; ".join(out)
 
 
+def _host_name(host: str) -> str:
+    """The Host header's name, lower case, without port or IPv6 brackets."""
+    host = host.strip().lower()
+    if host.startswith("["):
+        return host[1 : host.find("]")] if "]" in host else host
+    return host.rsplit(":", 1)[0] if host.count(":") == 1 else host
+
+
 def _cross_origin(request: Request) -> str | None:
     """Why a state-changing request comes from another site, or None if it is same-origin."""
     site = request.headers.get("sec-fetch-site")
@@ -598,17 +631,10 @@ class HmiServer:
     def __init__(self, hmi: Hmi) -> None:
         import uvicorn
 
+        from cellctl.hmi.transport import uvicorn_config
+
         self.hmi = hmi
-        conf = uvicorn.Config(
-            build_app(hmi),
-            host=hmi.hcfg.host,
-            port=hmi.hcfg.port,
-            log_level="warning",
-            access_log=False,
-            timeout_graceful_shutdown=1,
-            lifespan="off",
-        )
-        self.server = uvicorn.Server(conf)
+        self.server = uvicorn.Server(uvicorn_config(build_app(hmi), hmi.hcfg))
         self._thread: threading.Thread | None = None
 
     @property

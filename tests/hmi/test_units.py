@@ -9,7 +9,7 @@ import json
 import pytest
 
 from cellctl.errors import ConfigError
-from cellctl.hmi.auth import LoginLimiter, SessionStore, hash_password, verify_password
+from cellctl.hmi.auth import SessionStore, hash_password, verify_password
 from cellctl.hmi.config import load_hmi_config
 from cellctl.hmi.live import LiveCycle, McapTail
 from cellctl.recording.cycle_log import CycleLog
@@ -47,19 +47,6 @@ def test_sessions_expire_when_idle_or_old_and_nonces_are_single_use() -> None:
     s2 = store.create("bob", "maintenance")
     clock.t += 11
     assert store.get(s2.token) == (None, "expired")
-
-
-def test_the_login_limiter_counts_failures_per_key_in_a_window() -> None:
-    clock = FakeClock()
-    lim = LoginLimiter(failures=3, window_s=60, clock=clock)
-    for _ in range(3):
-        assert lim.retry_after("user:a", "addr:x") == 0
-        lim.failed("user:a", "addr:x")
-    assert 59 <= lim.retry_after("user:a") <= 60
-    assert lim.retry_after("user:b", "addr:x") > 0  # same client, other name
-    assert lim.retry_after("user:b", "addr:y") == 0
-    clock.t += 61
-    assert lim.retry_after("user:a", "addr:x") == 0
 
 
 def test_hmi_config_rejects_unknown_keys_and_plain_passwords(tmp_path) -> None:  # noqa: ANN001
