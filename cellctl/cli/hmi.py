@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import getpass
 import sys
+from pathlib import Path
 
 from cellctl.cli import add_config_arguments, config_from_args
 from cellctl.errors import ConfigError
@@ -40,9 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         q.set_defaults(func=run_user)
 
 
-def _hmi_path(args: argparse.Namespace):  # noqa: ANN202
-    from pathlib import Path
-
+def _hmi_path(args: argparse.Namespace) -> Path:
     from cellctl.hmi.config import default_hmi_config_path
 
     return Path(args.hmi_config) if args.hmi_config else default_hmi_config_path()
@@ -64,6 +63,7 @@ def run_user(args: argparse.Namespace) -> int:
             raise ConfigError(f"user {args.name!r} is not in {str(path)!r}; users: {[u.name for u in hcfg.users]}")
         hcfg.users = others
     else:
+        _check_user(args.name, args.role, path)  # before the password is asked: a bad name wastes no typing
         if args.password_stdin:
             password = sys.stdin.readline().rstrip("\n")
         else:
@@ -74,6 +74,19 @@ def run_user(args: argparse.Namespace) -> int:
     save_hmi_config(hcfg, path)
     print(f"{path}: {args.user_verb} {args.name}", file=sys.stderr)
     return 0
+
+
+def _check_user(name: str, role: str, path: Path) -> None:
+    """Raise ConfigError naming the value if ``name``/``role`` would not make a valid HMI user."""
+    from pydantic import ValidationError
+
+    from cellctl.config import explain_validation
+    from cellctl.hmi.config import HmiUser
+
+    try:
+        HmiUser.model_validate({"name": name, "role": role, "password_hash": "scrypt$"})  # a stand-in hash
+    except ValidationError as err:
+        raise ConfigError(explain_validation(err, HmiUser, f"{path}: user").replace("\n", "; ")) from None
 
 
 def run_hmi(args: argparse.Namespace) -> int:

@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     r = sub.add_parser("report", help="summarise a cycle and draw its dirt map (--png)")
     r.add_argument("cycle_id")
-    r.add_argument("--png", default=None, help="write the dirt map picture here")
+    r.add_argument("--png", default=None, help="write the dirt map picture here (a folder: FOLDER/<cycle id>.png)")
     add_config_arguments(r)
     r.set_defaults(func=run_report)
 
@@ -180,6 +180,7 @@ def run_report(args: argparse.Namespace) -> int:
     ]
     print(json.dumps(summary, indent=1))
     if args.png:
+        png = _png_target(args.png, args.cycle_id)
         dm = res.get("dirt_map")
         if not dm:
             raise RecordingError(f"cycle {args.cycle_id!r} has no dirt map (outcome {res['outcome']})")
@@ -192,15 +193,27 @@ def run_report(args: argparse.Namespace) -> int:
             if v.get("camera_pose"):
                 p = PoseMsg.model_validate(v["camera_pose"]).matrix()
                 cams.append((np.linalg.inv(T_base_bin) @ p)[:3, 3])
-        draw_dirt_map(
-            mesh,
-            dm,
-            Path(args.png),
-            f"cycle {args.cycle_id} verdict {res.get('verdict')}",
-            np.array(cams) if cams else None,
-        )
-        print(f"wrote {args.png}", file=sys.stderr)
+        try:
+            draw_dirt_map(
+                mesh,
+                dm,
+                png,
+                f"cycle {args.cycle_id} verdict {res.get('verdict')}",
+                np.array(cams) if cams else None,
+            )
+        except OSError as err:
+            raise RecordingError(f"cannot write the dirt map to {str(png)!r}: {err.strerror or err}") from err
+        print(f"wrote {png}", file=sys.stderr)
     return 0
+
+
+def _png_target(given: str, cycle_id: str) -> Path:
+    """Where ``--png`` writes: a folder gets ``<cycle id>.png`` inside it; a name without ``.png`` gets the
+    suffix (the plotting library would add it behind our back, and we would name the wrong file)."""
+    p = Path(given)
+    if p.is_dir():
+        return p / f"{cycle_id}.png"
+    return p if p.suffix.lower() == ".png" else p.with_name(p.name + ".png")
 
 
 def _report_interrupted(row, rec, png: str | None) -> int:  # noqa: ANN001 - CycleRow, RecordedCycle
