@@ -62,7 +62,13 @@ OPTIONS: dict[str, tuple[str, ...]] = {
 
 FAMILIES: dict[str, dict[str, tuple[str, ...]]] = {
     "mixed": OPTIONS,
-    "hopper": {**OPTIONS, "bottom": ("hopper",), "opening": ("round", "square"), "opening_width": ("narrow",)},
+    "hopper": {
+        **OPTIONS,
+        "bottom": ("hopper",),
+        "opening": ("round", "square"),
+        "opening_width": ("narrow",),
+        "support": ("legs", "frame"),
+    },
     "open": {
         **OPTIONS,
         "bottom": ("flat", "dished"),
@@ -78,6 +84,10 @@ SIZE_RANGE_M = (0.4, 1.5)
 THICKNESS_M = 0.004
 ROW_SPACING_M = 0.08
 RIM_CLEAR_M = 0.03
+HANDLE_BAR_M = 0.024
+"""A handle's bar and standoffs: square section."""
+HANDLE_REACH_M = 0.072
+"""How far a handle stands out of the wall (to its bar's outer face)."""
 """Metal kept between an opening and the inner wall."""
 
 
@@ -109,13 +119,8 @@ class FamilyParams:
         """Floor to top (m)."""
         return self.wall_height + self.bottom_depth + self.support_height
 
-    @property
-    def size_m(self) -> float:
-        """The largest dimension (m)."""
-        return max(2 * self.half_x + 2 * self.flange_width, 2 * self.half_y + 2 * self.flange_width, self.height)
-
     def to_json(self) -> dict[str, Any]:
-        return {**asdict(self), "height_m": self.height, "size_m": self.size_m}
+        return {**asdict(self), "height_m": self.height}
 
 
 def _pick(rng: np.random.Generator, choices: tuple[str, ...]) -> str:
@@ -146,7 +151,8 @@ def draw_params(family: str, seed: int) -> FamilyParams:
     sides = {"cylinder": 0, "polygon": int(rng.integers(5, 9)), "rect": 4}[ch["body"]]
     depth_ratio = float(rng.uniform(0.6, 1.0)) if ch["body"] == "rect" else 1.0
     flange = float(rng.uniform(0.03, 0.06)) if ch["flange"] == "flange" else 0.0
-    half_x = width / 2 - flange
+    # the drawn width is the bin's whole extent: the flange and the handles (on ±x) stand inside it
+    half_x = width / 2 - max(flange, HANDLE_REACH_M if ch["handles"] == "handles" else 0.0)
     half_y = half_x * depth_ratio
     support = {"none": 0.0, "legs": rng.uniform(0.12, 0.25), "frame": rng.uniform(0.15, 0.3)}[ch["support"]]
     support = float(support) * height
@@ -237,8 +243,9 @@ def body_sections(p: FamilyParams) -> list[tuple[float, float]]:
     if p.choices["bottom"] == "hopper":
         secs.append((-p.wall_height - p.bottom_depth, p.outlet_scale))
     elif p.choices["bottom"] == "dished":  # an elliptic dish down to a small flat centre
-        for s in (0.9, 0.7, 0.45, 0.2):
-            secs.append((-p.wall_height - p.bottom_depth * math.sqrt(1 - s * s), s))
+        rings = (0.9, 0.7, 0.45, 0.2)
+        for s in rings:  # the last ring (the flat centre) at the full depth: the floor is at -height
+            secs.append((-p.wall_height - p.bottom_depth * math.sqrt((1 - s * s) / (1 - rings[-1] ** 2)), s))
     return secs
 
 
@@ -388,12 +395,12 @@ def add_handles(b: _Builder, p: FamilyParams) -> None:
         return
     P, _ = outline(p)
     z = -min(0.12, 0.3 * p.wall_height)
-    hw = 0.012
+    hw = HANDLE_BAR_M / 2
     span = min(0.1, 0.5 * p.half_y)
     for sgn in (1.0, -1.0):
         ux = np.array([sgn, 0.0])
         x_at = {y: _wall_hit(P, ux, np.array([0.0, y]))[0] for y in (-span - hw, -span + hw, span - hw, span + hw)}
-        x_bar = max(x_at.values()) + 0.06
+        x_bar = max(x_at.values()) + HANDLE_REACH_M - hw
         for y in (-span, span):
             # from the wall's metal where it stands furthest out: never into the cavity
             x0 = max(x_at[y - hw], x_at[y + hw]) - THICKNESS_M / 2
@@ -468,6 +475,7 @@ def write_family_mesh(family: str, seed: int, out: Path) -> dict[str, Any]:
         info = {
             **p.to_json(),
             "mesh": str(out),
+            "extent_m": (V.max(axis=0) - V.min(axis=0)).tolist(),  # x, y, z; the largest in SIZE_RANGE_M
             "faces": int(len(F)),
             "internal_faces": int((S == INTERNAL).sum()),
         }

@@ -169,7 +169,7 @@ def bench_family(opts: BenchOptions) -> dict[str, Any]:
     import platform
     from concurrent.futures import ProcessPoolExecutor
 
-    from cellctl.geometry.family import draw_params
+    from cellctl.geometry.family import build_family_mesh, draw_params
     from cellctl.planning.bench import PROCESSES
     from cellctl.planning.parallel import default_workers
 
@@ -204,6 +204,10 @@ def bench_family(opts: BenchOptions) -> dict[str, Any]:
         for m in mesh_seeds
     ]
     rows: dict[str, dict[int, dict[str, Any]]] = {}
+    extents = {}
+    for m in mesh_seeds:
+        V, _, _ = build_family_mesh(draw_params(family, m))
+        extents[f"{family}_{m}"] = [round(float(x), 4) for x in V.max(axis=0) - V.min(axis=0)]
     with ProcessPoolExecutor(PROCESSES, mp_context=mp.get_context("spawn")) as pool:
         for name, seed, row in pool.map(_family_task, tasks):
             rows.setdefault(name, {})[seed] = row
@@ -211,6 +215,7 @@ def bench_family(opts: BenchOptions) -> dict[str, Any]:
             p = draw_params(family, int(name.rsplit("_", 1)[1]))
             out["meshes"][name] = {
                 "params": p.to_json(),
+                "extent_m": extents[name],
                 "shape": _shape(p.choices),
                 "summary": _summary(got),
                 "runs": got,
