@@ -12,11 +12,19 @@ Leaf module: imports only :mod:`cellctl.surface`.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Literal, get_args
+from typing import Any, Literal, get_args
 
 from cellctl.surface import SURFACES
 
-__all__ = ["VERDICTS", "Verdict", "describe_shortfall", "gate_verdict", "shortfall"]
+__all__ = [
+    "VERDICTS",
+    "Verdict",
+    "describe_shortfall",
+    "gate_verdict",
+    "plan_warning",
+    "shortfall",
+    "whole_plan_warning",
+]
 
 Verdict = Literal["clean", "dirty", "incomplete"]
 """A bin's verdict: ``incomplete`` = no dirt seen, but too little of some surface seen to call it clean."""
@@ -64,3 +72,37 @@ def gate_verdict(
         return "clean", None
     why = "incomplete: no dirt seen, but " + describe_shortfall(short) + " (classifier.verdict.min_seen_fraction)"
     return "incomplete", why
+
+
+def plan_warning(
+    seen: Mapping[str, float | None], minimum: Mapping[str, float], reach: Mapping[str, float] | None = None
+) -> str | None:
+    """What a plan's predicted fractions mean for its cycles' verdicts: None when they can be ``clean``.
+
+    ``reach`` (surface → the arm-aware bound's share of the surface) splits a shortfall into "no
+    reachable camera pose sees enough" and "the planner did not".
+    """
+    short = shortfall(seen, minimum)
+    if not short:
+        return None
+    why = []
+    for s, (_, need) in short.items():
+        r = (reach or {}).get(s)
+        if r is not None:
+            why.append(f"{s}: " + (f"no reachable camera pose sees more than {r:.0%}" if r < need else
+                                   f"reachable poses see {r:.0%}, the plan does not"))  # fmt: skip
+    return (
+        "this plan cannot certify the bin clean: "
+        + describe_shortfall(short)
+        + " (classifier.verdict.min_seen_fraction); its cycles end `incomplete` unless they see dirt"
+        + (f" ({'; '.join(why)})" if why else "")
+    )
+
+
+def whole_plan_warning(plan: Any, minimum: Mapping[str, float]) -> str | None:  # noqa: ANN401
+    """:func:`plan_warning` of a :class:`cellctl.planning.whole.WholePlan` (its ``surfaces``' seen area
+    and arm-aware bound, ``reachable_m2``, over each surface's area); None when its cycles can be clean."""
+    surfaces = plan.surfaces
+    seen = {k: v.area_fraction for k, v in surfaces.items()}
+    reach = {k: v.reachable_m2 / v.area_m2 for k, v in surfaces.items() if v.area_m2 > 0 and v.reachable_m2 > 0}
+    return plan_warning(seen, minimum, reach)

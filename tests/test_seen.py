@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 from cellctl.config import load_config
-from cellctl.seen import VERDICTS, describe_shortfall, gate_verdict, shortfall
+from cellctl.seen import VERDICTS, describe_shortfall, gate_verdict, shortfall, whole_plan_warning
 
 MIN = {"external": 0.6, "internal": 0.6}
 
@@ -36,3 +38,20 @@ def test_an_unknown_fraction_is_unseen_and_a_zero_or_absent_minimum_never_falls_
     assert shortfall({"external": 0.1}, {"external": 0.0}) == {}
     assert shortfall({"external": 0.1, "internal": 0.0}, {"internal": 0.5}) == {"internal": (0.0, 0.5)}
     assert gate_verdict("clean", {}, {}) == ("clean", None)
+
+
+def test_a_plan_that_cannot_see_enough_says_why_at_planning_time() -> None:
+    def surface(area: float, seen: float, reachable: float) -> SimpleNamespace:
+        return SimpleNamespace(area_m2=area, area_fraction=seen / area, reachable_m2=reachable)
+
+    # the hopper of issue 35: internal 44 % seen; no reachable pose sees more than 50 % of it
+    hopper = SimpleNamespace(surfaces={"external": surface(2.0, 1.8, 1.9), "internal": surface(1.0, 0.44, 0.5)})
+    warning = whole_plan_warning(hopper, MIN)
+    assert warning == (
+        "this plan cannot certify the bin clean: internal 44% seen, needs 60% (classifier.verdict.min_seen_fraction); "
+        "its cycles end `incomplete` unless they see dirt (internal: no reachable camera pose sees more than 50%)"
+    )
+    # reachable enough, but the plan does not look: the planner's shortfall, not the arm's
+    lazy = SimpleNamespace(surfaces={"external": surface(2.0, 1.8, 1.9), "internal": surface(1.0, 0.44, 0.9)})
+    assert whole_plan_warning(lazy, MIN).endswith("(internal: reachable poses see 90%, the plan does not)")
+    assert whole_plan_warning(hopper, {"external": 0.6}) is None

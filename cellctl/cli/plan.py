@@ -191,6 +191,13 @@ def run_whole(args: argparse.Namespace, cfg: Any) -> int:
             print(f"cellctl plan: wrote {path}", file=sys.stderr)
     body = plan.to_json()
     body["plan_file"] = str(out)
+    # a bin no plan sees enough of says so now, not as `incomplete` cycles later (cellctl.seen)
+    from cellctl.seen import whole_plan_warning
+
+    body["min_seen_fraction"] = dict(cfg.classifier.verdict.min_seen_fraction)
+    body["seen_warning"] = whole_plan_warning(plan, body["min_seen_fraction"])
+    if body["seen_warning"]:
+        print(f"cellctl plan: warning: {body['seen_warning']}", file=sys.stderr)
     if args.json:
         print(json.dumps(body, indent=2))
     else:

@@ -58,6 +58,8 @@ class Replanning(Step):
             run.checkpoint()
             status, _ = run.call("planner", "jobs", PlanJobQuery(job_id=reply.job_id), PlanJobReply, key=key)
             if status.state == "done":
+                if status.reason:  # e.g. no plan sees enough of this bin for a clean verdict (cellctl.seen)
+                    run.event("warning", f"planning job {reply.job_id}: {status.reason}")
                 if req.whole:
                     ctx.stations = None  # the next lookup reads the new plan's stations
                 return "plan_ready"

@@ -357,8 +357,15 @@ class PlannerService:
             self._write_record(job_id, state="failed", reason=reason)
             self._progress(job_id, "failed", 1.0, "failed", reason)
             return
-        self._write_record(job_id, state="done", plan_id=plan.plan_id, reason=plan.reason)
-        self._progress(job_id, "done", 1.0, "done", plan.reason, plan_id=plan.plan_id)
+        warning = None
+        if req.whole:  # a bin no plan sees enough of: said when it is planned, not only by `incomplete` cycles
+            from cellctl.seen import whole_plan_warning
+
+            warning = whole_plan_warning(plan, self.cfg.classifier.verdict.min_seen_fraction)
+            if warning:
+                log.warning("job %s: %s", job_id, warning)
+        self._write_record(job_id, state="done", plan_id=plan.plan_id, reason=plan.reason or warning)
+        self._progress(job_id, "done", 1.0, "done", plan.reason or warning, plan_id=plan.plan_id)
         log.info("job %s done: plan %s", job_id, plan.plan_id)
 
     def _whole(self, job_id: str, req: PlanJobRequest, mesh: Any, params: Any, progress: Any) -> Any:
