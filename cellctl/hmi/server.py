@@ -290,6 +290,12 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         host = _host_name(request.headers.get("host", ""))
         if host not in hosts:  # DNS rebinding: evil.example resolving to this HMI passes the Origin check
             return JSONResponse({"error": f"Host {host[:100]!r} is not one of this HMI's names"}, status_code=400)
+        # h11 bounds only a head that arrives in pieces; one that arrives whole is counted here
+        head = sum(len(k) + len(v) for k, v in request.scope.get("headers", ()))
+        if head > hc.max_header_bytes:
+            return JSONResponse(
+                {"error": f"request headers of {head} bytes; at most {hc.max_header_bytes} accepted"}, status_code=431
+            )
         qs = request.scope.get("query_string", b"")
         if len(qs) > hc.max_query_bytes:
             return JSONResponse(

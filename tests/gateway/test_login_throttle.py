@@ -53,7 +53,8 @@ def throttled_gateway(cfg: CellConfig, tmp_path: Path):  # noqa: ANN201
 
 
 def test_guesses_back_off_per_address_and_the_plc_elsewhere_connects_at_once(
-    throttled_gateway, caplog: pytest.LogCaptureFixture  # noqa: ANN001
+    throttled_gateway,
+    caplog: pytest.LogCaptureFixture,  # noqa: ANN001
 ) -> None:
     gw, clock = throttled_gateway
     url = gw.cfg.endpoint

@@ -86,6 +86,8 @@ def test_query_and_path_parameters_are_bounded_and_errors_have_one_shape(edge: H
                  "/api/cycles/x/images/99999999999999999999", "/api/events?limit=99999999999999999999"):  # fmt: skip
         r = c.get(path)
         assert r.status == 400 and set(r.json()) == {"error"}, (path, r.status, r.body)
+    r = c.request("GET", "/api/status", headers={"X-Big": "a" * 20000})  # a whole head, over the 16 KiB limit
+    assert r.status == 431 and set(r.json()) == {"error"}, r.body
     r = c.request("PUT", "/api/status", {})
     assert r.status == 405 and set(r.json()) == {"error"}, r.body
     r = c.get("/api/cycles/20260101T000000-000-1")
