@@ -18,7 +18,7 @@ from cellctl.config import CellConfig
 from cellctl.recording.index import CycleIndex
 from cellctl.supervisor.supervisor import Supervisor
 
-__all__ = ["Cell", "WorkerProcesses", "build_cell", "load_identification"]
+__all__ = ["Cell", "WorkerProcesses", "build_cell", "load_identification", "preflight"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -30,6 +30,30 @@ def load_identification(cfg: CellConfig) -> tuple[Any, Any]:
     from cellctl.vision import identify
 
     return identify, load_catalog(cfg.path(cfg.catalog))
+
+
+def preflight(cfg: CellConfig) -> None:
+    """What ``cellctl run`` needs beyond a well-formed config, checked before anything starts (``validate``
+    runs the same): the state machines, the bin catalog parsed as a catalog, ``sim.bin_type`` in it when
+    a sim backend renders it. Endpoints are checked when the config is read (:mod:`cellctl.bus.endpoints`).
+
+    Raises:
+        ConfigError: one line naming the key and the value.
+    """
+    from cellctl.errors import ConfigError
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.supervisor.registry import load_definitions
+
+    load_definitions(cfg.root)
+    try:
+        catalog = load_catalog(cfg.path(cfg.catalog))  # as the identify step loads it (load_identification)
+    except ConfigError as err:
+        raise ConfigError(f"catalog: {err}") from None
+    if "sim" in (cfg.robot.backend, cfg.camera.backend) and cfg.sim.bin_type not in catalog:
+        raise ConfigError(
+            f"sim.bin_type {cfg.sim.bin_type!r} is not in the catalog {str(cfg.path(cfg.catalog))!r};"
+            f" expected one of {catalog.names}"
+        )
 
 
 def _die_with_parent() -> None:

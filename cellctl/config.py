@@ -1,9 +1,13 @@
 """The cell configuration: YAML parsed into typed models that reject unknown keys.
 
-``config/cell.yaml`` is the default simulated cell. Relative paths in a config file are
-resolved against the project root, the folder that holds the config file's ``config/``
-folder (or the config file's own folder when it is not in a ``config/`` folder), so the
-daemon may be started from any working directory.
+``config/cell.yaml`` is the default simulated cell. Which file a command reads
+(:func:`resolve_config_path`): ``--config``, else ``$CELLCTL_CONFIG``, else ``./config/cell.yaml``
+in the working directory, else the packaged defaults with every output (logs, index, plans) under
+``./logs`` — nothing is written into the install. Relative paths in a config file are resolved
+against the config's own folder — the file's folder, or the folder above it when the file sits
+in a ``config/`` folder (a cell's folder: ``config/``, ``logs/``, ``states/``) — never against the
+working directory. Read-only resources the file does not name (the bin catalog, the classifier
+models, ``states/``) come from the install when the config's folder has none.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ __all__ = [
     "load_config",
     "output_overrides",
     "project_root",
+    "resolve_config_path",
     "safe_yaml_load",
 ]
 
@@ -59,6 +64,28 @@ def output_overrides(folder: Path | str) -> list[str]:
 
 def default_config_path() -> Path:
     return PROJECT_ROOT / "config" / "cell.yaml"
+
+
+CONFIG_ENV = "CELLCTL_CONFIG"
+PACKAGED = "packaged defaults"
+"""The source :func:`resolve_config_path` names when no config was found: outputs go under ``./logs``."""
+
+
+def resolve_config_path(given: Path | str | None, cwd: Path | None = None) -> tuple[Path, str]:
+    """The config file a command uses and where that choice came from, in this order:
+    ``given`` (``--config``), ``$CELLCTL_CONFIG``, ``./config/cell.yaml`` in ``cwd`` (default: the
+    working directory), else the packaged ``config/cell.yaml`` (source :data:`PACKAGED`: the caller
+    moves the outputs out of the install, :func:`output_overrides`)."""
+    import os
+
+    if given:
+        return Path(given), "named on the command line"
+    if env := os.environ.get(CONFIG_ENV):
+        return Path(env), f"${CONFIG_ENV}"
+    local = (cwd or Path.cwd()) / "config" / "cell.yaml"
+    if local.is_file():
+        return local, "./config/cell.yaml in the working directory"
+    return default_config_path(), PACKAGED
 
 
 class _Model(BaseModel):
@@ -83,6 +110,14 @@ class BusConfig(_Model):
         pattern=r"^[a-z][a-z0-9_-]{0,63}$",
         description="who this client is on a secured bus; workers always use their role",
     )
+
+    @field_validator("listen", "connect")
+    @classmethod
+    def _endpoints(cls, v: list[str]) -> list[str]:
+        # here, not when the session opens: `validate` must refuse what `run` cannot use
+        from cellctl.bus.endpoints import check_endpoint
+
+        return [check_endpoint(ep) for ep in v]
 
 
 class Timeouts(_Model):
@@ -528,6 +563,29 @@ for _first in "tTfF":
     )
 
 
+class _DuplicateKey(yaml.YAMLError):
+    """A mapping names one key twice: YAML lets the last one win silently, we refuse it."""
+
+
+def _mapping_without_duplicates(loader: _Loader, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+    first: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        try:
+            line = first.setdefault(key, key_node.start_mark.line)
+        except TypeError:  # an unhashable key: construct_mapping says so
+            continue
+        if line != key_node.start_mark.line:
+            raise _DuplicateKey(
+                f"duplicate key {key!r} at line {key_node.start_mark.line + 1} (first at line {line + 1}); "
+                "give each key once"
+            )
+    return loader.construct_mapping(node, deep)
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping_without_duplicates)
+
+
 def safe_yaml_load(text: str, source: str = "<string>") -> Any:
     """Parse YAML safely; raise ConfigError with the location on syntax errors."""
     try:
@@ -612,7 +670,11 @@ def load_config(path: Path | str | None = None, overrides: list[str] | None = No
     p = Path(path) if path is not None else default_config_path()
     if not p.is_file():
         raise ConfigError(f"config file {str(p)!r} does not exist")
-    data = safe_yaml_load(p.read_text(), str(p))
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{p}: not a YAML text file (byte {err.start} is not UTF-8 text)") from None
+    data = safe_yaml_load(text, str(p))
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -625,4 +687,9 @@ def load_config(path: Path | str | None = None, overrides: list[str] | None = No
         cfg = CellConfig.model_validate({**data, "root": root})
     except ValidationError as err:
         raise ConfigError(explain_validation(err, CellConfig, str(p))) from err
+    # a cell folder outside the install names what it has; what it does not name is the install's
+    if "catalog" not in data and not cfg.path(cfg.catalog).exists():
+        cfg.catalog = PROJECT_ROOT / cfg.catalog
+    if "models_dir" not in (data.get("classifier") or {}) and not cfg.path(cfg.classifier.models_dir).exists():
+        cfg.classifier.models_dir = PROJECT_ROOT / cfg.classifier.models_dir
     return cfg

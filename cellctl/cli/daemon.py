@@ -6,7 +6,7 @@ import argparse
 import logging
 import threading
 
-from cellctl.cli import add_config_arguments, config_from_args
+from cellctl.cli import add_config_arguments
 from cellctl.cli.worker import install_stop_signals
 
 log = logging.getLogger(__name__)
@@ -23,8 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from cellctl.app import build_cell
+    from cellctl.cli.info import load_run_config
 
-    cfg = config_from_args(args)
+    cfg = load_run_config(args.config, args.overrides)  # the checks `cellctl validate` runs
     stop = threading.Event()
     install_stop_signals(stop)
     with build_cell(cfg, with_workers=args.with_workers, config_file=args.config, overrides=args.overrides) as cell:

@@ -68,10 +68,10 @@ def run_validate(args: argparse.Namespace) -> int:
 
 
 def load_run_config(path: str, overrides: list[str]):  # noqa: ANN201 - CellConfig, imported lazily
-    """The config and state machines exactly as ``cellctl run`` loads them (ConfigError otherwise)."""
+    """The config, checked exactly as ``cellctl run`` checks it before starting (ConfigError otherwise)."""
+    from cellctl.app import preflight
     from cellctl.config import load_config
-    from cellctl.supervisor.supervisor import load_definitions
 
     cfg = load_config(path, overrides)
-    load_definitions(cfg.root)
+    preflight(cfg)
     return cfg

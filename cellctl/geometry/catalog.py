@@ -460,7 +460,14 @@ def load_catalog(path: Path | str, root: Path | str | None = None, verify_meshes
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"bin catalog {str(p)!r} does not exist")
-    data = safe_yaml_load(p.read_text(), str(p))
+    try:
+        data = safe_yaml_load(p.read_text(encoding="utf-8"), str(p))
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"bin catalog {str(p)!r} is not a YAML text file (byte {err.start} is not UTF-8)") from None
+    if not isinstance(data, dict) or "bins" not in data:
+        # another YAML file (a cell config given as catalog): say so, not every key it holds
+        top = sorted(data)[:5] if isinstance(data, dict) else type(data).__name__
+        raise ConfigError(f"{str(p)!r} is not a bin catalog: expected a top-level 'bins' mapping, got {top}")
     try:
         parsed = _CatalogFile.model_validate(data)
     except ValidationError as err:
