@@ -23,7 +23,10 @@ def _one_error_line(capsys, rc: int) -> str:  # noqa: ANN001
 
 
 def test_report_png_to_a_folder_and_to_an_unwritable_path_and_wait_bogus(
-    cfg: CellConfig, tmp_path: Path, port: int, capsys  # noqa: ANN001
+    cfg: CellConfig,
+    tmp_path: Path,
+    port: int,
+    capsys,  # noqa: ANN001
 ) -> None:
     from cellctl.app import build_cell
     from cellctl.geometry.catalog import load_catalog

@@ -48,7 +48,8 @@ def test_duplicate_keys_and_binary_files_are_refused(tmp_path: Path, capsys) -> 
 
 
 def test_endpoint_check() -> None:
-    for ok in ("tcp/127.0.0.1:7447", "tls/cell1.example:7447", "udp/[::1]:7447", "tcp/127.0.0.1:0", "unixsock-stream/x"):
+    good = ("tcp/127.0.0.1:7447", "tls/cell1.example:7447", "udp/[::1]:7447", "tcp/127.0.0.1:0", "unixsock-stream/x")
+    for ok in good:
         assert check_endpoint(ok) == ok
     for bad in ("nonsense", "tcp/127.0.0.1:70000", "tcp/:7447", "foo/bar"):
         with pytest.raises(ValueError, match=repr(bad)):

@@ -43,4 +43,3 @@ def check_endpoint(endpoint: str) -> str:
         if m is None or int(m.group(1)) > 65535:
             raise ValueError(f"endpoint {endpoint!r}: expected {proto}/<host>:<port 0..65535>, got {address!r}")
     return endpoint
-

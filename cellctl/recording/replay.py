@@ -113,7 +113,9 @@ def read_cycle(path: Path | str) -> RecordedCycle:
             out.truncated = True
             out.skipped = f"stopped at byte {f.tell()} of {p.stat().st_size}: {type(err).__name__}: {err}"
     if out.truncated and not out.messages:
-        raise RecordingError(f"{str(p)!r} holds no readable message ({out.skipped}); not a cycle log, or cut before one")
+        raise RecordingError(
+            f"{str(p)!r} holds no readable message ({out.skipped}); not a cycle log, or cut before one"
+        )
     for m in out.messages:
         model = MESSAGE_TYPES.get(m.schema)
         if model is None:

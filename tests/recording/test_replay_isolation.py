@@ -149,7 +149,8 @@ def test_a_prefix_onto_a_cell_s_keys_is_refused_without_live() -> None:
         assert s.keys == []
     s = _Puts()
     republish(rec, s, rate=1000)
-    assert s.keys == [f"replay/20260101T000000-000-1/{keys.cmd('cell1')}", f"replay/20260101T000000-000-1/{keys.status('cell1')}"]
+    under = "replay/20260101T000000-000-1/"
+    assert s.keys == [f"{under}{keys.cmd('cell1')}", f"{under}{keys.status('cell1')}"]
 
 
 def test_the_supervisor_refuses_an_acted_on_request_id_and_a_stale_stamp(cfg: CellConfig) -> None:
@@ -168,7 +169,8 @@ def test_the_supervisor_refuses_an_acted_on_request_id_and_a_stale_stamp(cfg: Ce
         stale = sup.apply_command(encode(Command(command="reset", request_id="plc-2", stamp=old)))
         assert not stale.accepted and "3600 s old" in stale.reason and sup.top_state == "Stopped"
         ahead = (dt.datetime.now(dt.UTC) + dt.timedelta(minutes=5)).isoformat()
-        assert "in the future" in sup.apply_command(encode(Command(command="reset", request_id="p3", stamp=ahead))).reason
+        ahead_ack = sup.apply_command(encode(Command(command="reset", request_id="p3", stamp=ahead)))
+        assert "in the future" in ahead_ack.reason
         fresh = dt.datetime.now(dt.UTC).isoformat()
         assert sup.apply_command(encode(Command(command="reset", request_id="plc-4", stamp=fresh))).accepted
     finally:

@@ -282,6 +282,8 @@ class OpcuaGateway:
         self._link_reason: str | None = "connecting to the cell bus"
         self._locks: dict[str, asyncio.Lock] = {}
         self._seq = itertools.count(1)
+        # request ids unique across this gateway's restarts: the daemon refuses an id it acted on (600 s window)
+        self._boot = secrets.token_hex(3)
         self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="opcua-cmd")
         self._loop: asyncio.AbstractEventLoop | None = None
         self._inbox: asyncio.Queue[tuple[str, str, Any]] | None = None
@@ -520,7 +522,8 @@ class OpcuaGateway:
                 if value:
                     params[path.rsplit("/", 1)[1].lower()] = value
         try:
-            cmd = Command(request_id=f"opcua-{next(self._seq)}", user=f"opcua:{name}"[:64], params=params, **fields)
+            rid = f"opcua-{self._boot}-{next(self._seq)}"
+            cmd = Command(request_id=rid, user=f"opcua:{name}"[:64], params=params, **fields)
         except ValidationError as err:
             return await self._outcome(cell, None, S.BadInvalidArgument, f"invalid command: {err.errors()[0]['msg']}")
         self.commands_sent += 1
