@@ -54,6 +54,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--source", choices=("mixed", "closeup"), default="mixed", help="closeup: no twin renders")
     m.add_argument("--twin-fraction", type=float, default=0.4, help="share of draws on a twin render")
     m.add_argument("--size", type=int, default=256)
+    m.add_argument(
+        "--site",
+        choices=("unseen",),
+        default=None,
+        help="another site's steel, light and camera (cellctl.classify.site; testing enrollment only, never training)",
+    )
     add_config_arguments(m)
     m.set_defaults(func=run_contam)
 
@@ -155,6 +161,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(dn)
     dn.set_defaults(func=run_detector_enroll)
 
+    dp = dv.add_parser(
+        "proof",
+        help="generate and score the shifted generator, leave-one-family-out refits and the unseen site (enrolled "
+        "and not) with Clopper-Pearson intervals; JSON by section (cellctl.classify.proof)",
+    )
+    dp.add_argument("--surface", required=True, choices=SURFACES)
+    dp.add_argument("--out", required=True, type=Path, help="the JSON report (sections of an earlier run kept)")
+    dp.add_argument("--detector", type=Path, default=None, help="default <classifier.models_dir>/S.detect.pt")
+    dp.add_argument("--n", type=int, default=None, help="images per class (shifted, site; default 600 / 300)")
+    dp.add_argument("--seed", type=int, default=0, help="base seed; each set adds its own offset (in the JSON)")
+    dp.add_argument("--quick", action="store_true", help="a few close-up images per set (tests)")
+    dp.add_argument("--only", action="append", choices=("shifted", "lofo", "site"), help="run only these sections")
+    dp.add_argument("--work", type=Path, default=None, help="keep the generated images here (default: a temp dir)")
+    add_config_arguments(dp)
+    dp.set_defaults(func=run_detector_proof)
+
     c = sub.add_parser("classify", help="classify image files")
     c.add_argument("images", nargs="+")
     c.add_argument("--surface", required=True, choices=SURFACES)
@@ -203,6 +225,16 @@ def run_synth(args: argparse.Namespace) -> int:
 def run_contam(args: argparse.Namespace) -> int:
     from cellctl.classify.contam_dataset import contam_dataset
 
+    if args.site is not None:
+        from cellctl.classify.site import site_dataset
+
+        if args.shifted:
+            print("error: --site and --shifted are separate generators; give one", file=sys.stderr)
+            return 2
+        n_dirty = args.n // 2
+        summary = site_dataset(args.out, args.surface, args.n - n_dirty, n_dirty, seed=args.seed, size=args.size)
+        print(json.dumps(summary))
+        return 0
     summary = contam_dataset(
         args.out,
         args.surface,
@@ -324,6 +356,25 @@ def run_detector_eval(args: argparse.Namespace) -> int:
         card = json.loads(card_path.read_text())
         card.setdefault("metrics", {})[args.record] = report
         card_path.write_text(json.dumps(card, indent=2) + "\n")
+    return 0
+
+
+def run_detector_proof(args: argparse.Namespace) -> int:
+    from cellctl.classify.fusion import detector_path
+    from cellctl.classify.proof import SECTIONS, ProofSizes, merge_into, proof
+
+    cfg = config_from_args(args)
+    det = args.detector or detector_path(cfg.path(cfg.classifier.models_dir), args.surface)
+    sizes = ProofSizes.quick() if args.quick else ProofSizes()
+    if args.n is not None:
+        sizes = sizes.scaled(args.n)
+    sections = tuple(args.only) if args.only else SECTIONS
+    report = proof(args.surface, det, sizes=sizes, seed=args.seed, sections=sections, work=args.work)
+    report["command"] = " ".join(["cellctl", *sys.argv[1:]])
+    report = merge_into(args.out, report)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=1) + "\n")
+    print(json.dumps(report["targets"]))
     return 0
 
 
