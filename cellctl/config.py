@@ -354,7 +354,18 @@ class ClassifierConfig(_Model):
         default="fused", description="fused: batch norm folded + frozen graph (same outputs, faster)"
     )
     max_batch: int = Field(default=16, ge=1, le=256, description="queued classify requests run as one batch")
-    threads: int | None = Field(default=None, ge=1, le=256, description="torch CPU threads (default: all cores)")
+    threads: int | None = Field(
+        default=None,
+        ge=1,
+        le=256,
+        description="inference CPU threads: torch (default: all cores) and ONNX Runtime intra-op (default: 1 on "
+        "a 2-core host, else 2; cellctl.classify.runtime.default_threads)",
+    )
+    runtime: Literal["auto", "onnx", "torch"] = Field(
+        default="auto",
+        description="what runs the detector's networks: onnx = ONNX Runtime on <surface>.detect.onnx (`cellctl "
+        "detector export`), torch = PyTorch, auto = onnx when the export exists (a stale export is refused)",
+    )
     dataset_dir: Path = Field(default=Path("data/collected"), description="collect mode: where images are stored")
 
 

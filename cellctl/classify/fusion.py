@@ -131,6 +131,8 @@ class Detector:
             )
         self.model_id = model_id
         self.card = card
+        # an ONNX Runtime session that replaces the torch pass in maps() (cellctl.classify.runtime)
+        self.engine: Any = None
         # the blob stays with the detector: site enrollment (cellctl.classify.enroll) writes a
         # new file from it, and the traced backbone cannot give its state dict back
         self.blob = blob
@@ -138,6 +140,8 @@ class Detector:
 
     def maps(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Supervised logit map and anomaly distance map ``(N, GRID, GRID)`` of a batch in [0, 1]."""
+        if self.engine is not None:
+            return self.engine(x)
         raw = self.features(x)
         f = self.bank.standardise(raw)
         return self.head(raw if self.raw_head else f)[:, 0], self.bank(f)
@@ -184,8 +188,19 @@ class Detector:
         return out
 
     @staticmethod
-    def load(path: Path | str, features: nn.Module | None = None, surface: str | None = None) -> Detector:
+    def load(
+        path: Path | str,
+        features: nn.Module | None = None,
+        surface: str | None = None,
+        *,
+        runtime: str = "auto",
+        threads: int | None = None,
+        also_onnx: tuple[Path, ...] = (),
+    ) -> Detector:
         """Load ``<surface>.detect.pt`` (+ card). ``features`` = a shared backbone (else built).
+
+        ``runtime``/``threads``/``also_onnx``: ``classifier.runtime`` and ``classifier.threads``, and
+        further exports to try (:func:`cellctl.classify.runtime.attach_runtime`).
 
         Raises:
             ClassifierError: missing, unreadable or foreign file, or a card of other weights.
@@ -233,14 +248,32 @@ class Detector:
             # a fine-tuned backbone belongs to this file; only format 1 shares the ImageNet one
             own = blob.get("backbone")
             det = Detector(
-                fast_features(own) if own is not None else features if features is not None else fast_features(),
+                _LazyFeatures(own) if own is not None else features if features is not None else fast_features(),
                 blob,
                 f"{blob['surface']}-{kind}-{sha[:12]}",
                 card,
             )
         except (KeyError, RuntimeError, TypeError) as err:
             raise ClassifierError(f"{str(p)!r} is not a usable detector file: {err}") from err
+        from cellctl.classify.runtime import attach_runtime
+
+        attach_runtime(det, blob, p, runtime, threads, also_onnx)
         return det
+
+
+class _LazyFeatures(nn.Module):
+    """A fine-tuned backbone traced on first use: a detector that ONNX Runtime runs never needs
+    it (tracing costs ~1 s per load, more on busy cores); PyTorch runs and site enrollment do."""
+
+    def __init__(self, state: dict[str, torch.Tensor]) -> None:
+        super().__init__()
+        self.state = state
+        self.net: nn.Module | None = None
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if self.net is None:
+            self.net = fast_features(self.state)
+        return self.net(x)
 
 
 def fast_features(state: dict[str, torch.Tensor] | None = None) -> nn.Module:
@@ -254,7 +287,9 @@ def fast_features(state: dict[str, torch.Tensor] | None = None) -> nn.Module:
         return torch.jit.freeze(torch.jit.trace(feats, torch.zeros(1, 3, INPUT_SIZE, INPUT_SIZE)))
 
 
-def load_detectors(models_dir: Path | str) -> tuple[dict[str, Detector], dict[str, str]]:
+def load_detectors(
+    models_dir: Path | str, runtime: str = "auto", threads: int | None = None
+) -> tuple[dict[str, Detector], dict[str, str]]:
     """Every surface's detector in ``models_dir`` (each with its own fine-tuned backbone): ``(detectors, problems)``."""
     from cellctl.surface import SURFACES
 
@@ -266,7 +301,7 @@ def load_detectors(models_dir: Path | str) -> tuple[dict[str, Detector], dict[st
             problems[s] = f"no detector {str(path)!r}"
             continue
         try:
-            dets[s] = Detector.load(path, surface=s)
+            dets[s] = Detector.load(path, surface=s, runtime=runtime, threads=threads)
         except ClassifierError as err:
             problems[s] = str(err)
     return dets, problems

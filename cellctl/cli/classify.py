@@ -136,6 +136,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_config_arguments(de)
     de.set_defaults(func=run_detector_eval)
+    dx = dv.add_parser(
+        "export",
+        help="export a surface's detector networks to ONNX beside it (<surface>.detect.onnx), parity-checked "
+        "against PyTorch and recorded in its card (cellctl.classify.runtime; `detector train` does it too)",
+    )
+    dx.add_argument("--surface", required=True, choices=SURFACES)
+    dx.add_argument("--model", default=None, help="default: <classifier.models_dir>/<surface>.detect.pt")
+    add_config_arguments(dx)
+    dx.set_defaults(func=run_detector_export)
     dl = dv.add_parser(
         "label-check",
         help="score visible-mask surroundings factors on a held-out draw of the training generator (a pre-change "
@@ -337,7 +346,28 @@ def run_detector_train(args: argparse.Namespace) -> int:
         init_from=args.init_from,
         calib=args.calib,
     )
-    print(json.dumps({"model_id": card["model_id"], "test": card["metrics"]["test"], "seconds": card["train_seconds"]}))
+    from cellctl.classify.runtime import export_detector
+
+    # the export belongs to the weights just written: made now, so no stale one is left beside them
+    onnx = export_detector(_detector_path(args), command=card["command"])
+    print(
+        json.dumps(
+            {
+                "model_id": card["model_id"],
+                "test": card["metrics"]["test"],
+                "seconds": card["train_seconds"],
+                "onnx": onnx["file"],
+            }
+        )
+    )
+    return 0
+
+
+def run_detector_export(args: argparse.Namespace) -> int:
+    from cellctl.classify.runtime import export_detector
+
+    cmd = f"cellctl detector export --surface {args.surface}" + (f" --model {args.model}" if args.model else "")
+    print(json.dumps(export_detector(_detector_path(args), command=cmd)))
     return 0
 
 
@@ -409,14 +439,17 @@ def run_classify(args: argparse.Namespace) -> int:
     from cellctl.classify.data import load_image
     from cellctl.classify.fusion import Detector, detector_path
     from cellctl.classify.infer import SurfaceModel
+    from cellctl.classify.runtime import onnx_path
     from cellctl.errors import CellError
 
     cfg = config_from_args(args)
     det_file = detector_path(cfg.path(cfg.classifier.models_dir), args.surface)
+    # classifier.runtime picks ONNX Runtime or PyTorch; an enrolled file shares the shipped export
+    run = {"runtime": cfg.classifier.runtime, "threads": cfg.classifier.threads, "also_onnx": (onnx_path(det_file),)}
     if args.detector:
-        model = Detector.load(args.detector, surface=args.surface)
+        model = Detector.load(args.detector, surface=args.surface, **run)
     elif args.decision == "detector" or (args.decision == "auto" and det_file.is_file() and not args.model):
-        model = Detector.load(det_file, surface=args.surface)
+        model = Detector.load(det_file, surface=args.surface, **run)
     else:
         model = SurfaceModel.load(_model_path(args), surface=args.surface, variant=args.variant)
     rc = 0

@@ -48,6 +48,7 @@ class ClassifierService:
         variant: ``fp32`` or ``fused``.
         threads: torch CPU threads (None: all cores).
         max_pixels: pixel budget of a request's image, checked from its header before decoding.
+        runtime: ``classifier.runtime``: what runs the detectors' networks (:mod:`cellctl.classify.runtime`).
     """
 
     def __init__(
@@ -57,6 +58,7 @@ class ClassifierService:
         threads: int | None = None,
         decision: str = "auto",
         max_pixels: int = MAX_IMAGE_PIXELS,
+        runtime: str = "auto",
     ) -> None:
         import os
 
@@ -68,7 +70,7 @@ class ClassifierService:
         torch.set_num_threads(threads or os.cpu_count() or 1)
         self.detectors: dict[str, Any] = {}
         if decision in ("auto", "detector"):
-            self.detectors, missing = load_detectors(models_dir)
+            self.detectors, missing = load_detectors(models_dir, runtime, threads)
             if decision == "detector" and missing:
                 raise ClassifierError(f"classifier.decision is 'detector' but: {missing}")
         self.models, self.problems = load_surface_models(models_dir, variant)
@@ -227,7 +229,9 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
     if name not in BACKENDS:
         raise ConfigError(f"classifier backend {name!r} is unknown; expected one of {list(BACKENDS)}")
     c = cfg.classifier
-    service = ClassifierService(cfg.path(c.models_dir), c.variant, c.threads, c.decision, cfg.camera.max_image_pixels)
+    service = ClassifierService(
+        cfg.path(c.models_dir), c.variant, c.threads, c.decision, cfg.camera.max_image_pixels, runtime=c.runtime
+    )
     session = open_session(cfg, "client")
     try:
         server = BatchingClassifyServer(session, cfg.cell_id, service, c.max_batch)
