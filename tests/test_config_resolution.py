@@ -59,3 +59,14 @@ def test_nothing_is_written_into_the_install(elsewhere: Path, capsys) -> None:  
     assert (elsewhere / "logs" / "cells.db").is_file()
     err = capsys.readouterr().err
     assert f"config {project_root() / 'config' / 'cell.yaml'} (packaged defaults; outputs under ./logs)" in err
+
+
+def test_hmi_users_go_beside_the_cell_config_not_into_the_install(elsewhere: Path, monkeypatch, capsys) -> None:  # noqa: ANN001
+    import io
+
+    _write(elsewhere / "config" / "cell.yaml", "cellLocal")
+    monkeypatch.setattr("sys.stdin", io.StringIO("correct horse battery\n"))
+    assert main(["hmi", "user", "add", "alice", "--role", "operator", "--password-stdin"]) == 0
+    assert (elsewhere / "config" / "hmi.yaml").is_file()
+    assert f"{elsewhere / 'config' / 'hmi.yaml'}: add alice" in capsys.readouterr().err
+    assert not (project_root() / "config" / "hmi.yaml").exists()

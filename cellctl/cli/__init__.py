@@ -77,7 +77,7 @@ def resolve_config_args(args: argparse.Namespace) -> None:
     from cellctl.config import PACKAGED, output_overrides, resolve_config_path
 
     path, source = resolve_config_path(args.config)
-    args.config = str(path)
+    args.config, args.config_source = str(path), source
     if source == PACKAGED:
         args.overrides = [*output_overrides(Path.cwd() / "logs"), *args.overrides]
         source += "; outputs under ./logs"

@@ -12,7 +12,8 @@ from cellctl.errors import ConfigError
 
 
 def _hmi_config_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--hmi-config", default=None, help="HMI config YAML (default: config/hmi.yaml; users, port)")
+    p.add_argument("--hmi-config", default=None,
+                   help="HMI config YAML (default: hmi.yaml beside the cell config; users, port)")  # fmt: skip
     p.add_argument("--hmi-set", dest="hmi_overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override an HMI config key, e.g. --hmi-set port=8081 (repeatable)")  # fmt: skip
 
@@ -27,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(p)
     p.set_defaults(func=run_hmi)
     users = p.add_subparsers(dest="hmi_verb", metavar="user", required=False)
-    u = users.add_parser("user", help="add, remove or list HMI users (config/hmi.yaml)")
+    u = users.add_parser("user", help="add, remove or list HMI users (hmi.yaml beside the cell config)")
     usub = u.add_subparsers(dest="user_verb", required=True)
     add = usub.add_parser("add", help="add a user or set a new password (read from the terminal or stdin)")
     add.add_argument("name")
@@ -42,9 +43,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _hmi_path(args: argparse.Namespace) -> Path:
-    from cellctl.hmi.config import default_hmi_config_path
+    """``--hmi-config``, else ``hmi.yaml`` beside the cell config in use (``./config/hmi.yaml`` with the
+    packaged defaults): user edits never land in the install."""
+    from cellctl.config import PACKAGED
 
-    return Path(args.hmi_config) if args.hmi_config else default_hmi_config_path()
+    if args.hmi_config:
+        return Path(args.hmi_config)
+    if getattr(args, "config_source", PACKAGED) == PACKAGED:
+        return Path.cwd() / "config" / "hmi.yaml"
+    return Path(args.config).resolve().parent / "hmi.yaml"
 
 
 def run_user(args: argparse.Namespace) -> int:
@@ -98,7 +105,7 @@ def run_hmi(args: argparse.Namespace) -> int:
         # its own principal (cellctl.bus.security), not the config's: bus.yaml names `operator`, which may not command
         cfg.bus.principal = args.principal
     path = _hmi_path(args)
-    hcfg = load_hmi_config(args.hmi_config, args.hmi_overrides)
+    hcfg = load_hmi_config(path if args.hmi_config or path.is_file() else None, args.hmi_overrides)
     if args.host is not None:
         hcfg.host = args.host
     if args.port is not None:
