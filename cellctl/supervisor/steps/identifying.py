@@ -45,7 +45,13 @@ class Identifying(Step):
         ctx.log.image(topics.CAMERA_IMAGE, data, reply.format, "camera")
         if ctx.identify is None:
             raise IdentificationError("no identifier is configured in this supervisor")
-        bgr = decode_image(data, f"from the camera ({reply.format})", order="bgr", error=CameraError)
+        bgr = decode_image(
+            data,
+            f"from the camera ({reply.format})",
+            order="bgr",
+            error=CameraError,
+            max_pixels=ctx.cfg.camera.max_image_pixels,
+        )
         ident = ctx.identify(bgr, reply.intrinsics, T_base_cam, ctx.catalog)
         record = ident.to_dict() if hasattr(ident, "to_dict") else {"bin_type": ident.bin_type}
         ctx.log.write_json(topics.BIN_IDENTIFICATION, "cellctl.Identification", record)
