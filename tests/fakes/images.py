@@ -5,7 +5,7 @@ from __future__ import annotations
 import struct
 import zlib
 
-__all__ = ["png_bomb"]
+__all__ = ["jpeg_claiming", "png_bomb", "png_claiming"]
 
 
 def _chunk(kind: bytes, data: bytes) -> bytes:
@@ -31,3 +31,21 @@ def png_bomb(width: int = 20000, height: int = 20000, rows_per_block: int = 100)
     body = first + again * (height // rows_per_block - 1) + tail + struct.pack(">I", adler)
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
     return b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", body) + _chunk(b"IEND", b"")
+
+
+def png_claiming(width: int, height: int) -> bytes:
+    """A PNG whose IHDR claims ``width``×``height`` with almost no pixel data (a lying header)."""
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    idat = zlib.compress(b"\0" * 64)
+    return b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", idat) + _chunk(b"IEND", b"")
+
+
+def jpeg_claiming(width: int, height: int) -> bytes:
+    """A real 32×32 JPEG whose SOF0 is patched to claim ``width``×``height``."""
+    import cv2
+    import numpy as np
+
+    data = bytearray(cv2.imencode(".jpg", np.zeros((32, 32, 3), np.uint8))[1].tobytes())
+    i = data.index(b"\xff\xc0")
+    data[i + 5 : i + 9] = struct.pack(">HH", height, width)
+    return bytes(data)
