@@ -185,6 +185,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     dp.add_argument("--work", type=Path, default=None, help="keep the generated images here (default: a temp dir)")
     add_config_arguments(dp)
     dp.set_defaults(func=run_detector_proof)
+    db = dv.add_parser(
+        "bank-compare",
+        help="the clean-only bank alone on frozen ImageNet Lite0/1/2 features (128-192 px) vs the fine-tuned "
+        "backbone, on the shifted generator and the unseen site (cellctl.classify.bank_compare)",
+    )
+    db.add_argument("--surface", required=True, choices=SURFACES)
+    db.add_argument("--out", required=True, type=Path, help="the JSON report")
+    db.add_argument("--detector", type=Path, default=None, help="default <classifier.models_dir>/S.detect.pt")
+    db.add_argument("--n", type=int, default=200, help="clean and dirty images per test set (default 200)")
+    db.add_argument("--seed", type=int, default=0)
+    db.add_argument("--source", choices=("mixed", "closeup"), default="mixed", help="closeup: no twin renders")
+    add_config_arguments(db)
+    db.set_defaults(func=run_detector_bank_compare)
 
     c = sub.add_parser("classify", help="classify image files")
     c.add_argument("images", nargs="+")
@@ -405,6 +418,21 @@ def run_detector_proof(args: argparse.Namespace) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps(report["targets"]))
+    return 0
+
+
+def run_detector_bank_compare(args: argparse.Namespace) -> int:
+    from cellctl.classify.bank_compare import bank_compare
+    from cellctl.classify.fusion import detector_path
+
+    cfg = config_from_args(args)
+    det = args.detector or detector_path(cfg.path(cfg.classifier.models_dir), args.surface)
+    report = bank_compare(args.surface, det, n=args.n, seed=args.seed, source=args.source)
+    report["command"] = " ".join(["cellctl", *sys.argv[1:]])
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=1) + "\n")
+    for row in report["rows"]:
+        print(json.dumps(row))
     return 0
 
 

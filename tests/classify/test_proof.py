@@ -91,3 +91,19 @@ def test_proof_quick_runs_end_to_end(tmp_path: Path) -> None:
     )
     again = json.loads(out.read_text())
     assert again["lofo"] == report["lofo"] and again["shifted"] == report["shifted"]
+
+
+@pytest.mark.parametrize(("name", "channels"), [("lite1", 24 + 40 + 112), ("lite2", 24 + 48 + 120)])
+def test_frozen_backbones_give_multiscale_patches_on_the_stride_8_grid(name: str, channels: int) -> None:
+    """The frozen ImageNet Lite1/Lite2 of bank-compare tap strides 4/8/16 onto an S/8 grid, at 128 and 160 px."""
+    import torch
+
+    from cellctl.classify.bank_compare import frozen_backbone
+
+    for size in (128, 160):
+        f = frozen_backbone(name, size)
+        with torch.inference_mode():
+            out = f(torch.rand(2, 3, size, size))
+        assert out.shape == (2, channels, size // 8, size // 8)
+    with pytest.raises(ClassifierError, match="'resnet'"):
+        frozen_backbone("resnet", 128)
