@@ -41,6 +41,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         " supervisor is alive",
     )
     p.add_argument(
+        "--principal",
+        default="replay",
+        help="who the replay is on a secured bus (default: replay, which may publish under replay/** only)",
+    )
+    p.add_argument(
         "--verify", action="store_true", help="re-run the supervisor on the recorded replies; exit 1 on a difference"
     )
     add_config_arguments(p)
@@ -103,6 +108,9 @@ def run_replay(args: argparse.Namespace) -> int:
             " cellctl recover writes a valid copy",
             file=sys.stderr,
         )
+    if cfg.bus.security_dir is not None:
+        # its own principal (cellctl.bus.security), not the config's: the ACL is the last guard against a replay
+        cfg.bus.principal = args.principal
     stop = threading.Event()
     from cellctl.cli.worker import install_stop_signals
 

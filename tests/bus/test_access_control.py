@@ -145,7 +145,7 @@ def test_wrong_password_cannot_connect(cfg, deployment: Path, tmp_path: Path, ce
 
 def test_only_the_plc_may_command(cell, secured) -> None:  # noqa: ANN001
     observer = Client(secured("operator"))
-    intruders = [Client(secured(p)) for p in ("operator", "viewer", "robot", "engineer")]
+    intruders = [Client(secured(p)) for p in ("operator", "viewer", "robot", "engineer", "replay")]
     plc = Client(secured("plc"))
     try:
         for i, intruder in enumerate(intruders):
