@@ -306,6 +306,7 @@ def proof(
                 continue
             t0 = time.perf_counter()
             out[name] = fn(det, surface, sizes, seeds, wd, say)
+            out[name]["sizes"] = asdict(sizes)  # slices of one file may use other sizes
             out["seconds"][name] = round(time.perf_counter() - t0, 1)
             say(f"proof {surface}: {name} done in {out['seconds'][name]:.0f} s")
     out["targets"] = _targets(out)
@@ -509,14 +510,14 @@ def _site(det: Any, surface: str, sizes: ProofSizes, seeds: dict, wd: Path, say:
 
 def merge_into(path: Path, new: dict[str, Any]) -> dict[str, Any]:
     """``new`` with the sections of an earlier proof of the same detector and seed at ``path`` kept
-    (sections run in slices land in one file); ``targets`` recomputed."""
+    (sections run in slices land in one file, each with its own ``sizes``); ``targets`` recomputed."""
     if not path.is_file():
         return new
     try:
         old = json.loads(path.read_text())
     except (OSError, ValueError):
         return new
-    key = ("format", "surface", "seed", "sizes")
+    key = ("format", "surface", "seed")
     # compared as JSON: a tuple in ``new`` is a list in the file
     same = json.loads(json.dumps([new.get(k) for k in key])) == [old.get(k) for k in key]
     same = same and old.get("detector", {}).get("model_id") == new["detector"]["model_id"]
