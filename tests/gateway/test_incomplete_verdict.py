@@ -1,5 +1,7 @@
-"""A partial cycle reaches the PLC as `incomplete` through the OPC UA gateway, with each surface's seen
-share and the minimum it missed (issue 35); a real daemon, worker doubles, an asyncua client."""
+"""Through the OPC UA gateway (issue 35): the shipped whole-bin cycle is `clean` when each surface is seen
+enough, and a cycle made partial (one surface by config, or part of the inside seen) reaches the PLC as
+`incomplete` with each surface's seen share and the minimum it missed; a real daemon, worker doubles, an
+asyncua client."""
 
 from __future__ import annotations
 
@@ -11,6 +13,8 @@ from cellctl.gateway.opcua import OpcuaGateway
 from cellctl.supervisor.definition import PackMLState
 from tests.fakes.workers import FakeCell
 from tests.gateway.conftest import PASSWORD, USER, Ua
+from tests.supervisor.test_station_loop import faces as faces  # noqa: F401 - the case-study faces per surface
+from tests.supervisor.test_whole_default import WideWholeFakeCell
 
 SHIPPED = {"external": 0.6, "internal": 0.6}
 
@@ -22,22 +26,48 @@ def shipped_minimum(cfg):  # noqa: ANN001, ANN201 - the module's daemon gates on
     cfg.classifier.verdict.min_seen_fraction = {}
 
 
-def test_a_one_surface_cycle_is_incomplete_on_the_plc_side(shipped_minimum, gateway: OpcuaGateway, url: str) -> None:  # noqa: ANN001
-    async def body() -> dict:
-        async with Ua(url, USER, PASSWORD) as c:
-            assert (await c.read("Admin/LastCycle/Seen/internal")) == -1.0  # no cycle yet: unknown
-            st, _ = await c.call("Reset")
-            assert st.is_good()
-            await c.wait_value("Status/StateCurrent", PackMLState.Idle)
-            st, _ = await c.call("Start")
-            assert st.is_good()
-            await c.wait_value("Status/StateCurrent", PackMLState.Complete, 30)
-            await c.wait_value("Admin/LastCycle/Verdict", "incomplete")
-            paths = ("Outcome", "Seen/external", "Seen/internal", "MinSeen/external", "MinSeen/internal")
-            return {p: await c.read(f"Admin/LastCycle/{p}") for p in paths}
+@pytest.fixture
+def shipped(shipped_minimum):  # noqa: ANN001, ANN201 - and the shipped whole-bin cycle (the conftest pins one station)
+    shipped_minimum.planner.whole.enabled = True
+    yield shipped_minimum
+    shipped_minimum.planner.whole.enabled = False
 
+
+async def _cycle(url: str) -> dict:
+    """Reset, Start, wait for Complete through OPC UA; the LastCycle values then."""
+    async with Ua(url, USER, PASSWORD) as c:
+        st, _ = await c.call("Reset")
+        assert st.is_good()
+        await c.wait_value("Status/StateCurrent", PackMLState.Idle)
+        id_before = await c.read("Admin/LastCycle/CycleId")
+        st, _ = await c.call("Start")
+        assert st.is_good()
+        await c.wait_value("Status/StateCurrent", PackMLState.Complete, 30)
+        for _ in range(250):  # the result may land just after the state
+            if await c.read("Admin/LastCycle/CycleId") != id_before:
+                break
+            await asyncio.sleep(0.02)
+        paths = ("Outcome", "Verdict", "Seen/external", "Seen/internal", "MinSeen/internal")
+        return {p: await c.read(f"Admin/LastCycle/{p}") for p in paths}
+
+
+def test_the_shipped_whole_bin_cycle_is_clean_only_when_each_surface_is_seen(shipped, gateway, url, faces) -> None:  # noqa: ANN001
+    with WideWholeFakeCell(shipped, faces):  # three stations, every face of both surfaces seen
+        seen_all = asyncio.run(_cycle(url))
+
+    class Partial(WideWholeFakeCell):
+        internal_share = 0.3
+
+    with Partial(shipped, faces):
+        partial = asyncio.run(_cycle(url))
+    assert seen_all["Outcome"] == partial["Outcome"] == "completed"
+    assert seen_all["Verdict"] == "clean" and seen_all["Seen/external"] == pytest.approx(1.0)
+    assert seen_all["Seen/internal"] == pytest.approx(1.0)
+    assert partial["Verdict"] == "incomplete" and 0 < partial["Seen/internal"] < partial["MinSeen/internal"] == 0.6
+
+
+def test_a_one_surface_cycle_is_incomplete_on_the_plc_side(shipped_minimum, gateway: OpcuaGateway, url: str) -> None:  # noqa: ANN001
     with FakeCell(shipped_minimum):  # single-station doubles (the conftest's pin): six external faces seen
-        got = asyncio.run(body())
-    assert got["Outcome"] == "completed"
-    assert 0 < got["Seen/external"] < 0.01 and got["Seen/internal"] == 0.0
-    assert got["MinSeen/external"] == got["MinSeen/internal"] == 0.6
+        got = asyncio.run(_cycle(url))
+    assert got["Outcome"] == "completed" and got["Verdict"] == "incomplete"
+    assert 0 < got["Seen/external"] < 0.01 and got["Seen/internal"] == 0.0 and got["MinSeen/internal"] == 0.6
