@@ -10,6 +10,12 @@ and accuracy on a fresh held-out set drawn from the same source as the training 
 (seed 10000 + ``--seed``, never used for training).
 fp32, fused and the detector are timed round-robin, call by call, so a load change during
 the run hits all of them alike (``detector_vs_fused_p50`` is their ratio).
+
+The detector runs twice side by side from the same file: ``detector`` on PyTorch (the traced
+backbone, as before ONNX Runtime) and ``detector_onnx`` on ONNX Runtime
+(:mod:`cellctl.classify.runtime`, at ``classifier.threads`` or its default), plus ORT at the
+other thread count (``detector_onnx_<k>threads``); ``onnx_vs_torch`` counts identical labels on
+the bench's images and ``setup.loadavg_during_latency`` the load around the timed loop.
 """
 
 from __future__ import annotations
@@ -88,6 +94,41 @@ def _int8(model: Any, calib: list[np.ndarray]) -> Any:
         return convert_fx(prepared)
 
 
+def _detectors(path: Path, surface: str, threads: int | None) -> dict[str, Any]:
+    """Today's PyTorch detector and the ONNX Runtime one at ``classifier.threads`` (else its default),
+    plus ORT at the other thread count on a multi-core host: the same file, side by side."""
+    if not path.is_file():
+        return {}
+    from cellctl.classify.fusion import Detector
+    from cellctl.classify.runtime import default_threads, onnx_path
+
+    dets: dict[str, Any] = {"detector": Detector.load(path, surface=surface, runtime="torch")}
+    if onnx_path(path).is_file():
+        t = threads or default_threads()
+        dets["detector_onnx"] = Detector.load(path, surface=surface, runtime="onnx", threads=t)
+        if (os.cpu_count() or 1) > 1:
+            other = 2 if t == 1 else 1
+            dets[f"detector_onnx_{other}threads"] = Detector.load(path, surface=surface, runtime="onnx", threads=other)
+    return dets
+
+
+def _proba(det: Any) -> Any:
+    def proba(ims: list[np.ndarray]) -> np.ndarray:
+        return np.array([d.p_dirty for d in det.predict(ims)])
+
+    return proba
+
+
+def _agreement(ref: Any, other: Any, images: list[np.ndarray]) -> dict[str, Any]:
+    """Same decisions? Labels and largest |Δp_dirty| of two detectors over the bench's images."""
+    a, b = ref.predict(images), other.predict(images)
+    return {
+        "n": len(images),
+        "labels_identical": sum(x.label == z.label for x, z in zip(a, b, strict=True)),
+        "max_abs_p_dirty": float(max(abs(x.p_dirty - z.p_dirty) for x, z in zip(a, b, strict=True))),
+    }
+
+
 def bench_classify(opts: BenchOptions) -> dict[str, Any]:
     """Measure every variant; returns ``{"fp32": {...}, "fused": {...}, "int8": {...}, "setup": {...}}``."""
     import torch
@@ -119,22 +160,17 @@ def bench_classify(opts: BenchOptions) -> dict[str, Any]:
         "fused": SurfaceModel.load(path, surface=surface, variant="fused"),
     }
     fns: dict[str, Any] = {name: model.predict_proba for name, model in models.items()}
-    det_path = cfg.path(cfg.classifier.models_dir) / f"{surface}.detect.pt"
-    det = None
-    if det_path.is_file():
-        from cellctl.classify.fusion import Detector
-
-        det = Detector.load(det_path, surface=surface)
-
-        def det_proba(ims: list[np.ndarray]) -> np.ndarray:
-            return np.array([d.p_dirty for d in det.predict(ims)])
-
-        fns["detector"] = det_proba
+    dets = _detectors(cfg.path(cfg.classifier.models_dir) / f"{surface}.detect.pt", surface, cfg.classifier.threads)
+    for name, det in dets.items():
+        fns[name] = _proba(det)
+        models[name] = det
+    load_start = os.getloadavg()
     print(f"bench: batch-1 latency of {', '.join(fns)}, interleaved", file=sys.stderr)
     lat = _interleaved(fns, images, n)
+    load_end = os.getloadavg()
     for name, fn in fns.items():
         p = fn(images)
-        dec = det if name == "detector" else models[name]
+        dec = models[name]
         out[name] = {
             "ms_p50": round(lat[name][0], 2),
             "ms_p95": round(lat[name][1], 2),
@@ -142,12 +178,18 @@ def bench_classify(opts: BenchOptions) -> dict[str, Any]:
             "accuracy": metrics(p, y, dec.threshold, dec.band)["accuracy"],
             "model_id": dec.model_id,
         }
-    if det is not None:
-        out["detector"]["note"] = (
-            "whole per-image decision: resize, fine-tuned backbone to block 10, patch head, "
-            "memory-bank distances, fusion, calibration, heat map"
-        )
+        if name in dets:
+            eng = dets[name].engine
+            out[name]["runtime"] = eng.describe() if eng is not None else {"runtime": "torch", "threads": threads}
+            out[name]["note"] = (
+                "whole per-image decision: resize, fine-tuned backbone to block 10, patch head, "
+                "memory-bank distances, fusion, calibration, heat map"
+            )
+    if "detector" in dets:
         out["detector_vs_fused_p50"] = round(lat["detector"][0] / lat["fused"][0], 3)
+    if "detector_onnx" in dets:
+        out["detector_onnx_vs_torch_p50"] = round(lat["detector_onnx"][0] / lat["detector"][0], 3)
+        out["onnx_vs_torch"] = _agreement(dets["detector"], dets["detector_onnx"], images)
     print("bench: int8 (reference)", file=sys.stderr)
     try:
         q = _int8(base, images[:64])
@@ -171,10 +213,14 @@ def bench_classify(opts: BenchOptions) -> dict[str, Any]:
         out["int8"] = {"error": f"{type(err).__name__}: {err}"}
     load = os.getloadavg()
     out["setup"] = {
+        "loadavg_during_latency": {"start": [round(v, 2) for v in load_start], "end": [round(v, 2) for v in load_end]},
         "surface": surface,
         "model": _shown(Path(path), Path(cfg.root)),
         "input_px": base.input_size,
         "threads": threads,
+        "threads_note": "torch threads (classifier.threads, default all cores); ONNX Runtime intra-op threads "
+        "are in each detector_onnx entry (default runtime.default_threads(): 1 on 2 cores)",
+        "onnx_session": "CPU EP, ORT_ENABLE_ALL, sequential, inter-op 1, no spinning (cellctl.classify.runtime)",
         "cpu_count": os.cpu_count(),
         "loadavg_1m": round(load[0], 2),
         "n_latency": n,
