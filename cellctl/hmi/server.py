@@ -405,7 +405,8 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
             raise HttpError(403, f"changing the unit mode needs the maintenance role; {s.user!r} is {s.role!r}")
         fields = body.model_dump(exclude={"nonce"}, exclude_none=True)
         try:
-            cmd = Command(**fields, request_id=hmi.link.next_request_id(s.user), user=f"hmi:{s.user}")
+            # stamped here, on the HMI's clock: the supervisor refuses a stale or replayed copy (replay_guard)
+            cmd = Command(**fields, request_id=hmi.link.next_request_id(s.user), user=f"hmi:{s.user}", stamp=now_iso())
         except ValidationError as err:
             raise HttpError(422, _explain(err)) from None
         what = cmd.name if (cmd.command or cmd.cntrl_cmd) else f"unit mode {cmd.unit_mode or cmd.unit_mode_code}"

@@ -126,6 +126,26 @@ def test_handshake_and_bad_writes(gateway: OpcuaGateway, spy, url: str) -> None:
     assert [json.loads(p).get("cntrl_cmd") or json.loads(p).get("unit_mode_code") for p in spy.payloads] == [1, 9, 2, 1]
 
 
+def test_commands_carry_the_gateways_stamp_and_the_supervisor_checks_it(gateway, spy, url, monkeypatch) -> None:  # noqa: ANN001
+    hour_ago = (dt.datetime.now(dt.UTC) - dt.timedelta(hours=1)).isoformat()
+
+    async def body() -> None:
+        async with Ua(url, USER, PASSWORD) as c:
+            assert (await c.call("Reset"))[0].is_good()
+            await c.wait_value("Status/StateCurrent", PackMLState.Idle)
+            # a gateway whose clock is an hour behind: its otherwise valid Stop is refused as stale
+            monkeypatch.setattr("cellctl.gateway.opcua.server.now_iso", lambda: hour_ago)
+            st, reason = await c.call("Stop")
+            assert st.value == S.BadInvalidArgument and "s old" in reason
+            await asyncio.sleep(0.3)
+            assert await c.read("Status/StateCurrent") == PackMLState.Idle
+
+    run(body())
+    fresh, stale = (json.loads(p)["stamp"] for p in spy.payloads)
+    assert abs((dt.datetime.now(dt.UTC) - dt.datetime.fromisoformat(fresh)).total_seconds()) < 30
+    assert stale == hour_ago
+
+
 def test_start_params_travel_with_start(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
     async def body() -> None:
         async with Ua(url, USER, PASSWORD) as c:

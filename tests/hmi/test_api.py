@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import datetime as dt
+import json
 import sqlite3
 import time
 
@@ -309,3 +311,24 @@ def test_odd_tokens_and_bodies_are_refused_cleanly(cell, hmi, client: Client) ->
     r = client.post("/api/cmd", {"command": "reset", "user": "hmi:mallory"})
     assert r.status == 422 and "user" in r.json()["error"]  # the HMI sets who sent it, never the client
     assert cell.supervisor.top_state == "Stopped"
+
+
+def test_hmi_commands_carry_the_hmis_stamp_and_the_supervisor_checks_it(cell, hmi, client: Client, monkeypatch) -> None:  # noqa: ANN001
+    wait_reachable(client)
+    assert client.login("alice").status == 200
+    seen: list[dict] = []  # what reached the daemon, as it arrived
+    real = cell.supervisor.apply_command
+    monkeypatch.setattr(
+        cell.supervisor, "apply_command", lambda payload: seen.append(json.loads(payload)) or real(payload)
+    )
+    r = client.cmd("reset")
+    assert r.status == 200 and r.json()["ack"]["accepted"], r.body
+    age = dt.datetime.now(dt.UTC) - dt.datetime.fromisoformat(seen[-1]["stamp"])
+    assert abs(age.total_seconds()) < 30
+    client.wait_state("Idle")
+    # an HMI whose clock is an hour behind: its otherwise valid Stop is refused as stale, nothing moves
+    hour_ago = (dt.datetime.now(dt.UTC) - dt.timedelta(hours=1)).isoformat()
+    monkeypatch.setattr("cellctl.hmi.server.now_iso", lambda: hour_ago)
+    r = client.cmd("stop")
+    assert r.status == 409 and "s old" in r.json()["error"], r.body
+    assert seen[-1]["stamp"] == hour_ago and cell.supervisor.top_state == "Idle"

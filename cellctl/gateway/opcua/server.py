@@ -51,7 +51,17 @@ from cellctl.gateway.opcua.space import (
     last_cycle_values,
 )
 from cellctl.login_throttle import LoginThrottle
-from cellctl.messages import Ack, Command, CycleResult, Event, LastCycle, PackMLCommand, Status, UnitMode
+from cellctl.messages import (
+    Ack,
+    Command,
+    CycleResult,
+    Event,
+    LastCycle,
+    PackMLCommand,
+    Status,
+    UnitMode,
+    now_iso,
+)
 from cellctl.supervisor.definition import PackMLState
 from cellctl.surface import SURFACES
 
@@ -523,7 +533,8 @@ class OpcuaGateway:
                     params[path.rsplit("/", 1)[1].lower()] = value
         try:
             rid = f"opcua-{self._boot}-{next(self._seq)}"
-            cmd = Command(request_id=rid, user=f"opcua:{name}"[:64], params=params, **fields)
+            # stamped on the gateway's clock: the supervisor refuses a stale or replayed copy (replay_guard)
+            cmd = Command(request_id=rid, user=f"opcua:{name}"[:64], params=params, stamp=now_iso(), **fields)
         except ValidationError as err:
             return await self._outcome(cell, None, S.BadInvalidArgument, f"invalid command: {err.errors()[0]['msg']}")
         self.commands_sent += 1
