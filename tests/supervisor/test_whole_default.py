@@ -71,7 +71,7 @@ def test_a_fresh_default_config_runs_a_whole_bin_cycle_and_calls_a_seen_bin_clea
     assert last.admin.last_cycle.verdict == "clean"
 
 
-def test_a_whole_bin_cycle_below_its_minimum_is_incomplete_on_status_result_and_log(cfg, cell, plc, faces) -> None:  # noqa: F811
+def test_a_partly_seen_whole_bin_cycle_is_incomplete_on_status_log_replay(cfg, cell, plc, faces, tmp_path) -> None:  # noqa: ANN001, F811
     class Partial(WideWholeFakeCell):
         internal_share = 0.3
 
@@ -91,6 +91,15 @@ def test_a_whole_bin_cycle_below_its_minimum_is_incomplete_on_status_result_and_
         (logged,) = [m for _, ch, m in make_reader(f).iter_messages() if ch.topic == keys.result(cfg.cell_id)]
     assert b'"verdict":"incomplete"' in logged.data.replace(b" ", b"")
     assert cell.index.get(res.cycle_id).verdict == "incomplete"
+    # replay --verify gates with the minimum the log recorded, whatever the replaying config says
+    from cellctl.recording.replay import verify
+    from tests.fakes.workers import fake_identify
+    from tests.supervisor.test_cycle_over_zenoh import _verify_config
+
+    vcfg = _verify_config(tmp_path / "v", settle_s=0)
+    vcfg.classifier.verdict.min_seen_fraction = {}
+    report = verify(cfg.path(res.log), vcfg, timeout_s=30, identification=(fake_identify, cell.supervisor.catalog))
+    assert report.ok, report.differences
 
 
 def test_one_station_one_surface_by_config_is_incomplete_and_dirt_seen_stays_dirty(tmp_path, port) -> None:  # noqa: ANN001
