@@ -211,9 +211,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument(
         "--decision",
         choices=("auto", "detector", "supervised"),
-        default="auto",
-        help="detector: combined supervised + clean-only decision (<surface>.detect.pt); supervised: the "
-        "whole-image network only; auto: the detector when its file exists (default)",
+        default=None,
+        help="detector: combined supervised + clean-only decision (classifier.detector_files or "
+        "<surface>.detect.pt); supervised: the whole-image network only; auto: the detector when its file exists; "
+        "default: classifier.decision (detector), or supervised when --model is given",
     )
     add_config_arguments(c)
     c.set_defaults(func=run_classify)
@@ -474,9 +475,13 @@ def run_classify(args: argparse.Namespace) -> int:
     det_file = detector_path(cfg.path(cfg.classifier.models_dir), args.surface)
     # classifier.runtime picks ONNX Runtime or PyTorch; an enrolled file shares the shipped export
     run = {"runtime": cfg.classifier.runtime, "threads": cfg.classifier.threads, "also_onnx": (onnx_path(det_file),)}
+    decision = args.decision or ("supervised" if args.model else cfg.classifier.decision)
+    enrolled = getattr(cfg.classifier.detector_files, args.surface)
+    if enrolled is not None:  # the cell's site-enrolled file decides, as in the worker
+        det_file = cfg.path(enrolled)
     if args.detector:
         model = Detector.load(args.detector, surface=args.surface, **run)
-    elif args.decision == "detector" or (args.decision == "auto" and det_file.is_file() and not args.model):
+    elif decision == "detector" or (decision == "auto" and det_file.is_file()):
         model = Detector.load(det_file, surface=args.surface, **run)
     else:
         model = SurfaceModel.load(_model_path(args), surface=args.surface, variant=args.variant)

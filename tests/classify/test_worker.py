@@ -110,7 +110,9 @@ def test_queued_requests_are_batched(cfg: CellConfig, router, tiny_models: Path)
 
 
 def test_run_worker_announces_and_stops(cfg: CellConfig, router, tiny_models: Path) -> None:
-    cfg2 = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"models_dir": tiny_models})})
+    # the whole-image models only (tiny_models has no detector; the shipped default decision is the detector)
+    c = cfg.classifier.model_copy(update={"models_dir": tiny_models, "decision": "supervised"})
+    cfg2 = cfg.model_copy(update={"classifier": c})
     stop = threading.Event()
     t = threading.Thread(target=run_worker, args=(cfg2, None, stop), daemon=True)
     t.start()
