@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from cellctl.errors import ClassifierError
-from cellctl.images import IMAGE_MAGIC, decode_image, encode_image
+from cellctl.images import IMAGE_MAGIC, MAX_IMAGE_PIXELS, decode_image, encode_image
 from cellctl.surface import SURFACES, Surface
 from cellctl.surface import check_surface as _check_surface
 
@@ -64,7 +64,15 @@ def capture_path(dataset: Path | str, surface: str, label: str, cycle_id: str, k
     return Path(dataset) / surface / label / f"{cycle_id}_{k:03d}.png"
 
 
-def store_capture(dataset: Path | str, surface: str, label: str, cycle_id: str, k: int, image: bytes) -> Path:
+def store_capture(
+    dataset: Path | str,
+    surface: str,
+    label: str,
+    cycle_id: str,
+    k: int,
+    image: bytes,
+    max_pixels: int = MAX_IMAGE_PIXELS,
+) -> Path:
     """Store one captured image for training; PNG bytes are written as is, JPEG is re-encoded to PNG.
 
     The write is atomic (temporary file + rename), so a crash never leaves a truncated PNG
@@ -77,6 +85,7 @@ def store_capture(dataset: Path | str, surface: str, label: str, cycle_id: str, 
         cycle_id: the cycle's id (file-name safe).
         k: viewpoint index in the cycle.
         image: encoded PNG or JPEG bytes from the camera worker.
+        max_pixels: the pixel budget a JPEG is decoded under (``camera.max_image_pixels``).
 
     Returns:
         The path written.
@@ -90,7 +99,7 @@ def store_capture(dataset: Path | str, surface: str, label: str, cycle_id: str, 
     if image.startswith(IMAGE_MAGIC["png"]):
         data = bytes(image)
     elif image.startswith(IMAGE_MAGIC["jpeg"]):
-        rgb = decode_image(image, f"for {path.name} (JPEG)", error=ClassifierError)
+        rgb = decode_image(image, f"for {path.name} (JPEG)", error=ClassifierError, max_pixels=max_pixels)
         data = encode_image(rgb, "png", ClassifierError)
     else:
         raise ClassifierError(f"image for {path.name} starts {bytes(image[:8])!r}; expected PNG or JPEG bytes")
@@ -127,4 +136,4 @@ def store_image(cfg: Any, params: Mapping[str, Any], surface: str, cycle_id: str
     name = params.get("dataset")
     if name is not None and not (isinstance(name, str) and DATASET_NAME.fullmatch(name)):
         raise ClassifierError(f"dataset {name!r:.80} is not a plain folder name under {str(root)!r}")
-    return store_capture(root / name if name else root, surface, label, cycle_id, k, image)
+    return store_capture(root / name if name else root, surface, label, cycle_id, k, image, cfg.camera.max_image_pixels)

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from cellctl.bench_options import BenchOptions
+from cellctl.images import MAX_IMAGE_PIXELS
 
 __all__ = ["KINDS", "bench_inspect", "classifier_view", "collect_cycles", "score_cycles"]
 
@@ -109,7 +110,14 @@ def _dirty_faces_10pt(field: Any, mesh: Any, threshold: float = 0.5) -> np.ndarr
 
 
 def classifier_view(
-    png: bytes, cabin: bool, bt: Any, mesh: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr: Any
+    png: bytes,
+    cabin: bool,
+    bt: Any,
+    mesh: Any,
+    T_base_bin: np.ndarray,
+    T_base_cam: np.ndarray,
+    intr: Any,
+    max_pixels: int = MAX_IMAGE_PIXELS,
 ) -> bytes:
     """What the scanning step hands the classifier for a view
     (:func:`cellctl.supervisor.steps.scanning.classifier_input`): the board filled in where its face
@@ -117,8 +125,8 @@ def classifier_view(
     from cellctl.supervisor.steps.board_mask import mask_board
     from cellctl.supervisor.steps.scanning import mask_cabin
 
-    png = mask_board(png, bt, T_base_bin, T_base_cam, intr)
-    return mask_cabin(png, mesh, T_base_bin, T_base_cam, intr) if cabin else png
+    png = mask_board(png, bt, T_base_bin, T_base_cam, intr, max_pixels)
+    return mask_cabin(png, mesh, T_base_bin, T_base_cam, intr, max_pixels) if cabin else png
 
 
 def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
@@ -236,10 +244,11 @@ def collect_cycles(opts: BenchOptions, cfg: Any = None, first: int = 0, keep_ima
                 T_base_bin,
                 T_base_bin @ T_bin_cam,
                 intr,
+                cfg.camera.max_image_pixels,
             )
             from cellctl.images import decode_image
 
-            img = decode_image(png, "bench view")
+            img = decode_image(png, "bench view", max_pixels=cfg.camera.max_image_pixels)
             t = time.perf_counter()
             d = det.predict([img])[0]
             lat.append((time.perf_counter() - t) * 1000)

@@ -19,6 +19,7 @@ from typing import Any
 
 from cellctl.bus import keys, topics
 from cellctl.errors import ClassifierError
+from cellctl.images import MAX_IMAGE_PIXELS
 from cellctl.recording.replay import MCAP_MAGIC, RecordedMessage
 
 __all__ = ["LiveCycle", "McapTail", "blend_heat"]
@@ -32,34 +33,36 @@ def _string(buf: bytes, at: int) -> tuple[str, int]:
     return buf[at + 4 : at + 4 + n].decode("utf-8", "replace"), at + 4 + n
 
 
-def _decode_bgr(data: bytes) -> Any:
-    """OpenCV's BGR image, or None for a damaged one or one over the pixel budget (read from its header
-    first: these bytes come off the bus or a log, and a decompression bomb must not reach the decoder)."""
+def _decode_bgr(data: bytes, max_pixels: int) -> Any:
+    """OpenCV's BGR image, or None for a damaged one or one over the cell's pixel budget ``max_pixels`` (read
+    from its header first: these bytes come off the bus or a log, and a decompression bomb must not reach the
+    decoder)."""
     import cv2
     import numpy as np
 
     from cellctl.errors import CellError
-    from cellctl.images import MAX_IMAGE_PIXELS, image_size
+    from cellctl.images import image_size
 
     try:
         w, h = image_size(data)
     except CellError:
         return None
-    if w * h > MAX_IMAGE_PIXELS:
+    if w * h > max_pixels:
         return None
     return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
 
 
-def blend_heat(image: bytes | None, heat: bytes) -> bytes:
+def blend_heat(image: bytes | None, heat: bytes, max_pixels: int = MAX_IMAGE_PIXELS) -> bytes:
     """A heat-map PNG (:func:`cellctl.classify.heatmap.heat_png`) blended over its view's image.
 
     The detector's grid covers the whole (squashed) image, so stretched to the image's size each
-    patch lies over the pixels it scored. Without a readable image, the heat map alone.
+    patch lies over the pixels it scored. Without a readable image (or one over the cell's budget
+    ``max_pixels``, ``camera.max_image_pixels``), the heat map alone.
     """
     import cv2
 
-    colour = _decode_bgr(heat)
-    base = _decode_bgr(image) if image else None
+    colour = _decode_bgr(heat, max_pixels)
+    base = _decode_bgr(image, max_pixels) if image else None
     if base is None or colour is None:
         return heat
     h, w = base.shape[:2]
@@ -157,6 +160,7 @@ class LiveCycle:
     _heat_raw: tuple[int, str, int] | None = None  # (view n, heatmap, heat_grid) of the newest reply that has one
     _heat_png: tuple[int, bytes] | None = None
     _classify_requests: int = 0
+    max_pixels: int = MAX_IMAGE_PIXELS  # the cell's camera.max_image_pixels: the heat overlay decodes under it
 
     def fold(self, m: RecordedMessage) -> None:
         """Update the view with one log message (called by :class:`McapTail`)."""
@@ -239,7 +243,7 @@ class LiveCycle:
                 heat = heat_png(decode_heat(heatmap, grid))
             except ClassifierError:
                 return None  # a malformed map in the log: the page shows none rather than failing
-            self._heat_png = (n, blend_heat(img[0] if img else None, heat))
+            self._heat_png = (n, blend_heat(img[0] if img else None, heat, self.max_pixels))
         return self._heat_png[1]
 
     def as_dict(self) -> dict[str, Any]:

@@ -264,7 +264,8 @@ class CycleRecords:
         if k is None:
             raise NotFound(f"image {n} of cycle {cycle_id!r} is not a classified view with a heat map")
         heat = self._read(self.log_file(cycle_id)).on(topics.HEATMAP)[k]
-        return blend_heat(self.image(cycle_id, n)[0], base64.b64decode(heat.json()["data"]))
+        image, data = self.image(cycle_id, n)[0], base64.b64decode(heat.json()["data"])
+        return blend_heat(image, data, self.cfg.camera.max_image_pixels)
 
     def dirt_map_png(self, cycle_id: str) -> bytes:
         """The cycle's dirt map drawn on its bin mesh, as PNG bytes (rendered once, the last 32 kept

@@ -130,7 +130,7 @@ class LiveWatcher:
                 path = self.records.log_file(want)
             except (NotFound, CellError):
                 return  # the index row may lag the Status by a moment
-            live = LiveCycle(self.link.cell, want)
+            live = LiveCycle(self.link.cell, want, max_pixels=self.records.cfg.camera.max_image_pixels)
             sink = self.on_message
 
             def fold(m: Any, live: LiveCycle = live) -> None:

@@ -90,7 +90,9 @@ def _capture(session: Any, cfg: Any) -> tuple[NDArray[np.uint8], Intrinsics]:
     )
     if raw is None:
         raise CellError("camera capture reply carried no image payload")
-    return decode_image(raw, f"from the camera ({meta.format})", order="bgr", error=CameraError), meta.intrinsics
+    budget = cfg.camera.max_image_pixels
+    img = decode_image(raw, f"from the camera ({meta.format})", order="bgr", error=CameraError, max_pixels=budget)
+    return img, meta.intrinsics
 
 
 def _state(session: Any, cfg: Any) -> RobotState:

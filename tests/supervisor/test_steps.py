@@ -243,3 +243,29 @@ def test_only_the_configured_surfaces_get_the_cabin_mask(cfg) -> None:  # noqa: 
         ctx.params = ctx.params.model_copy(update={"surface": surface})
         image, fmt = classifier_input(ScriptedRun(ctx, {}), png, "png", T_cam, INTRINSICS)
         assert (image != board) == masked and fmt == "png", surface
+
+
+def test_the_masks_decode_under_the_cells_pixel_budget(cfg) -> None:  # noqa: ANN001
+    """The board and cabin masks decode what the classifier will, under ``camera.max_image_pixels``: a
+    budget below the image leaves it undecoded (the classifier refuses it), one that holds it masks it.
+    (They used the default budget: a camera above 16.8 Mpx with a raised budget went unmasked.)"""
+    import cv2
+
+    from cellctl.geometry.camera import D435_COLOR
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.sim import scene
+    from cellctl.supervisor.steps.scanning import classifier_input
+
+    cat = load_catalog(cfg.path(cfg.catalog))
+    T_cam = scene.observation_T_bin_cam(cat.get("case_study"), 0)  # facing the board, the cabin around the bin
+    intr = D435_COLOR.scaled(0.2).intrinsics()  # 256 x 144
+    rgb = np.random.default_rng(2).integers(0, 255, (intr.height, intr.width, 3), dtype=np.uint8)
+    png = cv2.imencode(".png", rgb)[1].tobytes()
+    n = intr.width * intr.height
+    for budget, masked in ((n - 1, False), (n, True)):
+        cfg.camera.max_image_pixels = budget
+        for surface in ("external", "internal"):  # the board mask alone; board and cabin masks
+            ctx = context(cfg, catalog=cat, bin_type="case_study", T_base_bin=np.eye(4))
+            ctx.params = ctx.params.model_copy(update={"surface": surface})
+            image, _ = classifier_input(ScriptedRun(ctx, {}), png, "png", T_cam, intr)
+            assert (image is not png) == masked, (budget, surface)

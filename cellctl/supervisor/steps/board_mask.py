@@ -15,7 +15,7 @@ import numpy as np
 
 from cellctl.errors import CellError
 from cellctl.geometry.transforms import invert
-from cellctl.images import decode_image
+from cellctl.images import MAX_IMAGE_PIXELS, decode_image
 from cellctl.messages import Intrinsics
 
 __all__ = ["mask_board"]
@@ -45,8 +45,21 @@ def board_polygon(bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray,
     return uv[:2].T
 
 
-def mask_board(png: bytes, bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr: Intrinsics) -> bytes:
-    """The image with the board filled in, or the same bytes when its face is not in view."""
+def mask_board(
+    png: bytes,
+    bin_type: Any,
+    T_base_bin: np.ndarray,
+    T_base_cam: np.ndarray,
+    intr: Intrinsics,
+    max_pixels: int = MAX_IMAGE_PIXELS,
+) -> bytes:
+    """The image with the board filled in, or the same bytes when its face is not in view.
+
+    Args:
+        max_pixels: the cell's pixel budget (``camera.max_image_pixels``): the mask decodes exactly
+            what the classifier will, so a camera above the default budget is still masked and an
+            image over the cell's budget is never decoded here.
+    """
     import cv2
 
     poly = board_polygon(bin_type, T_base_bin, T_base_cam, intr)
@@ -56,7 +69,7 @@ def mask_board(png: bytes, bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np
     if poly[:, 0].max() < 0 or poly[:, 0].min() > W or poly[:, 1].max() < 0 or poly[:, 1].min() > H:
         return png
     try:
-        img = decode_image(png, "to mask", order="bgr")
+        img = decode_image(png, "to mask", order="bgr", max_pixels=max_pixels)
     except CellError:
         return png  # not ours to judge: the classifier refuses what it cannot decode
     sx, sy = img.shape[1] / W, img.shape[0] / H

@@ -7,6 +7,7 @@ import numpy as np
 
 from cellctl.bus import topics
 from cellctl.errors import WorkerFailed
+from cellctl.images import MAX_IMAGE_PIXELS
 from cellctl.messages import (
     CaptureReply,
     CaptureRequest,
@@ -68,10 +69,12 @@ def cabin_pixels(mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, sca
     return on == 0
 
 
-def mask_cabin(png: bytes, mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr) -> bytes:  # noqa: ANN001
+def mask_cabin(  # noqa: ANN001
+    png: bytes, mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, max_pixels: int = MAX_IMAGE_PIXELS
+) -> bytes:
     """The image with the pixels off the bin filled with the median colour of the bin's, or the same
     bytes when the view is all bin or all cabin. Like the board mask: the recorded image stays
-    untouched."""
+    untouched, and it is decoded under the cell's pixel budget ``max_pixels``."""
     import cv2
 
     from cellctl.errors import CellError
@@ -81,7 +84,7 @@ def mask_cabin(png: bytes, mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray,
     if not off.any() or off.all():
         return png
     try:
-        img = decode_image(png, "to mask", order="bgr")
+        img = decode_image(png, "to mask", order="bgr", max_pixels=max_pixels)
     except CellError:
         return png  # the classifier refuses what it cannot decode
     off = cv2.resize(off.astype(np.uint8), (img.shape[1], img.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
@@ -100,9 +103,10 @@ def classifier_input(  # noqa: ANN001
     if ctx.catalog is None or not ctx.bin_type or ctx.T_base_bin is None:
         return data, fmt
     bt = ctx.catalog.get(ctx.bin_type)
-    image = mask_board(data, bt, ctx.T_base_bin, T_base_cam, intr)
+    budget = ctx.cfg.camera.max_image_pixels
+    image = mask_board(data, bt, ctx.T_base_bin, T_base_cam, intr, budget)
     if (surface or ctx.surface) in ctx.cfg.classifier.mask_cabin:
-        image = mask_cabin(image, ctx.catalog.load_mesh(ctx.bin_type), ctx.T_base_bin, T_base_cam, intr)
+        image = mask_cabin(image, ctx.catalog.load_mesh(ctx.bin_type), ctx.T_base_bin, T_base_cam, intr, budget)
     return (image, "png") if image is not data else (data, fmt)
 
 
