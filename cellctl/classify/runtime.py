@@ -95,9 +95,11 @@ def net_sha256(blob: dict[str, Any]) -> str:
 
 
 def default_threads() -> int:
-    """Intra-op threads when ``classifier.threads`` is unset: 1 on a 2-core host (the whole decision
-    is ~4 ms on one core, and the other core stays with the supervisor and the other workers: with
-    both taken, a busy neighbour doubled the p50 in ``cellctl bench classify``), else 2."""
+    """Intra-op threads when ``classifier.threads`` is unset: 1 on a 2-core host, else 2.
+
+    One thread already meets the 10 ms budget (~4 ms for the whole decision), costs the least CPU per
+    image (no hand-offs between threads) and leaves the other core to the supervisor, the camera and
+    the twin, which run during a scan; ``cellctl bench classify`` also times the other count."""
     return 1 if (os.cpu_count() or 1) <= 2 else 2
 
 

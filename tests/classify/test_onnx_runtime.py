@@ -134,3 +134,25 @@ def test_shipped_exports_fit_their_detectors(surface: str) -> None:
     det = Detector.load(pt, surface=surface, runtime="onnx")
     card = json.loads(pt.with_suffix(".json").read_text())
     assert card["onnx"]["sha256"] == det.engine.sha256 == file_sha256(rt.onnx_path(pt))
+
+
+def test_classify_cli_runs_either_runtime_with_the_same_answer(exported: Path, tmp_path: Path, capsys) -> None:  # noqa: ANN001
+    """``classifier.runtime`` reaches ``cellctl classify``; a missing detector to export fails in one line."""
+    import cv2
+
+    from cellctl.cli import main
+
+    img = tmp_path / "v.png"
+    cv2.imwrite(str(img), cv2.cvtColor(rt.parity_images("external", 2, seed=9, size=128)[1], cv2.COLOR_RGB2BGR))
+    lines = {}
+    for runtime in ("onnx", "torch"):
+        rc = main(
+            ["classify", str(img), "--surface", "external", "--detector", str(exported), "--json"]
+            + ["--set", f"classifier.runtime={runtime}"]
+        )
+        assert rc == 0
+        (lines[runtime],) = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    assert lines["onnx"]["label"] == lines["torch"]["label"]
+    assert abs(lines["onnx"]["p_dirty"] - lines["torch"]["p_dirty"]) <= rt.PARITY_ATOL
+    rc = main(["detector", "export", "--surface", "external", "--model", str(tmp_path / "none.detect.pt")])
+    assert rc != 0 and not list(tmp_path.glob("*.onnx"))
