@@ -16,10 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from cellctl.app import build_cell
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as, encode
-from cellctl.bus.plc_client import PlcClient
 from cellctl.bus.security import PRINCIPALS, access_control
 from cellctl.bus.session import open_session
 from cellctl.config import CellConfig
@@ -27,31 +25,8 @@ from cellctl.messages import Ack, Command, Status
 from cellctl.recording.replay import RecordedCycle, RecordedMessage, read_cycle, republish
 from cellctl.supervisor.replay_guard import ReplayGuard
 from tests.conftest import cfg_overrides
-from tests.fakes.workers import FakeCell, fake_identify
-
-
-def _daemon(cfg: CellConfig):  # noqa: ANN202
-    from cellctl.geometry.catalog import load_catalog
-
-    return build_cell(cfg, identification=(fake_identify, load_catalog(cfg.path(cfg.catalog))))
-
-
-def _record_a_cycle(cfg: CellConfig) -> Path:
-    """Run one real cycle (Reset, Start → Complete) and return its MCAP."""
-    cell = _daemon(cfg)
-    plc = PlcClient(cfg, "rec")
-    try:
-        time.sleep(0.2)
-        with FakeCell(cfg):
-            assert plc.command("reset", timeout=5).accepted
-            assert plc.wait_for(lambda s: s.state == "Idle", 10) is not None
-            assert plc.command("start", timeout=5).accepted
-            assert plc.wait_for(lambda s: s.state == "Complete", 30) is not None
-            res = plc.results.get(timeout=5)
-    finally:
-        plc.close()
-        cell.close()
-    return cfg.path(res.log)
+from tests.fakes.daemon import live_daemon, record_a_cycle
+from tests.fakes.workers import FakeCell
 
 
 def _replay(cfg_args: list[str], log: Path, *extra: str) -> subprocess.CompletedProcess[str]:
@@ -65,10 +40,10 @@ def _replay(cfg_args: list[str], log: Path, *extra: str) -> subprocess.Completed
 
 
 def test_a_replayed_log_moves_nothing_on_a_live_cell(cfg: CellConfig, tmp_path: Path, port: int) -> None:
-    log = _record_a_cycle(cfg)
+    log = record_a_cycle(cfg)
     recorded = read_cycle(log)
     assert any(m.topic == keys.cmd(cfg.cell_id) for m in recorded.messages)  # the log holds Reset and Start
-    cell = _daemon(cfg)  # a fresh daemon: nothing remembered of the recorded request ids
+    cell = live_daemon(cfg)  # a fresh daemon: nothing remembered of the recorded request ids
     watcher = open_session(cfg, "client")
     statuses: queue.Queue[Status] = queue.Queue()
     acks: queue.Queue[Ack] = queue.Queue()
@@ -103,7 +78,7 @@ def test_a_replayed_log_moves_nothing_on_a_live_cell(cfg: CellConfig, tmp_path: 
         watcher.close()
         cell.close()
     # --live onto the keys of a cell whose supervisor answers: refused, nothing published
-    cell = _daemon(cfg)
+    cell = live_daemon(cfg)
     try:
         time.sleep(0.3)
         out = _replay(cfg_overrides(tmp_path, port), log, "--live")
