@@ -31,6 +31,9 @@ __all__ = [
     "BinInfo",
     "CaptureReply",
     "CaptureRequest",
+    "ClassifierModel",
+    "ClassifierModels",
+    "ClassifierModelsRequest",
     "ClassifyReply",
     "ClassifyRequest",
     "Command",
@@ -542,6 +545,9 @@ class ViewpointResult(BaseModel):
     error: str | None = None
     p_supervised: float | None = None
     anomaly_z: float | None = None
+    model_id: str | None = Field(
+        default=None, max_length=256, description="the classifier model that decided this view (ClassifyReply)"
+    )
     heatmap: str | None = Field(default=None, description="per-patch p_dirty, as in ClassifyReply")
     heat_grid: int | None = None
     relook_of: int | None = Field(default=None, description="index of the uncertain viewpoint this view re-looks at")
@@ -603,6 +609,12 @@ class CycleResult(WireMessage):
     stations: list[StationResult] | None = Field(default=None, description="whole-bin cycle: per station")
     modelled_cycle_s: float | None = Field(
         default=None, description="whole-bin cycle: the plan's modelled cycle time at the arm's real limits"
+    )
+    classifier_models: list[str] | None = Field(
+        default=None,
+        max_length=16,
+        description="the models that decided the cycle's views: <surface>-detect-<sha12> (shipped detector), "
+        "<surface>-enrolled-<sha12> (site-enrolled, classifier.detector_files), <surface>-<arch>-… (whole-image)",
     )
     finished: str = Field(default_factory=now_iso)
     wash: WashResult | None = Field(default=None, description="mode wash_and_verify: the rounds and the wash verdict")
@@ -1018,6 +1030,40 @@ class ClassifyReply(WireMessage):
     heat_grid: int | None = Field(default=None, ge=1, le=64)
 
 
+class ClassifierModelsRequest(WireMessage):
+    """Ask the classifier worker which models it serves (``cell/<id>/classifier/models``)."""
+
+    type: Literal["cellctl/ClassifierModelsRequest"] = "cellctl/ClassifierModelsRequest"
+    v: Literal[1] = 1
+
+
+class ClassifierModel(BaseModel):
+    """One surface's model as the worker loaded it at start."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    model_id: str = Field(max_length=256)
+    kind: Literal["detector", "enrolled", "supervised"] = Field(
+        description="detector: the shipped <surface>.detect.pt; enrolled: classifier.detector_files; "
+        "supervised: the whole-image model"
+    )
+    path: str = Field(max_length=4096)
+    threshold: FiniteFloat = Field(ge=0.0, le=1.0)
+    enrolled_on: dict[str, Any] | None = Field(
+        default=None, description="enrolled: the card's source (folder, sha256, images) and base model id"
+    )
+
+
+class ClassifierModels(WireMessage):
+    """The classifier worker's models per surface, and those it could not load (why)."""
+
+    type: Literal["cellctl/ClassifierModels"] = "cellctl/ClassifierModels"
+    v: Literal[1] = 1
+    decision: Literal["auto", "detector", "supervised"]
+    models: dict[Surface, ClassifierModel] = Field(default_factory=dict)
+    problems: dict[str, str] = Field(default_factory=dict)
+
+
 # --- planner --------------------------------------------------------------------------------
 
 
@@ -1217,6 +1263,8 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
         CaptureReply,
         ClassifyRequest,
         ClassifyReply,
+        ClassifierModelsRequest,
+        ClassifierModels,
         PlanJobRequest,
         PlanJobReply,
         PlanJobProgress,

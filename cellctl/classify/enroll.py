@@ -89,6 +89,8 @@ MAX_CANDIDATES = 60000
 DIRT_PER_IMAGE = 3
 """Synthetic dirty versions drawn of each enrolled image (the fusion's positives)."""
 DIRT_PX = 256
+PRIOR_VIEWS = 1.0
+"""Strength of the pull of the refitted fusion and Platt scaling towards the shipped values, in views."""
 """Side at which synthetic dirt is drawn (the contamination families' scale in training)."""
 
 
@@ -195,13 +197,13 @@ def enroll_detector(
     fit_maps = _site_maps(trial, [rgb[i] for i in fit], rng, dirt_per_image, origin)
     hold_maps = _site_maps(trial, [rgb[i] for i in hold], rng, dirt_per_image, None)
     say(f"enroll {surface}: fusion and Platt refitted on {len(fit_maps.y)} fit-image views")
-    fuse, platt = _fit_fusion(fit_maps)
+    fuse, platt = _fit_fusion(fit_maps, base)
     blob["fuse"], blob["platt"] = fuse, platt
     site = Detector(base.features, blob, f"{surface}-enrolling", None)
     p_hold = site.scores(hold_maps.s, hold_maps.a)["p"]
     clean_p, dirt_p = p_hold[hold_maps.y == 0], p_hold[hold_maps.y == 1]
     threshold, r = _site_threshold(clean_p, dirt_p, target_false_dirty)
-    if threshold > MAX_THRESHOLD:
+    if clean_p[np.argsort(clean_p)[::-1][r]] > MAX_THRESHOLD:
         worst = images[int(hold[int(np.argmax(clean_p))])]
         raise ClassifierError(
             f"held-out clean images score up to p_dirty {clean_p.max():.3f} ({str(worst)!r}) after enrollment; "
@@ -317,17 +319,24 @@ def _distances(bank: MemoryBank, f: torch.Tensor, src: torch.Tensor, origin: tor
     return d2.min(2).values.clamp_min(0).sqrt().view(n, h, w)
 
 
-def _fit_fusion(m: _SiteMaps) -> tuple[list[float], list[float]]:
+def _fit_fusion(m: _SiteMaps, base: Detector) -> tuple[list[float], list[float]]:
     """Patch fusion ``w_s, w_a, b`` (class-balanced logistic regression, patch labels as in training:
-    dirty ≥ PATCH_DIRTY, clean = none) and the image Platt scaling, on the fit images' maps."""
+    dirty ≥ PATCH_DIRTY, clean = none) and the image Platt scaling, on the fit images' maps.
+
+    Both are pulled towards the shipped detector's values by an L2 penalty of :data:`PRIOR_VIEWS`
+    divided by the number of views: 10 images (5 fit) separate perfectly and alone would give an
+    unbounded Platt slope; 100 images leave the site's data in charge."""
+    lam = PRIOR_VIEWS / max(len(m.y), 1)
     share = m.share.ravel()
     keep = (share >= PATCH_DIRTY) | (share == 0)
     xs = np.c_[m.s.double().numpy().ravel(), m.a.double().numpy().ravel()][keep]
     yl = (share >= PATCH_DIRTY)[keep].astype(np.float64)
     wl = np.where(yl > 0, (len(yl) - yl.sum()) / max(yl.sum(), 1.0), 1.0)
-    fuse = _fit_logistic(xs, yl, wl)
+    fuse = _fit_logistic(xs, yl, wl, l2=lam, prior=base.fuse)
     z = fuse[0] * m.s.double().numpy() + fuse[1] * m.a.double().numpy() + fuse[2]
-    platt = _fit_logistic(z.reshape(len(z), -1).max(1)[:, None], m.y.astype(np.float64), l2=0.0)
+    yi = m.y.astype(np.float64)
+    wi = np.where(yi > 0, (len(yi) - yi.sum()) / max(yi.sum(), 1.0), 1.0)
+    platt = _fit_logistic(z.reshape(len(z), -1).max(1)[:, None], yi, wi, l2=lam, prior=base.platt)
     return [float(v) for v in fuse], [float(v) for v in platt]
 
 
@@ -358,8 +367,10 @@ def _site_threshold(clean_p: np.ndarray, dirt_p: np.ndarray, target: float) -> t
     if len(dirt_p):
         m = int(math.floor(TARGET_FALSE_CLEAN * len(dirt_p)))
         t_fc = float(np.sort(dirt_p)[m])
-        if t_fc > t:  # a gap between the site's clean views and the dirt: the threshold in its middle
-            t = float(1.0 / (1.0 + math.exp(-(float(logit(kth)) + float(logit(t_fc))) / 2.0)))
+        if t_fc > t:  # a gap between the site's clean views and the dirt: the threshold in its middle,
+            # but raised past 0.5 only as far as the clean scores ask (evaluate.choose_threshold's cap)
+            mid = float(1.0 / (1.0 + math.exp(-(float(logit(kth)) + float(logit(t_fc))) / 2.0)))
+            t = max(t, min(mid, 0.5))
     return t, r
 
 

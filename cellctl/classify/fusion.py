@@ -319,19 +319,26 @@ def _features(feats: nn.Module, x: torch.Tensor) -> torch.Tensor:
     return torch.cat(out) if out else torch.zeros((0, FEATURE_DIM, GRID, GRID), dtype=torch.half)
 
 
-def _fit_logistic(x: np.ndarray, y: np.ndarray, weight: np.ndarray | None = None, l2: float = 1e-4) -> np.ndarray:
-    """Weighted logistic regression (LBFGS): coefficients then bias."""
+def _fit_logistic(
+    x: np.ndarray, y: np.ndarray, weight: np.ndarray | None = None, l2: float = 1e-4, prior: list[float] | None = None
+) -> np.ndarray:
+    """Weighted logistic regression (LBFGS): coefficients then bias.
+
+    ``prior``: coefficients (then bias) the L2 penalty pulls towards instead of 0, and the start
+    (site enrollment refits a shipped fusion on a few images: little data keeps it near the shipped one).
+    """
     X = torch.from_numpy(np.c_[x, np.ones(len(x))]).double()
     Y = torch.from_numpy(y.astype(np.float64))
     W = torch.from_numpy(weight if weight is not None else np.ones(len(y))).double()
-    w = torch.zeros(X.shape[1], dtype=torch.float64, requires_grad=True)
+    w0 = torch.tensor(prior if prior is not None else [0.0] * X.shape[1], dtype=torch.float64)
+    w = w0.clone().requires_grad_(True)
     opt = torch.optim.LBFGS([w], max_iter=200, line_search_fn="strong_wolfe")
 
     def closure() -> torch.Tensor:
         opt.zero_grad()
         z = X @ w
         loss = (W * nn.functional.binary_cross_entropy_with_logits(z, Y, reduction="none")).sum() / W.sum()
-        loss = loss + l2 * (w[:-1] ** 2).sum()
+        loss = loss + l2 * ((w[:-1] - w0[:-1]) ** 2).sum()
         loss.backward()
         return loss
 

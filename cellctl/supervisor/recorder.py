@@ -120,7 +120,9 @@ class CycleRecorder(Recorder):
 
     def close(self, result: CycleResult) -> None:
         self._log.write_message(keys.result(self.cell_id), result)
-        self._log.close({"outcome": result.outcome.value, "reason": result.reason or ""})
+        # the models that decided, in the log's own metadata (readable without decoding a message)
+        models = ",".join(result.classifier_models or [])
+        self._log.close({"outcome": result.outcome.value, "reason": result.reason or "", "classifier_models": models})
         self.index.finish(
             self.cycle_id,
             result.outcome.value,
@@ -171,7 +173,14 @@ def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: st
         ),
         stations=station_results(ctx) if whole else None,
         modelled_cycle_s=ctx.modelled_cycle_s if whole else None,
+        classifier_models=classifier_models(ctx),
     )
+
+
+def classifier_models(ctx: CycleContext) -> list[str] | None:
+    """The model ids that decided the cycle's views, re-inspections included (shipped or enrolled)."""
+    ids = {v.model_id for v in [*ctx.viewpoints, *ctx.wash_views] if v.model_id}
+    return sorted(ids) or None
 
 
 def station_results(ctx: CycleContext) -> list[StationResult]:

@@ -72,6 +72,7 @@ def with_reply(v: ViewpointResult, reply) -> ViewpointResult:  # noqa: ANN001
             "uncertain": reply.uncertain,
             "p_supervised": reply.p_supervised,
             "anomaly_z": reply.anomaly_z,
+            "model_id": reply.model_id,
             "heatmap": reply.heatmap,
             "heat_grid": reply.heat_grid,
         }

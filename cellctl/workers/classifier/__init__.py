@@ -29,7 +29,14 @@ from cellctl.bus.codec import MAX_PAYLOAD_BYTES, decode_as, encode
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, ClassifierError, ConfigError, ProtocolError
 from cellctl.images import MAX_IMAGE_BYTES, MAX_IMAGE_PIXELS, decode_image
-from cellctl.messages import ClassifyReply, ClassifyRequest, ErrorReply
+from cellctl.messages import (
+    ClassifierModel,
+    ClassifierModels,
+    ClassifierModelsRequest,
+    ClassifyReply,
+    ClassifyRequest,
+    ErrorReply,
+)
 from cellctl.surface import check_surface
 
 __all__ = ["BACKENDS", "BatchingClassifyServer", "ClassifierService", "run_worker"]
@@ -59,27 +66,58 @@ class ClassifierService:
         decision: str = "auto",
         max_pixels: int = MAX_IMAGE_PIXELS,
         runtime: str = "auto",
+        detector_files: dict[str, Path] | None = None,
     ) -> None:
         import os
 
         import torch
 
-        from cellctl.classify.fusion import load_detectors
+        from cellctl.classify.fusion import Detector, detector_path, load_detectors
         from cellctl.classify.infer import load_surface_models
+        from cellctl.classify.runtime import onnx_path
 
         torch.set_num_threads(threads or os.cpu_count() or 1)
+        self.decision = decision
         self.detectors: dict[str, Any] = {}
+        self.paths: dict[str, Path] = {}
         if decision in ("auto", "detector"):
             self.detectors, missing = load_detectors(models_dir, runtime, threads)
+            self.paths = {s: detector_path(models_dir, s) for s in self.detectors}
+            for s, path in (detector_files or {}).items():
+                # a configured enrolled file must load: never fall back to the shipped one silently;
+                # it shares the shipped detector's network export (enrollment changes no weights)
+                also = (onnx_path(detector_path(models_dir, s)),)
+                self.detectors[s] = Detector.load(path, surface=s, runtime=runtime, threads=threads, also_onnx=also)
+                self.paths[s] = Path(path)
+                missing.pop(s, None)
             if decision == "detector" and missing:
                 raise ClassifierError(f"classifier.decision is 'detector' but: {missing}")
         self.models, self.problems = load_surface_models(models_dir, variant)
+        self.paths.update({s: Path(models_dir) / f"{s}.pt" for s in self.models if s not in self.detectors})
         for s in self.detectors:
             self.problems.pop(s, None)
         for s, why in self.problems.items():
             log.warning("classifier: no model for surface %s: %s", s, why)
         self._lock = threading.Lock()
         self.max_pixels = max_pixels
+
+    def describe(self) -> ClassifierModels:
+        """What decides each surface (shipped detector, enrolled file, whole-image model), for the
+        worker's ``models`` op and its start-up log line."""
+        out: dict[str, ClassifierModel] = {}
+        for s, det in self.detectors.items():
+            card = det.enrollment
+            on = {"source": card.get("source"), "base": card.get("base", {}).get("model_id")} if card else None
+            kind = "enrolled" if card else "detector"
+            out[s] = ClassifierModel(
+                model_id=det.model_id, kind=kind, path=str(self.paths[s]), threshold=det.threshold, enrolled_on=on
+            )
+        for s, m in self.models.items():
+            if s not in out:
+                out[s] = ClassifierModel(
+                    model_id=m.model_id, kind="supervised", path=str(self.paths[s]), threshold=m.threshold
+                )
+        return ClassifierModels(decision=self.decision, models=out, problems=dict(self.problems))  # type: ignore[arg-type]
 
     def classify(self, items: list[tuple[ClassifyRequest, bytes]]) -> list[ClassifyReply | CellError]:
         """Classify a batch; each item gets a reply or the error that refuses it."""
@@ -229,15 +267,29 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
     if name not in BACKENDS:
         raise ConfigError(f"classifier backend {name!r} is unknown; expected one of {list(BACKENDS)}")
     c = cfg.classifier
+    files = {s: cfg.path(p) for s in ("external", "internal") if (p := getattr(c.detector_files, s)) is not None}
     service = ClassifierService(
-        cfg.path(c.models_dir), c.variant, c.threads, c.decision, cfg.camera.max_image_pixels, runtime=c.runtime
+        cfg.path(c.models_dir),
+        c.variant,
+        c.threads,
+        c.decision,
+        cfg.camera.max_image_pixels,
+        runtime=c.runtime,
+        detector_files=files,
     )
+    models = service.describe()
     session = open_session(cfg, "client")
     try:
         server = BatchingClassifyServer(session, cfg.cell_id, service, c.max_batch)
         alive = WorkerServer(session, cfg.cell_id, "classifier")
+        # which model decides each surface, asked before a cycle and named in its log (shipped or enrolled)
+        alive.serve("models", ClassifierModelsRequest, lambda _req, _raw: models)
         alive.announce()
-        log.info("classifier serving %s with %s", server.key, {s: m.model_id for s, m in service.models.items()})
+        log.info(
+            "classifier serving %s with %s",
+            server.key,
+            {s: f"{m.model_id} ({m.kind}, {m.path})" for s, m in models.models.items()},
+        )
         try:
             stop_event.wait()
         finally:
