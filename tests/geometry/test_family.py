@@ -108,3 +108,15 @@ def test_generate_writes_an_stl_the_planner_reads_with_its_tags(tmp_path):
     assert len(mesh.faces) == len(F)
     assert int(mesh.internal.sum()) == int((S == INTERNAL).sum()) == info["internal_faces"]
     assert mesh.watertight
+
+
+def test_the_command_writes_the_mesh_and_prints_its_parameters(tmp_path, capsys):
+    from cellctl.cli import main
+
+    out = tmp_path / "m.ply"
+    assert main(["geometry", "generate", "--family", "open", "--seed", "4", "--out", str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["family"] == "open" and printed["seed"] == 4 and out.is_file()
+    assert (tmp_path / "m.ply.surface.npy").is_file() and (tmp_path / "m.ply.json").is_file()
+    assert main(["geometry", "generate", "--list"]) == 0
+    assert set(json.loads(capsys.readouterr().out)) == set(FAMILIES)
