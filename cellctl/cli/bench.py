@@ -21,10 +21,6 @@ BENCHES: dict[str, tuple[str, str]] = {
     "bus": ("cellctl.bus.bench:bench_bus", "command→ack and status latency on loopback"),
     "cycle": ("cellctl.supervisor.bench:bench_cycle", "supervisor overhead per viewpoint, cycle time, cycles/hour"),
     "classify": ("cellctl.classify.bench:bench_classify", "classifier latency/throughput/accuracy per variant"),
-    "reference": (
-        "cellctl.classify.reference_bench:bench_reference",
-        "reference views: fit + measure the change-vs-reference decision on twin pairs, mirror tolerance, latency",
-    ),
     "pose": ("cellctl.vision.bench:bench_pose", "ChArUco bin-pose accuracy vs ground truth at 0.5-2 m"),
     "sim": ("cellctl.sim.bench:bench_sim", "twin: IK per pose, collision check per configuration, render per frame"),
     "plan": (
@@ -33,7 +29,8 @@ BENCHES: dict[str, tuple[str, str]] = {
     ),
     "whole-bin": (
         "cellctl.planning.bench:bench_whole_bin",
-        "whole-bin plans: catalog bins + a foreign mesh, stations, coverage per surface, cycle time (--n seeds)",
+        "whole-bin plans: catalog bins + foreign meshes (--family: the shape family), stations, coverage per "
+        "surface, cycle time (--n seeds)",
     ),
     "faults": (
         "cellctl.reliability.faults:bench_faults",
