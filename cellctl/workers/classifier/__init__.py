@@ -5,7 +5,10 @@ PNG/JPEG image as the payload. Reply: :class:`~cellctl.messages.ClassifyReply` (
 ``p_dirty``, ``uncertain``, ``model_id``; from the combined detector also ``p_supervised``,
 ``anomaly_z`` and the per-patch heat map). Both surface models are loaded once at start; a
 surface with a detector (``<surface>.detect.pt``, :mod:`cellctl.classify.fusion`) is decided by
-it unless ``classifier.decision`` is ``supervised``.
+it unless ``classifier.decision`` is ``supervised``; ``classifier.detector_files`` replaces a
+surface's shipped detector by a site-enrolled file (:mod:`cellctl.classify.enroll`). The
+``models`` op (``cell/<id>/classifier/models``, :class:`~cellctl.messages.ClassifierModels`) and
+the start-up log line name what decides each surface.
 Queries that are already queued when the worker picks one up are answered as one batch (up
 to ``classifier.max_batch``), one forward pass per surface. A bad image, an unknown surface or
 a surface whose weights are missing gets a :class:`~cellctl.errors.ClassifierError` error
@@ -35,6 +38,7 @@ from cellctl.messages import (
     ClassifierModelsRequest,
     ClassifyReply,
     ClassifyRequest,
+    EnrollRequest,
     ErrorReply,
 )
 from cellctl.surface import check_surface
@@ -262,6 +266,7 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
     """
     from cellctl.bus.session import open_session
     from cellctl.workers._server import WorkerServer
+    from cellctl.workers.classifier.enrolling import enroll_surface
 
     name = backend or cfg.classifier.backend
     if name not in BACKENDS:
@@ -283,7 +288,12 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
         server = BatchingClassifyServer(session, cfg.cell_id, service, c.max_batch)
         alive = WorkerServer(session, cfg.cell_id, "classifier")
         # which model decides each surface, asked before a cycle and named in its log (shipped or enrolled)
-        alive.serve("models", ClassifierModelsRequest, lambda _req, _raw: models)
+        alive.serve("models", ClassifierModelsRequest, lambda _req, _raw: service.describe())
+        # a commissioning cycle enrolls each surface from its views; the new file decides from then on
+        models_dir = cfg.path(c.models_dir)
+        alive.serve(
+            "enroll", EnrollRequest, lambda req, _raw: enroll_surface(service, req, models_dir, c.runtime, c.threads)
+        )
         alive.announce()
         log.info(
             "classifier serving %s with %s",
