@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, 
 from cellctl.bus.keys import ROLES, check_cell_id
 from cellctl.errors import ConfigError
 from cellctl.images import MAX_IMAGE_PIXELS, MIN_IMAGE_SIDE
+from cellctl.review.config import ReviewConfig
 from cellctl.surface import Surface
 
 __all__ = [
@@ -549,6 +550,7 @@ class CellConfig(_Model):
     classifier: ClassifierConfig = Field(default_factory=ClassifierConfig)
     planner: PlannerConfig = Field(default_factory=PlannerConfig)
     sim: SimConfig = Field(default_factory=SimConfig)
+    review: ReviewConfig = Field(default_factory=ReviewConfig)
 
     root: Path = Field(default=PROJECT_ROOT, exclude=True, description="base of relative paths")
 

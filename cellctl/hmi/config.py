@@ -20,11 +20,13 @@ from cellctl.login_throttle import ThrottleConfig
 
 __all__ = ["ROLES", "FoxgloveConfig", "HmiConfig", "HmiUser", "default_hmi_config_path", "load_hmi_config"]
 
-ROLES = ("operator", "maintenance")
-"""Who may do what on the HMI: ``operator`` sends PackML commands and acknowledges alarms;
-``maintenance`` may also change the unit mode. Without a login the HMI is read-only."""
+ROLES = ("operator", "maintenance", "qa", "viewer")
+"""Who may do what on the HMI: ``operator`` sends PackML commands, acknowledges alarms and reviews
+views (confirms clean/dirty, releases a verdict); ``maintenance`` sends commands and may also change
+the unit mode; ``qa`` reviews views and releases verdicts but sends no command; ``viewer`` logs in
+and reads only (as without a login). Without a login the HMI is read-only."""
 
-Role = Literal["operator", "maintenance"]
+Role = Literal["operator", "maintenance", "qa", "viewer"]
 
 
 class _Model(BaseModel):

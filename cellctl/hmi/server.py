@@ -38,6 +38,7 @@ from cellctl.hmi.config import HmiConfig
 from cellctl.hmi.link import CellLink
 from cellctl.hmi.live import LiveCycle, McapTail
 from cellctl.hmi.records import CycleFilter, CycleRecords, NotFound
+from cellctl.hmi.review import Review
 from cellctl.login_throttle import LoginThrottle
 from cellctl.messages import Command, now_iso
 
@@ -48,7 +49,7 @@ log.addHandler(logging.NullHandler())
 
 HERE = Path(__file__).resolve().parent
 COOKIE = "cellctl_hmi"
-PAGES = {"": "overview", "live": "live", "history": "history", "events": "events", "login": "login"}
+PAGES = {"": "overview", "live": "live", "history": "history", "review": "review", "events": "events", "login": "login"}
 _DUMMY_HASH = hash_password("not-a-user-password", salt=b"\0" * 16)
 
 
@@ -176,6 +177,7 @@ class Hmi:
         self.cfg, self.hcfg = cfg, hcfg
         self.link = CellLink(cfg, hcfg.stale_s, hcfg.events_kept, reopen_s=max(3 * hcfg.stale_s, 2.0))
         self.records = CycleRecords(cfg)
+        self.review = Review(cfg, self.records)
         self.foxglove: Any = None
         if hcfg.foxglove.enabled:
             from cellctl.hmi.foxglove_live import FoxgloveLive
@@ -241,7 +243,10 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         docs_url=None,  # the Swagger page loads its assets from a CDN; the schema is at /openapi.json
         redoc_url=None,
     )
-    titles = {"overview": "Overview", "live": "Cycle live", "history": "History", "events": "Events", "login": "Login"}
+    titles = {
+        "overview": "Overview", "live": "Cycle live", "history": "History", "review": "Review", "events": "Events",
+        "login": "Login",
+    }  # fmt: skip
     pages = {name: _page(name, titles[name]) for name in PAGES.values()}
 
     @app.exception_handler(HttpError)
@@ -343,6 +348,10 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
         if nonce is not None and not s.use_nonce(nonce):
             raise HttpError(409, f"request nonce {nonce!r} was used before: a replayed request is refused")
         return s
+
+    from cellctl.hmi.review_api import add_review_routes
+
+    add_review_routes(app, hmi, need_user, HttpError)
 
     @app.post("/api/login", tags=["session"])
     async def login(request: Request, body: LoginRequest) -> JSONResponse:
@@ -544,7 +553,11 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
             audit = hmi.records.audit_status(cycle_id)
         except CellError as err:
             audit = {"status": "unknown", "error": str(err)}
-        return {**d, "audit": audit}
+        try:
+            release = hmi.review.release_state(cycle_id)
+        except CellError as err:  # e.g. an unreadable review ledger: the record itself still shows
+            release = {"state": "unknown", "error": str(err)}
+        return {**d, "audit": audit, "release": release}
 
     @app.get("/api/cycles/{cycle_id}/log", tags=["records"])
     def cycle_log(cycle_id: str) -> FileResponse:

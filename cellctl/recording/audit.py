@@ -9,7 +9,10 @@ What is checked (``cellctl audit verify``; the reasoning is in docs/decisions.md
 * an interrupted row's recovered MCAP against its ``recovered_sha256`` (both files are evidence:
   the cut-short original as found, and the valid copy that replay and report read);
 * every ``*.mcap`` under the logs folder is referenced by a row (the log of a deleted row);
-* optionally, a head hash recorded outside the cell is still in the chain (deleted newest rows).
+* optionally, a head hash recorded outside the cell is still in the chain (deleted newest rows);
+* the review ledger (``reviews.jsonl`` in the logs folder, :mod:`cellctl.review.ledger`): each
+  operator decision and release hashes to its entry hash, links to the one before, and names the
+  reviewed cycle's current row hash (a record changed after its review).
 
 The index is opened read-only: auditing never changes what it audits.
 """
@@ -62,6 +65,10 @@ class FindingKind(StrEnum):
     recovered_mismatch = "recovered_mismatch"
     running = "running"
     no_log = "no_log"
+    review_edited = "review_edited"
+    review_chain = "review_chain"
+    review_anchor = "review_anchor"
+    review_unreadable = "review_unreadable"
 
 
 _HEX64 = re.compile(r"[0-9a-f]{64}")
@@ -390,6 +397,7 @@ def verify_audit(
                 report.findings.append(finding)
         if progress is not None:
             progress(i, len(rows))
+    report.findings.extend(_check_reviews(rows, logs_root))
     if logs_root.is_dir():
         for f in sorted(logs_root.rglob("*.mcap")):
             if f.resolve() not in referenced:
@@ -402,3 +410,16 @@ def verify_audit(
                     )
                 )
     return report
+
+
+def _check_reviews(rows: list[CycleRow], logs_root: Path) -> Iterable[AuditFinding]:
+    """The review ledger's findings (module doc); nothing when no view was ever reviewed."""
+    from cellctl.review.ledger import LEDGER_NAME, check_ledger
+
+    path = logs_root / LEDGER_NAME
+    if not path.is_file():
+        return
+    kinds = {"edited": FindingKind.review_edited, "chain": FindingKind.review_chain,
+             "anchor": FindingKind.review_anchor, "unreadable": FindingKind.review_unreadable}  # fmt: skip
+    for p in check_ledger(path, {r.cycle_id: r.row_hash for r in rows}):
+        yield AuditFinding(kinds[p.kind], p.message, cycle_id=p.cycle_id, path=str(path))

@@ -18,7 +18,13 @@ from cellctl.hmi.server import Hmi, HmiServer
 from tests.conftest import free_port
 from tests.supervisor.test_cycle_over_zenoh import cell  # noqa: F401 - the daemon fixture, shared
 
-PASSWORDS = {"alice": "alice-password-1", "bob": "bob-password-22"}
+PASSWORDS = {
+    "alice": "alice-password-1",
+    "bob": "bob-password-22",
+    "carol": "carol-password-3",
+    "vic": "vic-password-44",
+}
+"""alice operator, bob maintenance, carol qa (reviews, no commands), vic viewer (reads only)."""
 
 
 class FakeClock:
@@ -105,6 +111,8 @@ def hmi_config(**kw: Any) -> HmiConfig:
     users = [
         HmiUser(name="alice", role="operator", password_hash=hash_password(PASSWORDS["alice"])),
         HmiUser(name="bob", role="maintenance", password_hash=hash_password(PASSWORDS["bob"])),
+        HmiUser(name="carol", role="qa", password_hash=hash_password(PASSWORDS["carol"])),
+        HmiUser(name="vic", role="viewer", password_hash=hash_password(PASSWORDS["vic"])),
     ]
     return HmiConfig(port=free_port(), users=users, stale_s=1.0, **kw)
 

@@ -97,6 +97,7 @@ function render(d) {
   else if (PAGE === "live") renderLive(d);
   else if (PAGE === "events") renderEvents(d);
   else if (PAGE === "history") historyTick(d);
+  else if (PAGE === "review") reviewTick(d);
 }
 
 // --- overview ------------------------------------------------------------------------------------
@@ -309,6 +310,9 @@ async function openCycle(id) {
   setText("dt-time", `${time(row.started)} → ${time(row.finished)}${row.duration_s != null ? ` (${row.duration_s.toFixed(1)} s)` : ""}`);
   setText("dt-bin", row.bin_type);
   setText("dt-plan", `${row.plan_id || "—"}${res.plan_adjusted ? " (adjusted to the measured pose)" : ""}`);
+  const rl = d.release || {};
+  $("dt-release").textContent = releaseText(rl);
+  $("dt-release").className = rl.state === "review_required" || rl.state === "ready" ? "release-open" : "";
   const au = d.audit || {};
   $("dt-audit").textContent = au.status === "ok" ? `ok — row hash, chain link and log sha256 check (head #${au.head ? au.head.seq : "?"})`
     : `${au.status}${au.findings && au.findings.length ? ": " + au.findings.join("; ") : au.error ? ": " + au.error : ""}`;
@@ -328,6 +332,94 @@ async function openCycle(id) {
     ...(v.heatmap != null ? [el("img", { src: `/api/cycles/${encodeURIComponent(id)}/heatmaps/${v.image}`, alt: `heat map of view ${v.index}`, loading: "lazy" })] : []),
     el("figcaption", {}, `view ${v.index ?? "?"}: ${v.label || "—"}${v.p_dirty != null ? ` p=${v.p_dirty.toFixed(2)}` : ""}`))));
   if (!d.images.length) $("dt-views").append(el("p", { class: "muted" }, "no scanning images in this cycle"));
+}
+
+// --- review ----------------------------------------------------------------------------------------
+
+const REVIEWERS = new Set(["operator", "qa"]);
+// "released (clean) by alice at …", "review required: 2 uncertain view(s) open", "auto (clean): no uncertain view"
+function releaseText(r) {
+  if (!r || !r.state) return "—";
+  if (r.state === "released") return `released: ${r.released_verdict} — by ${r.released_by}, ${time(r.released_at)}`;
+  if (r.state === "auto") return `released as recorded (${r.released_verdict || "—"}): ${r.uncertain_views ? "review not required" : "no uncertain view"}`;
+  if (r.state === "review_required") return `review required: ${r.open_uncertain.length} of ${r.uncertain_views} uncertain view(s) open`;
+  if (r.state === "ready") return `reviewed (${r.reviewed_verdict}): ready to release`;
+  if (r.state === "not_applicable") return "no verdict to release";
+  return `${r.state}${r.error ? ": " + r.error : ""}`;
+}
+let rvSelected = null, rvLastCycle;
+function reviewTick(d) {
+  const lc = d.status && d.status.admin && d.status.admin.last_cycle ? d.status.admin.last_cycle.cycle_id : null;
+  if (lc !== rvLastCycle) { rvLastCycle = lc; loadQueue(); }
+}
+async function loadQueue() {
+  const r = await fetch(`/api/review/queue?state=${encodeURIComponent($("rv-state").value)}`);
+  const data = await r.json();
+  $("rv-error").textContent = r.ok ? "" : data.error;
+  if (!r.ok) return;
+  setText("rv-gate", data.require_for_uncertain ? "review.require_for_uncertain: on" : "off: verdicts stand as recorded");
+  $("rv-rows").replaceChildren(...data.items.map((it) => {
+    const tr = el("tr", { "data-item": it.id, onclick: () => openItem(it.cycle_id, it.image) },
+      el("td", { class: "mono small" }, it.cycle_id), el("td", {}, it.viewpoint ?? "?"), el("td", {}, it.surface || "—"),
+      el("td", { class: it.why === "dirty" ? "verdict-dirty" : "verdict-incomplete" }, it.why),
+      el("td", {}, it.p_dirty == null ? "—" : it.p_dirty.toFixed(2)),
+      el("td", {}, it.decision ? `${it.decision.label} (${it.decision.user})` : "open"));
+    if (it.id === rvSelected) tr.classList.add("selected");
+    return tr;
+  }));
+  if (!data.items.length) $("rv-rows").append(el("tr", {}, el("td", { colspan: 6, class: "muted" }, "nothing to review")));
+}
+function showImg(id, missingId, src) {
+  const img = $(id), miss = missingId ? $(missingId) : null;
+  img.classList.add("hidden"); if (miss) miss.classList.remove("hidden");
+  if (!src) return;
+  img.onload = () => { img.classList.remove("hidden"); if (miss) miss.classList.add("hidden"); };
+  img.src = src;
+}
+async function openItem(cycle, n) {
+  rvSelected = `${cycle}/${n}`;
+  for (const tr of document.querySelectorAll("#rv-rows tr")) tr.classList.toggle("selected", tr.dataset.item === rvSelected);
+  const base = `/api/cycles/${encodeURIComponent(cycle)}`;
+  const r = await fetch(`/api/review/items/${encodeURIComponent(cycle)}/${n}`);
+  const it = await r.json();
+  if (!r.ok) { $("rv-error").textContent = it.error; return; }
+  $("rv-item").classList.remove("hidden");
+  $("rv-msg").textContent = "";
+  setText("rv-id", it.id);
+  setText("rv-cls", `${it.label || "—"}${it.uncertain ? ", uncertain" : ""}${it.p_dirty != null ? `, p(dirty) ${it.p_dirty.toFixed(2)}` : ""}${it.model_id ? ` — ${it.model_id}` : ""}`);
+  setText("rv-surface", `${it.surface}${it.station != null ? `, station ${it.station}` : ""}, bin ${it.bin_type || "—"}`);
+  setText("rv-decision", it.decision ? `${it.decision.label} — ${it.decision.user} (${it.decision.role}), ${time(it.decision.time)}: ${it.decision.reason}` : "open");
+  setText("rv-verdict", it.release.verdict);
+  $("rv-verdict").className = verdictClass(it.release.verdict);
+  $("rv-release").textContent = releaseText(it.release);
+  $("rv-release").className = it.release.state === "review_required" || it.release.state === "ready" ? "release-open" : "";
+  showImg("rv-img", null, `${base}/images/${n}`);
+  showImg("rv-heat", "rv-noheat", it.heatmap ? `${base}/heatmaps/${n}` : null);
+  $("rv-ref").textContent = it.reference ? `reference: ${typeof it.reference === "string" ? it.reference : JSON.stringify(it.reference)}` : "no reference (this view's plan is not commissioned)";
+  showImg("rv-bin", "rv-nobin", it.bin_picture ? `${base}/dirt_map.png` : null);
+  $("rv-faces").textContent = it.faces ? `bin: faces ${it.faces.join(", ")}` : "bin: the cycle's dirt map (the view's faces are not in the record)";
+  const can = !!session.user && REVIEWERS.has(session.role);
+  const open = !it.decision && it.release.state !== "released";
+  $("rv-form").classList.toggle("hidden", !can);
+  for (const b of ["rv-dirty", "rv-clean"]) { $(b).disabled = !open; $(b).classList.toggle("hidden", !open); }
+  $("rv-release-btn").classList.toggle("hidden", it.release.state !== "ready");
+  $("rv-hint").textContent = !session.user ? "Log in as an operator or qa user to review."
+    : can ? "" : `Your role (${session.role}) cannot review: an operator or qa user confirms views.`;
+}
+async function decide(label) {
+  const [cycle, n] = [rvSelected.slice(0, rvSelected.lastIndexOf("/")), rvSelected.slice(rvSelected.lastIndexOf("/") + 1)];
+  const reason = $("rv-reason").value.trim();
+  if (reason.length < 3) { $("rv-msg").textContent = "give a reason (at least 3 characters)"; return; }
+  const r = await post(`/api/review/items/${encodeURIComponent(cycle)}/${n}`, { label, reason, nonce: nonce() });
+  if (!r.ok) { $("rv-msg").textContent = r.data.error; return; }
+  $("rv-reason").value = "";
+  await loadQueue(); await openItem(cycle, Number(n));
+}
+async function releaseCycle() {
+  const cycle = rvSelected.slice(0, rvSelected.lastIndexOf("/")), n = Number(rvSelected.slice(rvSelected.lastIndexOf("/") + 1));
+  const r = await post(`/api/cycles/${encodeURIComponent(cycle)}/release`, { reason: $("rv-reason").value.trim() || "reviewed", nonce: nonce() });
+  if (!r.ok) { $("rv-msg").textContent = r.data.error; return; }
+  await openItem(cycle, n);
 }
 
 // --- events ----------------------------------------------------------------------------------------
@@ -370,6 +462,13 @@ function initLogin() {
 loadSession().then(() => {
   if (PAGE === "login") initLogin();
   if (PAGE === "overview") drawPackml();
+  if (PAGE === "review") {
+    $("rv-state").addEventListener("change", () => loadQueue());
+    $("rv-dirty").addEventListener("click", () => decide("dirty"));
+    $("rv-clean").addEventListener("click", () => decide("clean"));
+    $("rv-release-btn").addEventListener("click", () => releaseCycle());
+    loadQueue();
+  }
   if (PAGE === "history") {
     $("filters").addEventListener("submit", (ev) => { ev.preventDefault(); loadHistory(); });
     $("hist-older").addEventListener("click", () => loadHistory(true));
