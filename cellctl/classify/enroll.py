@@ -1,33 +1,41 @@
 """Site enrollment: the detector learns *this plant's* clean steel from a folder of clean images.
 
 A plant commissions the cell on its own good parts before production (``cellctl detector enroll``).
-No label is needed: every image under the folder is clean by declaration. Two things change; the
-backbone, the supervised patch head, the fusion weights and the Platt scaling stay the shipped ones.
+No label is needed: every image under the folder is clean by declaration. The backbone and the
+supervised patch head (the learned features) stay the shipped ones; the images are split (seeded)
+into a *fit* half and a *held-out* half, and three things are refitted:
 
-* **Memory bank: merged, not replaced.** The images are split (seeded) into a *fit* part and a
-  *held-out* part. The fit part's patches (standardised with the shipped bank's channel statistics,
-  the scale the fusion weights were fitted on) extend the shipped clean bank by continuing its greedy
-  k-centre coreset (:func:`cellctl.classify.anomaly.greedy_coreset` with ``fixed``): the site patches
-  farthest from everything the bank holds are added first, :data:`SITE_BANK` of them. Why merge: 20
-  images of one plant do not show every clean thing a view can contain (the ID board, bin edges, a
-  highlight, another bin type), which the shipped bank does; replacing it would turn those into
-  anomalies, and the fusion weights and ``anomaly_z`` reference are fitted to distances to a bank of
-  the shipped spread. Merging only ever lowers a patch's distance where the site's own clean steel
-  lies, which is what the site's false alarms are.
-* **Threshold from the held-out clean images' own scores** (the enrolled detector scores them; none
-  of their patches is in the bank, so the scores are honest). With ``n`` held-out scores and a
-  false-dirty target ``q``, ``r = floor(q·n)`` held-out images may stay above the threshold; the
-  threshold is put just above the ``(r+1)``-th highest score (order statistic). For exchangeable
-  clean images of the site, a new clean image scores above it with probability ≤ ``(r+1)/(n+1)``
-  (the expected false-dirty rate), and the 95 % upper bound on the false-dirty rate is the
+* **Memory bank: merged, not replaced.** The fit images' patches (standardised with the shipped
+  bank's channel statistics, the scale the fusion was fitted on) extend the shipped clean bank by
+  continuing its greedy k-centre coreset (:func:`cellctl.classify.anomaly.greedy_coreset` with
+  ``fixed``): the site patches farthest from everything the bank holds are added first,
+  :data:`SITE_BANK` of them. Why merge: 20 images of one plant do not show every clean thing a view
+  can contain (the ID board, bin edges, a highlight, another bin type), which the shipped bank does;
+  replacing it would turn those into anomalies. Merging only lowers a patch's distance where the
+  site's own clean steel lies, which is where the site's false alarms are.
+* **Fusion and Platt scaling on the site's steel.** On a steel it never saw, the supervised head
+  scores clean texture like dirt, so the shipped fusion weights (head-heavy) cannot separate the
+  site's clean views from its dirt however the bank changes. Each fit image gets
+  :data:`DIRT_PER_IMAGE` synthetic dirty versions (one layer of a *training* family,
+  :data:`cellctl.classify.contamination.FAMILIES`, drawn at :data:`DIRT_PX` px and kept only when
+  visible by the project's one rule, :func:`~cellctl.classify.contamination.visible_mask`), and the
+  patch fusion ``w_s, w_a, b`` and the image Platt scaling are refitted on these views, as training
+  fits them on validation; each image's distances leave out the bank entries taken from it, so its
+  scores are as honest as a new view's. Both fits are pulled towards the shipped values (L2 of
+  :data:`PRIOR_VIEWS` / number of views): a few images cannot move them far.
+* **Threshold from the held-out clean images' own scores** (none of their patches is in the bank,
+  none of them fitted the fusion). With ``n`` held-out scores and a false-dirty target ``q``,
+  ``r = floor(q·n)`` may stay above the threshold; it is put just above the ``(r+1)``-th highest
+  score (order statistic). For exchangeable clean views of the site, a new one scores above it with
+  probability ≤ ``(r+1)/(n+1)`` (the expected false-dirty rate), and the 95 % upper bound is the
   Clopper–Pearson bound ``Beta(0.95; r+1, n−r)`` (0 of 10 → 25.9 %, 0 of 25 → 11.3 %, 0 of 50 →
-  5.8 %). The threshold is never below the shipped one (its false-clean target was set on 520 dirty
-  images; clean images can only ask for a higher one) and never above :data:`MAX_THRESHOLD`: if the
-  site's clean images score like dirt even with the merged bank, enrollment refuses rather than
-  ship a blind detector.
+  5.8 %). Where the held-out images' synthetic dirt all lies higher, the threshold moves half-way
+  (in logit) towards the dirt's 1 %-false-clean point, but not past 0.5 (the project's cap on
+  raising a threshold for fewer false alarms). If the clean views themselves score above
+  :data:`MAX_THRESHOLD`, enrollment refuses rather than ship a blind detector.
 
-The result is one file (the base detector's blob with the new bank, threshold and an ``enrollment``
-card inside) loaded by :meth:`cellctl.classify.fusion.Detector.load`, model id
+The result is one file (the base detector's blob with the new bank, fusion, Platt scaling, threshold
+and an ``enrollment`` card inside) loaded by :meth:`cellctl.classify.fusion.Detector.load`, model id
 ``<surface>-enrolled-<sha12>``.
 """
 
