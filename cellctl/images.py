@@ -25,6 +25,7 @@ __all__ = [
     "MAX_IMAGE_SIDE",
     "MIN_IMAGE_SIDE",
     "ImageFormat",
+    "check_budget",
     "decode_image",
     "encode_image",
     "image_format",
@@ -135,6 +136,26 @@ def encode_image(rgb: NDArray[np.uint8], fmt: str, error: type[CellError] = Cell
     return buf.tobytes()
 
 
+def check_budget(
+    data: bytes, source: str = "<bytes>", error: type[CellError] = CellError, max_pixels: int = MAX_IMAGE_PIXELS
+) -> tuple[int, int]:
+    """``(width, height)`` from the header, checked against the pixel budget before anything decodes it.
+
+    The one check of every path that decodes an image, or that stores one for a later decode.
+
+    Raises:
+        error: no readable PNG/JPEG header, more than ``max_pixels`` pixels, or a side over
+            :data:`MAX_IMAGE_SIDE`.
+    """
+    w, h = image_size(data, source, error)
+    if w * h > max_pixels or max(w, h) > MAX_IMAGE_SIDE:
+        raise error(
+            f"image {source} is {w}×{h} px ({w * h} px) by its header; the budget is {max_pixels} px with sides "
+            f"up to {MAX_IMAGE_SIDE} px (camera.max_image_pixels); refused before decoding"
+        )
+    return w, h
+
+
 def decode_image(
     data: bytes,
     source: str = "<bytes>",
@@ -165,12 +186,7 @@ def decode_image(
 
     if not data:
         raise error(f"image {source} is empty (0 bytes); expected PNG or JPEG bytes")
-    w, h = image_size(data, source, error)
-    if w * h > max_pixels or max(w, h) > MAX_IMAGE_SIDE:
-        raise error(
-            f"image {source} is {w}×{h} px ({w * h} px) by its header; the budget is {max_pixels} px with sides "
-            f"up to {MAX_IMAGE_SIDE} px (camera.max_image_pixels); refused before decoding"
-        )
+    check_budget(data, source, error, max_pixels)
     img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise error(

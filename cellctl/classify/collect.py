@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from cellctl.errors import ClassifierError
-from cellctl.images import IMAGE_MAGIC, MAX_IMAGE_PIXELS, decode_image, encode_image
+from cellctl.images import IMAGE_MAGIC, MAX_IMAGE_PIXELS, check_budget, decode_image, encode_image
 from cellctl.surface import SURFACES, Surface
 from cellctl.surface import check_surface as _check_surface
 
@@ -85,18 +85,21 @@ def store_capture(
         cycle_id: the cycle's id (file-name safe).
         k: viewpoint index in the cycle.
         image: encoded PNG or JPEG bytes from the camera worker.
-        max_pixels: the pixel budget a JPEG is decoded under (``camera.max_image_pixels``).
+        max_pixels: the pixel budget (``camera.max_image_pixels``): a JPEG is decoded under it, a
+            PNG's header is checked against it.
 
     Returns:
         The path written.
 
     Raises:
-        ClassifierError: bad surface/label/id, empty or non-image bytes.
+        ClassifierError: bad surface/label/id, empty or non-image bytes, over the pixel budget.
     """
     path = capture_path(dataset, surface, label, cycle_id, k)
     if not image:
         raise ClassifierError(f"image for {path.name} is empty (0 bytes); expected PNG or JPEG bytes")
     if image.startswith(IMAGE_MAGIC["png"]):
+        # stored as is, but checked like a decode: training would otherwise meet the bomb later
+        check_budget(image, f"for {path.name} (PNG)", ClassifierError, max_pixels)
         data = bytes(image)
     elif image.startswith(IMAGE_MAGIC["jpeg"]):
         rgb = decode_image(image, f"for {path.name} (JPEG)", error=ClassifierError, max_pixels=max_pixels)

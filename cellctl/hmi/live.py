@@ -41,13 +41,11 @@ def _decode_bgr(data: bytes, max_pixels: int) -> Any:
     import numpy as np
 
     from cellctl.errors import CellError
-    from cellctl.images import image_size
+    from cellctl.images import check_budget
 
     try:
-        w, h = image_size(data)
+        check_budget(data, max_pixels=max_pixels)
     except CellError:
-        return None
-    if w * h > max_pixels:
         return None
     return cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
 

@@ -66,3 +66,21 @@ def test_store_image_supervisor_hook(tmp_path: Path) -> None:
         store_image(cfg, {"label": "dirty", "dataset": "../../etc"}, "external", cid, 0, png)
     with pytest.raises(ClassifierError, match="needs start param label"):
         store_image(cfg, {"mode": "collect"}, "external", cid, 0, png)
+
+
+def test_a_capture_over_the_pixel_budget_is_not_stored(tmp_path: Path) -> None:
+    """Collect mode stores a PNG as is: its header is checked against camera.max_image_pixels first (a bomb
+    in the dataset would otherwise reach the decoder at training time), and a JPEG decodes under it."""
+    from tests.fakes.images import jpeg_claiming, png_claiming
+
+    img = np.random.default_rng(0).integers(0, 255, (24, 32, 3), dtype=np.uint8)
+    png = cv2.imencode(".png", img)[1].tobytes()
+    jpg = cv2.imencode(".jpg", img)[1].tobytes()
+    for bomb in (png_claiming(20000, 20000), jpeg_claiming(20000, 20000)):
+        with pytest.raises(ClassifierError, match="by its header; the budget is"):
+            store_capture(tmp_path, "external", "clean", "c-1", 0, bomb)
+    for data in (png, jpg):
+        with pytest.raises(ClassifierError, match=f"24 px \\({24 * 32} px\\).*the budget is {24 * 32 - 1} px"):
+            store_capture(tmp_path, "external", "clean", "c-1", 1, data, max_pixels=24 * 32 - 1)
+    assert not list(tmp_path.rglob("*.png"))
+    assert store_capture(tmp_path, "external", "clean", "c-1", 2, png, max_pixels=24 * 32).read_bytes() == png
