@@ -170,6 +170,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(dn)
     dn.set_defaults(func=run_detector_enroll)
 
+    du = dv.add_parser(
+        "update",
+        help="re-enroll a surface's detector from the views operators confirmed clean on the HMI (review bank), and "
+        "report how the decision moved: threshold, false-dirty on the confirmed views and on a generated held-out set "
+        "(cellctl.review.update)",
+    )
+    du.add_argument("--surface", required=True, choices=SURFACES)
+    du.add_argument("--out", type=Path, default=None, help="the enrolled file (default <review dir>/S.enrolled.pt)")
+    du.add_argument("--detector", type=Path, default=None, help="base (default <classifier.models_dir>/S.detect.pt)")
+    du.add_argument("--seed", type=int, default=0, help="fit / held-out split and the generated held-out set")
+    du.add_argument("--held-out", type=int, default=12, help="generated held-out images per class (default 12)")
+    du.add_argument("--proof-quick", action="store_true", help="also `detector proof --quick` (shifted) on both")
+    add_config_arguments(du)
+    du.set_defaults(func=run_detector_update)
+
     dp = dv.add_parser(
         "proof",
         help="generate and score the shifted generator, leave-one-family-out refits and the unseen site (enrolled "
@@ -461,6 +476,21 @@ def run_detector_enroll(args: argparse.Namespace) -> int:
     )
     save_enrolled(det, args.out)
     print(json.dumps({"out": str(args.out), "model_id": det.model_id, **(det.enrollment or {})}))
+    return 0
+
+
+def run_detector_update(args: argparse.Namespace) -> int:
+    from cellctl.errors import ClassifierError
+    from cellctl.review.bank import bank_dir
+    from cellctl.review.update import update_detector
+
+    cfg = config_from_args(args)
+    if not 1 <= args.held_out <= 1000:
+        raise ClassifierError(f"--held-out {args.held_out} is out of range; expected 1..1000")
+    out = args.out or bank_dir(cfg) / f"{args.surface}.enrolled.pt"
+    report = update_detector(cfg, args.surface, out, base=args.detector, seed=args.seed, held_out=args.held_out,
+                             proof_quick=args.proof_quick)  # fmt: skip
+    print(json.dumps(report))
     return 0
 
 
