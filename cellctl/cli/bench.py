@@ -21,6 +21,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "bus": ("cellctl.bus.bench:bench_bus", "command→ack and status latency on loopback"),
     "cycle": ("cellctl.supervisor.bench:bench_cycle", "supervisor overhead per viewpoint, cycle time, cycles/hour"),
     "classify": ("cellctl.classify.bench:bench_classify", "classifier latency/throughput/accuracy per variant"),
+    "reference": (
+        "cellctl.classify.reference_bench:bench_reference",
+        "reference views: fit + measure the change-vs-reference decision on twin pairs, mirror tolerance, latency",
+    ),
     "pose": ("cellctl.vision.bench:bench_pose", "ChArUco bin-pose accuracy vs ground truth at 0.5-2 m"),
     "sim": ("cellctl.sim.bench:bench_sim", "twin: IK per pose, collision check per configuration, render per frame"),
     "plan": (

@@ -1,0 +1,392 @@
+"""``cellctl bench reference``: fit the reference decision on generated pairs, measure it, time it.
+
+Stages (each a function; :func:`bench_reference` runs them in order, every draw seeded):
+
+1. :func:`draw_pairs` — twin pairs (:mod:`cellctl.classify.reference_pairs`) at the demo's
+   parking error, half dirty: training families for the **fit** (seed ``--seed``), the
+   held-out families for the **measurement** (seed ``--seed + 1000``, never fitted on).
+2. :func:`score_pairs` — per pair: the detector's maps and its own ``p_dirty``, the alignment,
+   the change features, the patch labels.
+3. :func:`fit_fusion` — change logistic on the aligned patches, the fused patch logistic
+   ``z = w_s·s + w_a·a + w_c·c + b`` (class-balanced), Platt on the image max, the threshold
+   for the false-clean target (1 %).
+4. :func:`measure` — per-view accuracy, false-clean, false-dirty (Clopper–Pearson) with the
+   reference and with the detector alone on the same held-out pairs; per family.
+5. :func:`mirror_sweep` — clean internal pairs (arm and camera mirrored) at growing pose deltas:
+   alignment rejections and false-dirty of the fused decision; the tolerance is the largest
+   delta whose false-dirty stays within the zero-delta level plus the 95 % interval.
+6. :func:`latency` — batch-1 time of the whole per-view decision with the reference
+   (:func:`cellctl.classify.reference.decide`) beside the detector alone, interleaved.
+
+``--n``: pairs per surface for the fit (default 240; the measurement draws 2/3 of it).
+The fitted fusions are written beside ``--out`` (``<surface>.reference.json``); copy them to
+``models/classifier/`` to ship them. A PNG of (reference, view, change heat, fused heat) triples
+is written beside ``--out`` too.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cellctl.bench_options import BenchOptions
+from cellctl.classify.reference import (
+    MIRROR_POSE_TOLERANCE,
+    Alignment,
+    ReferenceFusion,
+    ReferenceView,
+    compare,
+    decide,
+    detector_maps,
+    to_work,
+)
+from cellctl.classify.reference_pairs import DEMO_PARKING_ERROR, Pair, make_pair_source
+
+__all__ = [
+    "ScoredPair",
+    "bench_reference",
+    "draw_pairs",
+    "fit_fusion",
+    "latency",
+    "measure",
+    "mirror_sweep",
+    "score_pairs",
+]
+
+TARGET_FALSE_CLEAN = 0.01
+MIRROR_LEVELS = (
+    (0.0, 0.0),
+    (5.0, 0.0),
+    (10.0, 0.0),
+    (20.0, 0.0),
+    (40.0, 0.0),
+    (0.0, 0.5),
+    (0.0, 1.0),
+    (0.0, 2.0),
+    (0.0, 4.0),
+)
+"""(mm, deg) pose deltas of the mirror sweep: translations alone, then rotations alone."""
+
+
+@dataclass
+class ScoredPair:
+    """What the fit and the measurement need of one pair."""
+
+    label: int
+    family: str
+    s: NDArray[np.float32] = field(repr=False)
+    a: NDArray[np.float32] = field(repr=False)
+    p_det: float
+    alignment: Alignment = field(repr=False)
+    feats: NDArray[np.float32] | None = field(repr=False)
+    patch: NDArray[np.float32] = field(repr=False)
+
+
+def draw_pairs(
+    draw: Any,
+    n: int,
+    seed: int,
+    held_out: bool,
+    delta: tuple[float, float] = DEMO_PARKING_ERROR,
+    dirty_share: float = 0.5,
+) -> list[Pair]:
+    """``n`` pairs, ``dirty_share`` of them dirty, redrawing ambiguous ones (seeded)."""
+    rng = np.random.default_rng([seed, 4242, int(held_out)])
+    out: list[Pair] = []
+    k = 0
+    while len(out) < n:
+        dirty = len(out) < int(round(n * dirty_share))
+        p = draw(rng, dirty, held_out, delta)
+        k += 1
+        if p is not None:
+            out.append(p)
+        if k > 40 * n:
+            from cellctl.errors import ClassifierError
+
+            raise ClassifierError(f"{k} draws gave only {len(out)} of {n} pairs; check the pair source")
+    return out
+
+
+def _patch_labels(mask: NDArray[np.float32], grid: int) -> NDArray[np.float32]:
+    import cv2
+
+    return cv2.resize(mask.astype(np.float32), (grid, grid), interpolation=cv2.INTER_AREA)
+
+
+def score_pairs(det: Any, pairs: list[Pair]) -> list[ScoredPair]:
+    """The detector's maps, the alignment and the change features of each pair."""
+    out = []
+    for p in pairs:
+        nw = to_work(p.new)
+        s, a, sc = detector_maps(det, nw)
+        al, feats = compare(ReferenceView(p.ref, p.T_ref, p.plane, p.K), nw, p.T_new, p.new.shape[1], p.new.shape[0])
+        out.append(
+            ScoredPair(p.label, p.info["family"], s, a, float(sc["p"][0]), al, feats, _patch_labels(p.mask, s.shape[0]))
+        )
+    return out
+
+
+def fit_fusion(det: Any, scored: list[ScoredPair], surface: str, card: dict[str, Any]) -> ReferenceFusion:
+    """Fit the change logistic, the fused patch logistic, Platt and the threshold on ``scored``."""
+    from cellctl.classify.evaluate import choose_threshold
+    from cellctl.classify.finetune import PATCH_DIRTY
+    from cellctl.classify.fusion import _fit_logistic
+
+    used = [sp for sp in scored if sp.feats is not None]
+    F = np.concatenate([sp.feats.reshape(3, -1).T for sp in used])
+    S = np.concatenate([sp.s.ravel() for sp in used])
+    A = np.concatenate([sp.a.ravel() for sp in used])
+    M = np.concatenate([sp.patch.ravel() for sp in used])
+    keep = (M >= PATCH_DIRTY) | (M == 0)
+    y = (M >= PATCH_DIRTY)[keep].astype(np.float64)
+    wts = np.where(y > 0, (len(y) - y.sum()) / max(y.sum(), 1.0), 1.0)
+    change = _fit_logistic(F[keep], y, wts)
+    C = F @ change[:3] + change[3]
+    fuse = _fit_logistic(np.c_[S, A, C][keep], y, wts)
+    zmax = np.array(
+        [
+            float(
+                (
+                    fuse[0] * sp.s
+                    + fuse[1] * sp.a
+                    + fuse[2] * (np.tensordot(change[:3], sp.feats, 1) + change[3])
+                    + fuse[3]
+                ).max()
+            )
+            for sp in used
+        ]
+    )
+    yl = np.array([sp.label for sp in used], np.float64)
+    platt = _fit_logistic(zmax[:, None], yl, l2=0.0)
+    p = 1.0 / (1.0 + np.exp(-(platt[0] * zmax + platt[1])))
+    thr = choose_threshold(p, yl, TARGET_FALSE_CLEAN)
+    return ReferenceFusion(
+        surface,
+        tuple(float(v) for v in change),
+        tuple(float(v) for v in fuse),
+        (float(platt[0]), float(platt[1])),
+        float(thr),
+        float(det.band),
+        {
+            **card,
+            "n_pairs": len(scored),
+            "n_aligned": len(used),
+            "n_patches": int(keep.sum()),
+            "model_id": det.model_id,
+        },
+    )
+
+
+def _p_ref(fusion: ReferenceFusion, sp: ScoredPair) -> tuple[float, float]:
+    """(p_dirty, threshold) of the deciding path for a scored pair."""
+    if sp.feats is None:
+        return sp.p_det, float("nan")
+    z = fusion.patch_logit(sp.s, sp.a, fusion.change_logit(sp.feats))
+    return fusion.p_image(z), fusion.threshold
+
+
+def measure(det: Any, fusion: ReferenceFusion, scored: list[ScoredPair]) -> dict[str, Any]:
+    """Figures with the reference and with the detector alone on the same pairs."""
+    from cellctl.classify.proof import rate, rate_figures
+
+    y = np.array([sp.label for sp in scored])
+    p_det = np.array([sp.p_det for sp in scored])
+    dec_ref = []
+    for sp in scored:
+        p, t = _p_ref(fusion, sp)
+        dec_ref.append(p >= (t if sp.feats is not None else det.threshold))
+    pred = np.array(dec_ref, int)
+    fams: dict[str, dict[str, int]] = {}
+    for sp, d, pd in zip(scored, pred, p_det >= det.threshold, strict=True):
+        e = fams.setdefault(sp.family, {"n": 0, "wrong_reference": 0, "wrong_detector": 0})
+        e["n"] += 1
+        e["wrong_reference"] += int(d != sp.label)
+        e["wrong_detector"] += int(int(pd) != sp.label)
+    reasons: dict[str, int] = {}
+    for sp in scored:
+        reasons[sp.alignment.reason] = reasons.get(sp.alignment.reason, 0) + 1
+    return {
+        "n": len(y),
+        "with_reference": {
+            "accuracy": rate(int((pred == y).sum()), len(y)),
+            "false_clean": rate(int(((pred == 0) & (y == 1)).sum()), int((y == 1).sum())),
+            "false_dirty": rate(int(((pred == 1) & (y == 0)).sum()), int((y == 0).sum())),
+        },
+        "detector_alone": rate_figures(p_det, y, det.threshold),
+        "alignment": reasons,
+        "by_family": fams,
+    }
+
+
+def mirror_sweep(det: Any, fusion: ReferenceFusion, draw: Any, n: int, seed: int) -> dict[str, Any]:
+    """Clean internal pairs at each of :data:`MIRROR_LEVELS`: rejections, false-dirty, change heat."""
+    from cellctl.classify.proof import rate
+
+    rows = []
+    for mm, deg in MIRROR_LEVELS:
+        print(f"bench reference: mirror sweep {mm} mm {deg} deg", file=sys.stderr)
+        pairs = draw_pairs(draw, n, seed, False, (mm, deg), dirty_share=0.0)
+        sc = score_pairs(det, pairs)
+        fd = 0
+        rej = 0
+        cmax = []
+        for sp in sc:
+            if sp.feats is None:
+                rej += 1
+                fd += int(sp.p_det >= det.threshold)
+                continue
+            p, t = _p_ref(fusion, sp)
+            fd += int(p >= t)
+            cmax.append(float(fusion.change_logit(sp.feats).max()))
+        rows.append(
+            {
+                "translation_mm": mm,
+                "rotation_deg": deg,
+                "false_dirty": rate(fd, len(sc)),
+                "rejected": rate(rej, len(sc)),
+                "detector_false_dirty": rate(int(sum(sp.p_det >= det.threshold for sp in sc)), len(sc)),
+                "change_logit_max_median": round(float(np.median(cmax)), 3) if cmax else None,
+            }
+        )
+    base = rows[0]["false_dirty"]
+    bound = base["ci95"][1]
+    ok_t = [
+        r["translation_mm"]
+        for r in rows
+        if r["rotation_deg"] == 0 and r["false_dirty"]["rate"] <= bound and r["rejected"]["rate"] <= 0.1
+    ]
+    ok_r = [
+        r["rotation_deg"]
+        for r in rows
+        if r["translation_mm"] == 0 and r["false_dirty"]["rate"] <= bound and r["rejected"]["rate"] <= 0.1
+    ]
+    return {
+        "levels": rows,
+        "rule": "largest delta (alone) whose false-dirty stays <= the zero-delta 95 % upper limit "
+        "and whose rejections <= 10 %",
+        "tolerance_measured": {"translation_mm": max(ok_t, default=0.0), "rotation_deg": max(ok_r, default=0.0)},
+        "tolerance_shipped": {
+            "translation_mm": MIRROR_POSE_TOLERANCE.translation_mm,
+            "rotation_deg": MIRROR_POSE_TOLERANCE.rotation_deg,
+        },
+    }
+
+
+def latency(det: Any, fusion: ReferenceFusion, pairs: list[Pair], n: int) -> dict[str, Any]:
+    """Batch-1 ms of :func:`decide` with the reference beside the detector alone (interleaved)."""
+    refs = [ReferenceView(p.ref, p.T_ref, p.plane, p.K) for p in pairs]
+    fns = {
+        "detector_alone": lambda i: decide(det, None, pairs[i].new, pairs[i].T_new, None),
+        "with_reference": lambda i: decide(det, fusion, pairs[i].new, pairs[i].T_new, refs[i]),
+    }
+    for fn in fns.values():
+        for i in range(min(5, len(pairs))):
+            fn(i)
+    ts: dict[str, list[float]] = {k: [] for k in fns}
+    load0 = os.getloadavg()
+    for i in range(n):
+        for k, fn in fns.items():
+            t = time.perf_counter()
+            fn(i % len(pairs))
+            ts[k].append((time.perf_counter() - t) * 1000)
+    load1 = os.getloadavg()
+    out: dict[str, Any] = {
+        k: {
+            "ms_p50": round(float(np.percentile(v, 50)), 2),
+            "ms_p95": round(float(np.percentile(v, 95)), 2),
+            "ms_min": round(float(np.min(v)), 2),
+        }
+        for k, v in ts.items()
+    }
+    out["loadavg"] = {"start": [round(v, 2) for v in load0], "end": [round(v, 2) for v in load1]}
+    out["n"] = n
+    out["note"] = (
+        "whole per-view decision from an RGB frame: squash, detector (ONNX Runtime), pose prior, ECC, warp, "
+        "change features, fusion"
+    )
+    return out
+
+
+def _heat_rgb(x: NDArray[np.float32], shape: tuple[int, ...]) -> NDArray[np.uint8]:
+    """A (G, G) probability map as an inferno RGB image of ``shape``'s size."""
+    import cv2
+
+    q = np.clip(x * 255, 0, 255).astype(np.uint8)
+    big = cv2.resize(q, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST)
+    return cv2.cvtColor(cv2.applyColorMap(big, cv2.COLORMAP_INFERNO), cv2.COLOR_BGR2RGB)
+
+
+def figure(det: Any, fusion: ReferenceFusion, pairs: list[Pair], path: Path) -> None:
+    """(reference, view, change heat, fused heat) rows of ``pairs``, written as a PNG."""
+    import cv2
+
+    rows = []
+    for p in pairs:
+        d = decide(det, fusion, p.new, p.T_new, ReferenceView(p.ref, p.T_ref, p.plane, p.K))
+
+        new = p.new.copy()
+        if p.mask.any():
+            cnt, _ = cv2.findContours((p.mask > 0).astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+            cv2.drawContours(new, cnt, -1, (0, 255, 0), 1)
+        row = np.hstack([p.ref, new, _heat_rgb(d.change_heat, new.shape), _heat_rgb(d.heat, new.shape)])
+        txt = f"{p.info['family']} p={d.p_dirty:.2f} det={d.detector_p:.2f} {d.path}/{d.reason}"
+        cv2.putText(row, txt, (4, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.38, (255, 255, 0), 1, cv2.LINE_AA)
+        rows.append(row)
+    cv2.imwrite(str(path), cv2.cvtColor(np.vstack(rows), cv2.COLOR_RGB2BGR))
+
+
+def bench_reference(opts: BenchOptions) -> dict[str, Any]:
+    """Fit and measure the reference decision per surface (see the module doc)."""
+    import torch
+
+    from cellctl.classify.fusion import Detector, detector_path
+
+    cfg = opts.load_config()
+    torch.set_num_threads(1)
+    n = opts.n or 240
+    outdir = (opts.out.parent if opts.out else Path("logs")) / "reference"
+    outdir.mkdir(parents=True, exist_ok=True)
+    result: dict[str, Any] = {"seed": opts.seed, "n_fit": n, "n_measure": (2 * n) // 3}
+    for surface in ("external", "internal"):
+        det = Detector.load(detector_path(cfg.path(cfg.classifier.models_dir), surface), surface=surface, threads=1)
+        draw = make_pair_source(surface, cfg)
+        t0 = time.perf_counter()
+        print(f"bench reference: {surface}: drawing {n} fit pairs (training families)", file=sys.stderr)
+        fit_sc = score_pairs(det, draw_pairs(draw, n, opts.seed, False))
+        card = {
+            "command": f"cellctl bench reference --n {n} --seed {opts.seed}",
+            "fit_seed": opts.seed,
+            "delta": list(DEMO_PARKING_ERROR),
+            "families": "training (contamination.FAMILIES) + twin powder",
+        }
+        fusion = fit_fusion(det, fit_sc, surface, card)
+        fusion.save(outdir / f"{surface}.reference.json")
+        print(f"bench reference: {surface}: drawing {(2 * n) // 3} held-out pairs", file=sys.stderr)
+        meas_pairs = draw_pairs(draw, (2 * n) // 3, opts.seed + 1000, True)
+        res = {
+            "fusion": {
+                "change": fusion.change,
+                "fuse": fusion.fuse,
+                "platt": fusion.platt,
+                "threshold": fusion.threshold,
+            },
+            "fit_in_sample": measure(det, fusion, fit_sc),
+            "held_out": measure(det, fusion, score_pairs(det, meas_pairs)),
+            "held_out_note": "held-out families (shifted.HELD_OUT_FAMILIES) + twin powder, seed + 1000",
+        }
+        res["latency"] = latency(det, fusion, meas_pairs, min(200, 4 * len(meas_pairs)))
+        if surface == "internal":
+            res["mirror"] = mirror_sweep(det, fusion, draw, max(12, n // 10), opts.seed + 2000)
+        pick = [p for p in meas_pairs if p.label][:3] + [p for p in meas_pairs if not p.label][:1]
+        figure(det, fusion, pick, outdir / f"triples_{surface}.png")
+        res["seconds"] = round(time.perf_counter() - t0, 1)
+        result[surface] = res
+    result["setup"] = {"cpu_count": os.cpu_count(), "loadavg_end": [round(v, 2) for v in os.getloadavg()], "threads": 1}
+    return result
