@@ -14,7 +14,7 @@ from __future__ import annotations
 import datetime as _dt
 import enum
 from collections.abc import Mapping
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator, model_validator
@@ -39,6 +39,12 @@ __all__ = [
     "Command",
     "CycleOutcome",
     "CycleResult",
+    "CommissionResult",
+    "DecisionPath",
+    "START_MODES",
+    "StartMode",
+    "EnrollReply",
+    "EnrollRequest",
     "ErrorReply",
     "Event",
     "FaultCondition",
@@ -302,6 +308,9 @@ class Command(WireMessage):
 
 
 START_PARAM_NAMES = ("mode", "label", "surface", "perturb_m", "seed", "dataset")
+StartMode = Literal["evaluate", "collect", "wash_and_verify", "commission"]
+START_MODES: tuple[str, ...] = get_args(StartMode)
+"""The Start param ``mode`` values (``commission``: added in v1, additive: older senders never send it)."""
 
 
 class StartParams(WireMessage):
@@ -313,10 +322,12 @@ class StartParams(WireMessage):
 
     type: Literal["cellctl/StartParams"] = "cellctl/StartParams"
     v: Literal[1] = 1
-    mode: Literal["evaluate", "collect", "wash_and_verify"] = Field(
+    mode: StartMode = Field(
         default="evaluate",
         description="evaluate: inspect; collect: store labelled images; wash_and_verify: inspect, wash the dirty "
-        "regions, re-inspect them, up to wash.max_rounds rounds",
+        "regions, re-inspect them, up to wash.max_rounds rounds; commission (maintenance unit mode, a named user): "
+        "the bin is declared clean, each view becomes the reference of its viewpoint and each surface's detector "
+        "is enrolled from the views",
     )
     label: Literal["clean", "dirty"] | None = Field(default=None, description="collect mode: the class of this bin")
     surface: Surface | None = Field(
@@ -340,8 +351,8 @@ class StartParams(WireMessage):
         if unknown:
             raise ProtocolError(f"unknown start params {sorted(unknown)}; allowed: {sorted(START_PARAM_NAMES)}")
         mode = params.get("mode", "evaluate")
-        if mode not in ("evaluate", "collect", "wash_and_verify"):
-            raise ProtocolError(f"start param mode={mode!r:.80}; expected 'evaluate', 'collect' or 'wash_and_verify'")
+        if mode not in START_MODES:
+            raise ProtocolError(f"start param mode={mode!r:.80}; expected one of {', '.join(map(repr, START_MODES))}")
         label = params.get("label")
         if mode == "collect" and label not in ("clean", "dirty"):
             raise ProtocolError(f"start param label={label!r}; collect mode needs label 'clean' or 'dirty'")
@@ -577,6 +588,53 @@ class StationResult(BaseModel):
     reason: str | None = None
 
 
+DecisionPath = Literal["references", "enrolled", "shipped"]
+"""What a surface's views were judged against (:attr:`CycleResult.decision_path`)."""
+
+
+class CommissionResult(BaseModel):
+    """What a commissioning cycle (Start ``mode=commission``) left: one reference per viewpoint, enrolled detectors."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    bin_type: str = Field(max_length=128)
+    version: int = Field(ge=1, description="the reference set's version for this bin type (1, 2, …)")
+    manifest: str = Field(max_length=4096, description="the set's manifest.json (relative to the config root)")
+    manifest_sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="also in the cycle's MCAP, hash-chained")
+    references: int = Field(ge=0, description="viewpoints with a reference image")
+    plan_ids: list[str] = Field(default_factory=list, max_length=64)
+    declared_by: str = Field(max_length=MAX_USER_CHARS, description="the user who declared the bin clean")
+    enrolled: dict[Surface, str] = Field(
+        default_factory=dict, description="surface -> enrolled detector file (in the set's folder), now in use"
+    )
+    problems: dict[str, str] = Field(default_factory=dict, description="surface -> why it was not enrolled")
+
+
+class EnrollRequest(WireMessage):
+    """Enroll one surface's detector from a folder of clean views (``cell/<id>/classifier/enroll``).
+
+    The folder and the file are paths on the classifier worker's host (the reference root is
+    shared with the supervisor's host; the default cell runs both on one).
+    """
+
+    type: Literal["cellctl/EnrollRequest"] = "cellctl/EnrollRequest"
+    v: Literal[1] = 1
+    surface: Surface
+    images: str = Field(max_length=4096, description="folder of the surface's clean views")
+    out: str = Field(max_length=4096, description="the enrolled detector file to write, then use")
+
+
+class EnrollReply(WireMessage):
+    type: Literal["cellctl/EnrollReply"] = "cellctl/EnrollReply"
+    v: Literal[1] = 1
+    surface: Surface
+    model_id: str = Field(max_length=256)
+    path: str = Field(max_length=4096)
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    threshold: FiniteFloat = Field(ge=0.0, le=1.0)
+    images: int = Field(ge=0)
+
+
 class CycleResult(WireMessage):
     type: Literal["cellctl/CycleResult"] = "cellctl/CycleResult"
     v: Literal[1] = 1
@@ -615,6 +673,18 @@ class CycleResult(WireMessage):
         max_length=16,
         description="the models that decided the cycle's views: <surface>-detect-<sha12> (shipped detector), "
         "<surface>-enrolled-<sha12> (site-enrolled, classifier.detector_files), <surface>-<arch>-… (whole-image)",
+    )
+    decision_path: dict[Surface, DecisionPath] | None = Field(
+        default=None,
+        description="per surface, what the views were judged against: references (a commissioned reference set "
+        "holds every scanned plan of the surface), enrolled (none: a site-enrolled detector), shipped (none: the "
+        "shipped model)",
+    )
+    reference_version: int | None = Field(
+        default=None, ge=1, description="the reference set (of the bin type) the references came from"
+    )
+    commission: CommissionResult | None = Field(
+        default=None, description="mode commission: the reference set written and the detectors enrolled"
     )
     finished: str = Field(default_factory=now_iso)
     wash: WashResult | None = Field(default=None, description="mode wash_and_verify: the rounds and the wash verdict")
@@ -1276,6 +1346,8 @@ MESSAGE_TYPES: dict[str, type[WireMessage]] = {
         PoolDone,
         PoolStatsRequest,
         PoolStats,
+        EnrollRequest,
+        EnrollReply,
     )
 }
 """Registry used by the codec: ``"cellctl/<Name>"`` → model class."""

@@ -60,6 +60,9 @@ WASH_PLAN = "/wash/plan"
 """Each wash-and-verify round's wash plan: sweeps, targets, unwashable pieces, times (``cellctl.WashPlan``)."""
 WASH_ROUND = "/wash/round"
 """Each wash-and-verify round's record after re-inspection (``cellctl.WashRound``)."""
+REFERENCES = "/references"
+"""What a cycle judged against (``cellctl.References``: decision path per surface, reference set version); a
+commissioning cycle's also carries the reference set's manifest and its sha256 (the audit checks the set by it)."""
 
 FIXED_TOPICS = (
     CAMERA_IMAGE,
@@ -73,6 +76,7 @@ FIXED_TOPICS = (
     HEATMAP,
     WASH_PLAN,
     WASH_ROUND,
+    REFERENCES,
 )
 """Every topic whose name does not derive from a bus key."""
 

@@ -50,9 +50,16 @@ class _Progress:
 
 def run_verify(args: argparse.Namespace) -> int:
     from cellctl.recording.audit import verify_audit
+    from cellctl.recording.references import reference_root
 
     cfg = config_from_args(args)
-    report = verify_audit(cfg.path(cfg.recording.index), cfg.path(cfg.recording.dir), args.head, progress=_Progress())
+    report = verify_audit(
+        cfg.path(cfg.recording.index),
+        cfg.path(cfg.recording.dir),
+        args.head,
+        progress=_Progress(),
+        references=reference_root(cfg),
+    )
     if args.json:
         print(json.dumps(report.as_dict(), indent=1))
     else:

@@ -14,11 +14,16 @@ What is checked (``cellctl audit verify``; the reasoning is in docs/decisions.md
   operator decision and release hashes to its entry hash, links to the one before, and names the
   reviewed cycle's current row hash (a record changed after its review).
 
+Given the reference root, also every reference set (:mod:`cellctl.recording.references`): its
+manifest against the sha256 its commissioning cycle's MCAP recorded (that MCAP checked against its
+chained row), and every image and enrolled detector file against the manifest.
+
 The index is opened read-only: auditing never changes what it audits.
 """
 
 from __future__ import annotations
 
+import json
 import re
 import sqlite3
 from collections.abc import Callable, Iterable
@@ -61,6 +66,8 @@ class FindingKind(StrEnum):
     log_mismatch = "log_mismatch"
     log_unrecorded = "log_unrecorded"
     log_orphan = "log_orphan"
+    reference_unrecorded = "reference_unrecorded"
+    reference_mismatch = "reference_mismatch"
     recovered_missing = "recovered_missing"
     recovered_mismatch = "recovered_mismatch"
     running = "running"
@@ -346,12 +353,66 @@ def _check_hash(
     return None
 
 
+def _recorded_manifest_sha(r: CycleRow) -> str | None:
+    """The reference-set manifest sha256 a commissioning cycle's MCAP recorded, or None."""
+    from mcap.reader import make_reader
+
+    from cellctl.bus.topics import REFERENCES
+
+    try:
+        with open(r.readable_log, "rb") as f:
+            for _schema, _channel, msg in make_reader(f).iter_messages(topics=[REFERENCES]):
+                sha = json.loads(msg.data).get("manifest_sha256")
+                if sha:
+                    return str(sha)
+    except (OSError, ValueError) as err:  # mcap raises ValueError subclasses on a damaged file
+        raise RecordingError(f"{_name(r)} log {r.readable_log} cannot be read for its reference record: {err}") from err
+    return None
+
+
+def _check_references(rows: list[CycleRow], root: Path) -> Iterable[AuditFinding]:
+    """Each reference set against its commissioning cycle's record, and its files against its manifest."""
+    from cellctl.recording.references import check_set_files, read_manifest
+
+    by_id = {r.cycle_id: r for r in rows}
+    for path in sorted(root.glob("*/v*/manifest.json")):
+        try:
+            man = read_manifest(path)
+        except RecordingError as err:
+            yield AuditFinding(FindingKind.reference_mismatch, str(err), path=str(path))
+            continue
+        r = by_id.get(man.cycle_id)
+        why = f"cycle {man.cycle_id!r} has no chained row recording it"
+        try:
+            recorded = _recorded_manifest_sha(r) if r is not None and r.row_hash is not None else None
+        except RecordingError as err:
+            recorded, why = None, str(err)
+        if recorded is None:
+            yield AuditFinding(
+                FindingKind.reference_unrecorded,
+                f"reference set {path.parent} (v{man.version} of {man.bin_type!r}): {why}: a set put there",
+                cycle_id=man.cycle_id,
+                path=str(path),
+            )
+        elif (found := file_sha256_or_none(path)) != recorded:
+            yield AuditFinding(
+                FindingKind.reference_mismatch,
+                f"reference manifest {path} has sha256 {found}, cycle {man.cycle_id!r} recorded {recorded}: "
+                "edited or replaced",
+                cycle_id=man.cycle_id,
+                path=str(path),
+            )
+        for line in check_set_files(path.parent, man):
+            yield AuditFinding(FindingKind.reference_mismatch, f"reference set v{man.version}: {line}", path=str(path))
+
+
 def verify_audit(
     index_path: Path | str,
     logs_root: Path | str,
     head: str | None = None,
     *,
     progress: Callable[[int, int], None] | None = None,
+    references: Path | str | None = None,
 ) -> AuditReport:
     """Check the cycle index chain and every cycle log against it.
 
@@ -365,6 +426,8 @@ def verify_audit(
             chain. Without it, deleting the newest rows together with their logs is caught only
             by the ``sqlite_sequence`` hint, which an editor can also reset.
         progress: called as ``progress(rows_done, rows_total)`` after each row's log is hashed.
+        references: the reference root (:func:`cellctl.recording.references.reference_root`): check
+            every reference set too; None: skip them.
 
     Returns:
         The report; ``report.ok`` is False when any finding points at tampering.
@@ -383,6 +446,8 @@ def verify_audit(
     report.findings.extend(_check_rows(rows, top_seq))
     if head is not None:
         report.findings.extend(_check_head(rows, head))
+    if references is not None and Path(references).is_dir():
+        report.findings.extend(_check_references(rows, Path(references)))
     referenced: set[Path] = set()
     for i, r in enumerate(rows, 1):
         referenced.add(Path(r.log_path).resolve())

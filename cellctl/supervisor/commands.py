@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from cellctl.bus.codec import decode_as, peek_request_id
 from cellctl.errors import ProtocolError, TransitionRejected
 from cellctl.messages import Ack, Command, StartParams, UnitMode
-from cellctl.supervisor.unit_modes import commands_in_mode, mode_change_refusal
+from cellctl.supervisor.unit_modes import commands_in_mode, mode_change_refusal, start_mode_refusal
 
 __all__ = ["Accepted", "check_command", "recorded_command"]
 
@@ -89,9 +89,15 @@ def check_command(payload: bytes, *, max_bytes: int, state: str, allowed: list[s
         return reject(reason, name)
     if name == "start":
         try:
-            return Accepted(cmd, start=StartParams.from_params(cmd.params))
+            start = StartParams.from_params(cmd.params)
         except ProtocolError as err:
             return reject(str(err), name)
+        if refusal := start_mode_refusal(start.mode, mode):
+            return reject(refusal, name)
+        if start.mode == "commission" and not cmd.user:
+            # the operator declares the bin clean: a declaration nobody signed cannot be audited
+            return reject("start mode 'commission' needs 'user' (who declares the bin clean), got none", name)
+        return Accepted(cmd, start=start)
     if cmd.params:
         return reject(f"command {name!r} takes no params, got {sorted(cmd.params)}", name)
     return Accepted(cmd)

@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import zenoh
@@ -22,11 +22,14 @@ from cellctl.errors import CellError, WorkerError, WorkerUnavailable
 from cellctl.messages import (
     ApproachReply,
     ClassifyReply,
+    CommissionResult,
     CycleOutcome,
+    DecisionPath,
     ErrorReply,
     EventLevel,
     Intrinsics,
     PlanLookupReply,
+    StartMode,
     StartParams,
     StationInfo,
     ViewpointResult,
@@ -85,8 +88,10 @@ class CycleContext:
     cfg: CellConfig
     session: zenoh.Session | None
     log: Recorder
-    mode: Literal["evaluate", "collect", "wash_and_verify"] = "evaluate"
+    mode: StartMode = "evaluate"
     params: StartParams = field(default_factory=StartParams)
+    user: str | None = None
+    """Who sent the Start (``Command.user``)."""
     started: str = ""
     log_rel: str | None = None
     post_event: Callable[[str, str], None] = lambda level, text: None
@@ -139,6 +144,12 @@ class CycleContext:
     wash_views: list[ViewpointResult] = field(default_factory=list)
     """The re-inspection views (``wash_round`` set): in the MCAP and the rounds' counts, not in the
     CycleResult's ``viewpoints`` (a whole-bin wash cycle's would pass the 64 KiB wire limit)."""
+    # --- reference sets (steps/references.py): written by a commissioning cycle, looked up by the others
+    references: Any = None
+    """Mode commission: the :class:`cellctl.recording.references.ReferenceSetWriter` the scan stores its views in."""
+    decision_path: dict[str, DecisionPath] | None = None
+    reference_version: int | None = None
+    commission: CommissionResult | None = None
     # --- whole-bin cycle (planner.whole.enabled): the station loop's place and what each station gave
     station_index: int = 0
     """Position in ``station_order`` of the station the cycle is at (Hold/Suspend resume here)."""

@@ -65,6 +65,8 @@ class CycleKeeper:
         self.base = make_base(cfg)
         self.ctx: CycleContext | None = None
         self.start_params = StartParams()
+        self.start_user: str | None = None
+        """Who sent the Start (``Command.user``): a commissioning cycle records who declared the bin clean."""
         self.results: list[CycleResult] = []
         self._seq = itertools.count(1)
         self._lock = threading.Lock()  # finalize runs on activations and on the dispatcher (shutdown)
@@ -111,6 +113,7 @@ class CycleKeeper:
             log=rec,
             mode=params.mode,
             params=params,
+            user=self.start_user,
             started=now.isoformat(timespec="milliseconds"),
             log_rel=rec.rel,
             post_event=self.event,
@@ -162,6 +165,8 @@ class CycleKeeper:
                 return None
             ctx.finished = True
         ctx.shutdown()
+        if ctx.references is not None:  # a commissioning cycle that ended before its set was claimed
+            ctx.references.discard()
         res = assemble_result(ctx, default_outcome, reason)
         ctx.log.close(res)
         self.outbox.result(res)

@@ -152,6 +152,9 @@ def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: st
             any(p.adjusted for p in ctx.plans.values()) if whole and ctx.plans else plan.adjusted if plan else None
         ),
         planner_job_id=ctx.planner_job_id,
+        decision_path=ctx.decision_path,  # type: ignore[arg-type]
+        reference_version=ctx.reference_version,
+        commission=ctx.commission,
         verdict=ctx.verdict if outcome == CycleOutcome.completed else None,
         viewpoints=ctx.viewpoints,
         coverage=ctx.coverage,

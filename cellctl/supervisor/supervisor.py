@@ -219,7 +219,7 @@ class Supervisor:
             return checked.ack(before)
         name = cmd.name
         if checked.start is not None:
-            self.cycles.start_params = checked.start
+            self.cycles.start_params, self.cycles.start_user = checked.start, cmd.user
         if name in ("stop", "abort", "hold"):
             self.admin.stop_reason = f"{name} commanded in {self.state}{by}"
         if name in ("stop", "abort", "complete"):

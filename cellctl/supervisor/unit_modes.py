@@ -10,13 +10,24 @@ manual         3     the table less ``start``                     arm moved by h
 
 A mode change is accepted only in Stopped, Idle or Aborted (TR88: the unit is at rest), is
 refused anywhere else, and never changes the PackML state.
+
+A Start's ``mode`` param may also need a unit mode: ``commission`` (the bin declared clean becomes
+the reference of every viewpoint and re-enrolls the detectors) is staff work, refused in production
+(a PLC's automatic Start must never re-teach what clean looks like) and in manual (no Start at all).
 """
 
 from __future__ import annotations
 
 from cellctl.messages import UnitMode
 
-__all__ = ["MODE_CHANGE_STATES", "MODE_COMMANDS_REMOVED", "commands_in_mode", "mode_change_refusal"]
+__all__ = [
+    "MODE_CHANGE_STATES",
+    "MODE_COMMANDS_REMOVED",
+    "START_MODE_UNIT_MODES",
+    "commands_in_mode",
+    "mode_change_refusal",
+    "start_mode_refusal",
+]
 
 MODE_CHANGE_STATES = ("Stopped", "Idle", "Aborted")
 """The PackML states in which the unit mode may change."""
@@ -27,6 +38,9 @@ MODE_COMMANDS_REMOVED: dict[UnitMode, frozenset[str]] = {
     UnitMode.manual: frozenset({"start"}),
 }
 """PackML commands a mode does not offer (on top of what the state allows)."""
+
+START_MODE_UNIT_MODES: dict[str, frozenset[UnitMode]] = {"commission": frozenset({UnitMode.maintenance})}
+"""Start ``mode`` params allowed only in some unit modes (absent: every mode that offers Start)."""
 
 
 def commands_in_mode(allowed: list[str], mode: UnitMode) -> list[str]:
@@ -42,3 +56,12 @@ def mode_change_refusal(requested: UnitMode, state: str) -> str | None:
     return (
         f"unit mode change to {requested.name!r} not allowed in {state}; allowed in {', '.join(MODE_CHANGE_STATES)}"
     )
+
+
+def start_mode_refusal(start_mode: str, mode: UnitMode) -> str | None:
+    """Why a Start with param ``mode=start_mode`` is refused in unit mode ``mode``, or None when allowed."""
+    allowed = START_MODE_UNIT_MODES.get(start_mode)
+    if allowed is None or mode in allowed:
+        return None
+    names = ", ".join(sorted(m.name for m in allowed))
+    return f"start mode {start_mode!r} is not allowed in unit mode {mode.name!r}; allowed in: {names}"

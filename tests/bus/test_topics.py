@@ -19,6 +19,7 @@ def test_fixed_topic_names_are_pinned() -> None:
         "/classifier/heatmap",
         "/wash/plan",
         "/wash/round",
+        "/references",
     )
     assert len(set(topics.FIXED_TOPICS)) == len(topics.FIXED_TOPICS)
 

@@ -6,6 +6,7 @@ from cellctl.supervisor.steps.checking_cache import CheckingCache
 from cellctl.supervisor.steps.classifying import Classifying
 from cellctl.supervisor.steps.identifying import Identifying
 from cellctl.supervisor.steps.next_station import NextStation
+from cellctl.supervisor.steps.references import References
 from cellctl.supervisor.steps.replanning import Replanning
 from cellctl.supervisor.steps.reporting import Reporting
 from cellctl.supervisor.steps.scanning import Scanning
@@ -22,6 +23,7 @@ STEPS: dict[str, type[Step]] = {
         Scanning,
         Classifying,
         NextStation,
+        References,
         Reporting,
         WashCheck,
         WashStation,

@@ -23,6 +23,7 @@ from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 from cellctl.supervisor.steps.board_mask import mask_board
 from cellctl.supervisor.steps.identifying import captured_image
+from cellctl.supervisor.steps.references import store_reference
 
 NEAR_M = 0.02
 """Faces are clipped at this distance in front of the camera before they are drawn."""
@@ -122,7 +123,7 @@ class Scanning(Step):
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "move → settle → capture per viewpoint; classification overlaps the next move"
     READS = ("plan", "params", "mode", "next_viewpoint", "viewpoints", "classifications")
-    WRITES = ("viewpoints", "classifications", "next_viewpoint")
+    WRITES = ("viewpoints", "classifications", "next_viewpoint", "references")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
@@ -209,6 +210,8 @@ class Scanning(Step):
                 result = result.model_copy(update={"label": ctx.params.label})
             else:
                 image, fmt = classifier_input(run, data, cap.format, moved.camera_pose.matrix(), cap.intrinsics)
+                if ctx.mode == "commission":  # the bin is declared clean: this view is its viewpoint's reference
+                    store_reference(ctx, vp.index, image, fmt, moved.camera_pose.matrix(), cap.intrinsics)
                 ctx.classifications[len(ctx.viewpoints)] = ctx.pool.submit(
                     classify_image, background, vp.index, image, fmt, surface
                 )

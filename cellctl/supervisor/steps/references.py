@@ -1,0 +1,164 @@
+"""references: what the cycle's views were judged against; in a commissioning cycle, the reference set.
+
+Every cycle passes here after its last classification, before reporting.
+
+* **Decision path** per surface (``CycleResult.decision_path``): ``references`` when a reference set
+  of the bin type (:mod:`cellctl.recording.references`) holds every plan the cycle scanned for the
+  surface; else ``enrolled`` when a site-enrolled detector (model id ``<surface>-enrolled-…``)
+  decided a view of it; else ``shipped``. A replan makes a new plan id, which no set holds until it
+  is commissioned. A commissioning cycle's own path is computed before its set exists: its views
+  were judged without it.
+* **Commissioning** (Start ``mode=commission``; :func:`store_reference` kept each view during the
+  scan): the set is given the bin type's next version, the classifier worker enrolls each surface's
+  detector from that surface's views into ``<set>/<surface>.enrolled.pt`` (and decides with it from
+  then on), the manifest is written, and the manifest with its sha256 goes into the cycle's MCAP —
+  so the index row's chained log hash vouches for the set (``cellctl audit verify``). A surface the
+  worker cannot enroll (too few views, images that score like dirt, no worker) keeps its detector
+  and is named in ``CommissionResult.problems``; the references are stored all the same.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cellctl.bus import topics
+from cellctl.errors import RecordingError, WorkerError
+from cellctl.messages import CommissionResult, EnrollReply, EnrollRequest, Intrinsics
+from cellctl.recording.references import ReferenceSetWriter, enrolled_file, latest_set, reference_root
+from cellctl.supervisor.context import CycleContext, StepRun
+from cellctl.supervisor.steps._base import Step
+
+__all__ = ["ENROLL_TIMEOUT_S", "References", "decision_paths", "store_reference"]
+
+ENROLL_TIMEOUT_S = 1800.0
+"""How long one surface's enrollment may take on the classifier worker: a whole-bin plan gives it
+~80 views, each with synthetic dirty versions through the network, on a CPU shared with the cell."""
+
+
+def store_reference(
+    ctx: CycleContext, viewpoint: int, image: bytes, fmt: str, T_base_cam: np.ndarray, intr: Intrinsics | None
+) -> None:
+    """The scan's hook in a commissioning cycle: this view (as the classifier sees it) becomes the
+    reference of its viewpoint in the plan scanned now.
+
+    Raises:
+        RecordingError: the image cannot be stored (the cycle fails: a set with holes is not one).
+    """
+    plan = ctx.plan
+    if plan is None or ctx.bin_type is None:
+        raise RecordingError("a commissioning view came before the bin type and plan were known")
+    if ctx.references is None:
+        ctx.references = ReferenceSetWriter(reference_root(ctx.cfg), ctx.bin_type, ctx.cycle_id)
+    st = ctx.current_station()
+    ctx.references.add(
+        plan.plan_id or "unnamed",
+        ctx.surface,
+        st.station if st is not None else None,
+        viewpoint,
+        image,
+        fmt,
+        T_base_cam,
+        ctx.T_base_bin,
+        intr,
+    )
+
+
+def _scanned_plans(ctx: CycleContext) -> dict[str, list[str]]:
+    """surface → the plan ids the cycle scanned for it."""
+    out: dict[str, list[str]] = {}
+    for (_station, surface), reply in ctx.plans.items():
+        out.setdefault(surface or ctx.surface, []).append(reply.plan_id or "unnamed")
+    return out
+
+
+def decision_paths(ctx: CycleContext) -> tuple[dict[str, str] | None, int | None]:
+    """Per surface, what its views were judged against, and the newest reference set version used."""
+    if ctx.bin_type is None or not ctx.plans:
+        return None, None
+    root = reference_root(ctx.cfg)
+    paths: dict[str, str] = {}
+    version = None
+    for surface, plan_ids in _scanned_plans(ctx).items():
+        found = [latest_set(root, ctx.bin_type, pid) for pid in plan_ids]
+        if all(f is not None for f in found):
+            paths[surface] = "references"
+            version = max([version or 0, *(f[0].version for f in found if f is not None)])
+            continue
+        mine = [v for v in ctx.viewpoints if (v.surface or ctx.surface) == surface]
+        enrolled = any("-enrolled-" in (v.model_id or "") for v in mine)
+        paths[surface] = "enrolled" if enrolled else "shipped"
+    return paths, version
+
+
+def _enroll(run: StepRun, folder: Path, surface: str) -> tuple[EnrollReply | None, str | None]:
+    """Ask the classifier worker to enroll ``surface`` from the set's views of it: (reply, None) or (None, why)."""
+    req = EnrollRequest(surface=surface, images=str(folder / surface), out=str(folder / f"{surface}.enrolled.pt"))
+    try:
+        reply, _ = run.call("classifier", "enroll", req, EnrollReply, timeout=ENROLL_TIMEOUT_S)
+    except WorkerError as err:
+        return None, str(err)
+    return reply, None
+
+
+def commission(run: StepRun, record: dict[str, Any]) -> CommissionResult:
+    """Close a commissioning cycle's reference set: version, enrolled detectors, manifest, audit record
+    (``record`` plus the manifest and its sha256, on :data:`~cellctl.bus.topics.REFERENCES`).
+
+    Raises:
+        RecordingError: no view was stored, or the set cannot be written.
+    """
+    ctx = run.ctx
+    refs = ctx.references
+    if refs is None:
+        raise RecordingError("the commissioning cycle stored no reference view (every viewpoint refused?)")
+    folder = refs.claim()
+    enrolled, problems = {}, {}
+    for surface in refs.surfaces():
+        reply, why = _enroll(run, folder, surface)
+        entry = enrolled_file(folder, surface, reply.model_id) if reply is not None else None
+        if reply is not None and entry is None:
+            why = f"the classifier worker reported {reply.path} written, but {folder}/{surface}.enrolled.pt is missing"
+        elif entry is not None and reply is not None and entry.sha256 != reply.sha256:
+            why, entry = f"{entry.file} has sha256 {entry.sha256}, the worker wrote {reply.sha256}", None
+        if entry is not None:
+            enrolled[surface] = entry
+        else:
+            problems[surface] = why or "not enrolled"
+            run.event("warning", f"commissioning: {surface} detector not enrolled: {problems[surface]}")
+    man, path, sha = refs.finish(ctx.user or "", ctx.whole_plan_id, enrolled, problems)
+    record = {**record, "manifest_sha256": sha, "manifest_path": str(path), "manifest": man.model_dump(mode="json")}
+    ctx.log.write_json(topics.REFERENCES, "cellctl.References", record)
+    run.event("info", f"commissioning: reference set v{man.version} of {man.bin_type}, {man.references} views")
+    rel = path.relative_to(ctx.cfg.root) if path.is_relative_to(ctx.cfg.root) else path
+    return CommissionResult(
+        bin_type=man.bin_type,
+        version=man.version,
+        manifest=str(rel),
+        manifest_sha256=sha,
+        references=man.references,
+        plan_ids=sorted(man.plans),
+        declared_by=man.declared_by,
+        enrolled={s: str(folder / e.file) for s, e in enrolled.items()},  # type: ignore[misc]
+        problems=problems,
+    )
+
+
+class References(Step):
+    NAME = "references"
+    OUTCOMES = ("succeeded", "failed")
+    DESCRIPTION = "decision path per surface; mode commission: version the reference set, enroll, manifest, audit"
+    READS = ("mode", "viewpoints")
+    WRITES = ("decision_path", "reference_version", "commission")
+
+    def execute(self, run: StepRun) -> str:
+        ctx = run.ctx
+        ctx.decision_path, ctx.reference_version = decision_paths(ctx)  # type: ignore[assignment]
+        record = {"decision_path": ctx.decision_path, "reference_version": ctx.reference_version}
+        if ctx.mode == "commission":
+            ctx.commission = commission(run, record)
+        else:
+            ctx.log.write_json(topics.REFERENCES, "cellctl.References", record)
+        return "succeeded"
