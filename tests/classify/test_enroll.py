@@ -115,6 +115,12 @@ def test_classify_cli_uses_an_enrolled_file(enrolled: tuple[Detector, Path, Path
     rc = main(["classify", str(img), "--surface", "external", "--detector", str(out), "--json"])
     (line,) = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
     assert rc == 0 and line["model_id"] == det.model_id
+    # the cell's config names it: classify follows classifier.detector_files as the worker does
+    rc = main(
+        ["classify", str(img), "--surface", "external", "--json", "--set", f"classifier.detector_files.external={out}"]
+    )
+    (line,) = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    assert rc == 0 and line["model_id"] == det.model_id
     assert {"image", "label", "p_dirty", "uncertain", "model_id", "p_supervised", "anomaly_z", "heat_max"} == set(line)
 
 
