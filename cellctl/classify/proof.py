@@ -251,6 +251,17 @@ def _targets(out: dict[str, Any]) -> dict[str, Any]:
     return t
 
 
+def _git_head() -> str | None:
+    """The checkout's commit (None outside git): the JSON names the code it measured."""
+    import subprocess
+
+    try:
+        r = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=False)
+    except OSError:
+        return None
+    return r.stdout.strip() or None
+
+
 @contextlib.contextmanager
 def _workdir(work: Path | None) -> Iterator[Path]:
     if work is not None:
@@ -293,6 +304,7 @@ def proof(
     seeds = {k: seed + v for k, v in SEED_OFFSETS.items()}
     out: dict[str, Any] = {
         "format": PROOF_FORMAT,
+        "git_head": _git_head(),
         "surface": surface,
         "detector": {"model_id": det.model_id, "path": str(detector), "threshold": det.threshold},
         "seed": seed,
@@ -472,7 +484,12 @@ def _site(det: Any, surface: str, sizes: ProofSizes, seeds: dict, wd: Path, say:
     say(f"proof {surface}: site: scoring {len(y)} test images with {det.model_id}")
     sc = _run(det, x, keep_raw=True)
     p = _image_p(det, sc.s, sc.a)
+    import cellctl.classify.enroll as enroll_module
+    from cellctl.hashing import file_sha256
+
     res: dict[str, Any] = {
+        # enrollment is the part under test; which code enrolled is part of the figure
+        "enroll_code_sha256": file_sha256(Path(enroll_module.__file__)),
         "recreate": [
             f"cellctl dataset contam --site unseen --surface {surface} --n {2 * k_max} --out DIR --seed "
             f"{seeds['site_enroll']}  (the proof draws {k_max} clean only)",

@@ -48,6 +48,7 @@ def _intervals(node: object) -> list[dict]:
     return []
 
 
+@pytest.mark.timeout(900)  # ~1 CPU min; the shared cores run it at a fraction of that
 def test_proof_quick_runs_end_to_end(tmp_path: Path) -> None:
     """--quick: every section is generated and scored; every interval holds its point estimate."""
     from cellctl.cli import main
