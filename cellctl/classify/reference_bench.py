@@ -347,6 +347,7 @@ def bench_reference(opts: BenchOptions) -> dict[str, Any]:
     import torch
 
     from cellctl.classify.fusion import Detector, detector_path
+    from cellctl.surface import SURFACES
 
     cfg = opts.load_config()
     torch.set_num_threads(1)
@@ -354,7 +355,7 @@ def bench_reference(opts: BenchOptions) -> dict[str, Any]:
     outdir = (opts.out.parent if opts.out else Path("logs")) / "reference"
     outdir.mkdir(parents=True, exist_ok=True)
     result: dict[str, Any] = {"seed": opts.seed, "n_fit": n, "n_measure": (2 * n) // 3}
-    for surface in ("external", "internal"):
+    for surface in SURFACES:
         det = Detector.load(detector_path(cfg.path(cfg.classifier.models_dir), surface), surface=surface, threads=1)
         draw = make_pair_source(surface, cfg)
         t0 = time.perf_counter()
