@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
 from cellctl.bus import topics
@@ -29,6 +30,7 @@ from cellctl.recording.audit import FindingKind, verify_audit
 from cellctl.recording.references import MANIFEST, lookup_reference, read_manifest, reference_root, set_versions
 from tests.fakes.workers import CAM_POSE, INTRINSICS, FakeCell
 from tests.supervisor.test_cycle_over_zenoh import cell, plc  # noqa: F401 - the daemon and PLC fixtures
+from tests.supervisor.test_station_loop import faces as faces  # noqa: F401 - the case-study faces per surface
 
 USER = "hmi:alice"
 
@@ -77,13 +79,13 @@ def _start(plc, mode: str | None = None, user: str | None = USER):  # noqa: ANN0
     return plc.send(Command(command="start", user=user, params=params, request_id=plc._next_id(), stamp=now_iso()))
 
 
-def _cycle(plc, mode: str | None = None, user: str | None = USER):  # noqa: ANN001, ANN202, F811
+def _cycle(plc, mode: str | None = None, user: str | None = USER, timeout: float = 30):  # noqa: ANN001, ANN202, F811
     plc.drain()
     plc.cmd("reset")
     plc.wait_state("Idle")
     ack = _start(plc, mode, user)
     assert ack.accepted, ack.reason
-    plc.wait_state("Complete", 30)
+    plc.wait_state("Complete", timeout)
     return plc.results.get(timeout=10)
 
 
@@ -187,3 +189,38 @@ def test_a_surface_that_cannot_be_enrolled_keeps_its_references_and_says_why(cfg
     assert "at least 10" in c.problems["external"]
     man = read_manifest(reference_root(cfg) / "case_study" / "v0001" / MANIFEST)
     assert man.enrolled == {} and "external" in man.problems
+
+
+class TestWholeBin:
+    """The shipped default: a whole-bin cycle, three stations, both surfaces (the doubles of test_station_loop)."""
+
+    @pytest.fixture
+    def cfg(self, tmp_path, port):  # noqa: ANN001, ANN201 - the shipped config on a private port and folders
+        from cellctl.config import load_config
+        from tests.conftest import cfg_overrides
+        from tests.supervisor.test_whole_default import PINS
+
+        return load_config(None, [o for o in cfg_overrides(tmp_path, port) if not o.startswith(PINS)])
+
+    def test_a_whole_bin_commissioning_references_every_station_plan(self, cfg, cell, plc, faces) -> None:  # noqa: ANN001, F811
+        from tests.supervisor.test_whole_default import WideWholeFakeCell
+
+        class WholeCommissionCell(CommissionCell, WideWholeFakeCell):
+            _lookup = WideWholeFakeCell._lookup
+
+        assert cfg.planner.whole.enabled
+        with WholeCommissionCell(cfg, faces=faces) as fake:
+            _to_maintenance(plc)
+            res = _cycle(plc, "commission", timeout=60)
+            after = _cycle(plc, timeout=60)
+        assert res.outcome == "completed", res.reason
+        c = res.commission
+        plans = ["st0-external", "st0-internal", "st1-external", "st1-internal", "st2-external"]
+        assert c is not None and c.plan_ids == plans and c.references == 10 and not c.problems
+        assert sorted(r.surface for r in fake.enroll_requests) == ["external", "internal"]
+        assert sorted(c.enrolled) == ["external", "internal"]
+        man = read_manifest(reference_root(cfg) / "case_study" / "v0001" / MANIFEST)
+        assert man.whole_plan_id == "whole-1" and man.plans["st1-internal"].station == 1
+        assert res.decision_path == {"external": "shipped", "internal": "shipped"}
+        assert after.decision_path == {"external": "references", "internal": "references"}
+        assert after.verdict == "clean" and after.reference_version == 1
