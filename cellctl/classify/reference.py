@@ -21,7 +21,9 @@ What differs after alignment is what is new. The stages, each a function over ty
    memory-bank distance, change logit), Platt scaling on the image's largest ``z`` and a
    threshold chosen on generated pairs for the false-clean target. Without a reference, or with a
    rejected alignment, the detector decides alone and the result says why
-   (:class:`ReferenceDecision`).
+   (:class:`ReferenceDecision`). On polished (internal) steel a pose delta past
+   :data:`MIRROR_POSE_TOLERANCE` is rejected before any image work (``out_of_tolerance``): the
+   mirrored arm, camera and cabin no longer line up with the reference.
 
 The fused weights live in ``<models_dir>/<surface>.reference.json`` (:data:`FUSION_FORMAT`), fitted
 by ``cellctl detector reference-fit`` (:mod:`cellctl.classify.reference_bench`, on generated
@@ -99,6 +101,7 @@ UNCOVERED_FEATURES = (0.0, 0.0, 0.0)
 FUSION_FORMAT = "cellctl-reference-fusion/1"
 REJECT_REASONS = (
     "no_reference",
+    "out_of_tolerance",
     "degenerate_prior",
     "ecc_not_converged",
     "low_correlation",
@@ -564,9 +567,20 @@ def detector_maps(det: Any, new_work: NDArray[np.uint8]) -> tuple[NDArray[np.flo
 
 
 def compare(
-    ref: ReferenceView, new_work: NDArray[np.uint8], T_bin_new: NDArray[np.float64], width: int, height: int
+    ref: ReferenceView,
+    new_work: NDArray[np.uint8],
+    T_bin_new: NDArray[np.float64],
+    width: int,
+    height: int,
+    tolerance: PoseTolerance | None = None,
 ) -> tuple[Alignment, NDArray[np.float32] | None]:
-    """Align the reference to the new work image and, if aligned, its change features."""
+    """Align the reference to the new work image and, if aligned, its change features.
+
+    ``tolerance``: a pose delta outside it is rejected (``out_of_tolerance``) before any image work.
+    """
+    if tolerance is not None and not tolerance.holds(*pose_delta(ref.T_bin_cam, T_bin_new)):
+        eye = np.eye(3)
+        return Alignment(False, "out_of_tolerance", eye, eye), None
     S = squash_matrix(width, height)
     rh, rw = ref.rgb.shape[:2]
     try:
@@ -610,7 +624,9 @@ def decide(
     feats = None
     reason = "no_reference"
     if ref is not None and fusion is not None:
-        al, feats = compare(ref, new_work, T_bin_new, w, h)
+        # mirrored content breaks the comparison past the measured pose tolerance (polished steel only)
+        tol = MIRROR_POSE_TOLERANCE if fusion.surface == "internal" else None
+        al, feats = compare(ref, new_work, T_bin_new, w, h, tol)
         reason = al.reason
     if feats is None or fusion is None:
         return ReferenceDecision(

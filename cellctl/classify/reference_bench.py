@@ -57,6 +57,7 @@ __all__ = [
     "latency",
     "measure",
     "mirror_sweep",
+    "reference_surface",
     "score_pairs",
 ]
 
@@ -342,52 +343,56 @@ def figure(det: Any, fusion: ReferenceFusion, pairs: list[Pair], path: Path) -> 
     cv2.imwrite(str(path), cv2.cvtColor(np.vstack(rows), cv2.COLOR_RGB2BGR))
 
 
+def reference_surface(cfg: Any, surface: str, n: int, seed: int, outdir: Path) -> dict[str, Any]:
+    """Every stage for one surface: fit on ``n`` pairs, measure on ``2n/3`` held-out ones, the
+    mirror sweep (internal), latency and the figure; the fusion and the PNG go to ``outdir``."""
+    from cellctl.classify.fusion import Detector, detector_path
+
+    det = Detector.load(detector_path(cfg.path(cfg.classifier.models_dir), surface), surface=surface, threads=1)
+    draw = make_pair_source(surface, cfg)
+    t0 = time.perf_counter()
+    print(f"bench reference: {surface}: drawing {n} fit pairs (training families)", file=sys.stderr)
+    fit_sc = score_pairs(det, draw_pairs(draw, n, seed, False))
+    card = {
+        "command": f"cellctl bench reference --n {n} --seed {seed}",
+        "fit_seed": seed,
+        "delta": list(DEMO_PARKING_ERROR),
+        "families": "training (contamination.FAMILIES) + twin powder",
+    }
+    fusion = fit_fusion(det, fit_sc, surface, card)
+    outdir.mkdir(parents=True, exist_ok=True)
+    fusion.save(outdir / f"{surface}.reference.json")
+    print(f"bench reference: {surface}: drawing {(2 * n) // 3} held-out pairs", file=sys.stderr)
+    meas_pairs = draw_pairs(draw, (2 * n) // 3, seed + 1000, True)
+    res: dict[str, Any] = {
+        "n_fit": n,
+        "n_measure": len(meas_pairs),
+        "fusion": {"change": fusion.change, "fuse": fusion.fuse, "platt": fusion.platt, "threshold": fusion.threshold},
+        "fit_in_sample": measure(det, fusion, fit_sc),
+        "held_out": measure(det, fusion, score_pairs(det, meas_pairs)),
+        "held_out_note": f"held-out families (shifted.HELD_OUT_FAMILIES) + twin powder, seed {seed + 1000}",
+    }
+    res["latency"] = latency(det, fusion, meas_pairs, min(100, 2 * len(meas_pairs)))
+    if surface == "internal":
+        res["mirror"] = mirror_sweep(det, fusion, draw, max(12, n // 10), seed + 2000)
+    pick = [p for p in meas_pairs if p.label][:3] + [p for p in meas_pairs if not p.label][:1]
+    figure(det, fusion, pick, outdir / f"triples_{surface}.png")
+    res["seconds"] = round(time.perf_counter() - t0, 1)
+    return res
+
+
 def bench_reference(opts: BenchOptions) -> dict[str, Any]:
     """Fit and measure the reference decision per surface (see the module doc)."""
     import torch
 
-    from cellctl.classify.fusion import Detector, detector_path
     from cellctl.surface import SURFACES
 
     cfg = opts.load_config()
     torch.set_num_threads(1)
     n = opts.n or 240
     outdir = (opts.out.parent if opts.out else Path("logs")) / "reference"
-    outdir.mkdir(parents=True, exist_ok=True)
-    result: dict[str, Any] = {"seed": opts.seed, "n_fit": n, "n_measure": (2 * n) // 3}
+    result: dict[str, Any] = {"seed": opts.seed}
     for surface in SURFACES:
-        det = Detector.load(detector_path(cfg.path(cfg.classifier.models_dir), surface), surface=surface, threads=1)
-        draw = make_pair_source(surface, cfg)
-        t0 = time.perf_counter()
-        print(f"bench reference: {surface}: drawing {n} fit pairs (training families)", file=sys.stderr)
-        fit_sc = score_pairs(det, draw_pairs(draw, n, opts.seed, False))
-        card = {
-            "command": f"cellctl bench reference --n {n} --seed {opts.seed}",
-            "fit_seed": opts.seed,
-            "delta": list(DEMO_PARKING_ERROR),
-            "families": "training (contamination.FAMILIES) + twin powder",
-        }
-        fusion = fit_fusion(det, fit_sc, surface, card)
-        fusion.save(outdir / f"{surface}.reference.json")
-        print(f"bench reference: {surface}: drawing {(2 * n) // 3} held-out pairs", file=sys.stderr)
-        meas_pairs = draw_pairs(draw, (2 * n) // 3, opts.seed + 1000, True)
-        res = {
-            "fusion": {
-                "change": fusion.change,
-                "fuse": fusion.fuse,
-                "platt": fusion.platt,
-                "threshold": fusion.threshold,
-            },
-            "fit_in_sample": measure(det, fusion, fit_sc),
-            "held_out": measure(det, fusion, score_pairs(det, meas_pairs)),
-            "held_out_note": "held-out families (shifted.HELD_OUT_FAMILIES) + twin powder, seed + 1000",
-        }
-        res["latency"] = latency(det, fusion, meas_pairs, min(200, 4 * len(meas_pairs)))
-        if surface == "internal":
-            res["mirror"] = mirror_sweep(det, fusion, draw, max(12, n // 10), opts.seed + 2000)
-        pick = [p for p in meas_pairs if p.label][:3] + [p for p in meas_pairs if not p.label][:1]
-        figure(det, fusion, pick, outdir / f"triples_{surface}.png")
-        res["seconds"] = round(time.perf_counter() - t0, 1)
-        result[surface] = res
+        result[surface] = reference_surface(cfg, surface, n, opts.seed, outdir)
     result["setup"] = {"cpu_count": os.cpu_count(), "loadavg_end": [round(v, 2) for v in os.getloadavg()], "threads": 1}
     return result
