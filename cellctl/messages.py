@@ -352,7 +352,8 @@ class StartParams(WireMessage):
             raise ProtocolError(f"unknown start params {sorted(unknown)}; allowed: {sorted(START_PARAM_NAMES)}")
         mode = params.get("mode", "evaluate")
         if mode not in START_MODES:
-            raise ProtocolError(f"start param mode={mode!r:.80}; expected one of {', '.join(map(repr, START_MODES))}")
+            known = ", ".join(map(repr, START_MODES[:-1])) + f" or {START_MODES[-1]!r}"
+            raise ProtocolError(f"start param mode={mode!r:.80}; expected {known}")
         label = params.get("label")
         if mode == "collect" and label not in ("clean", "dirty"):
             raise ProtocolError(f"start param label={label!r}; collect mode needs label 'clean' or 'dirty'")
@@ -417,6 +418,9 @@ class LastCycle(BaseModel):
     min_seen_fraction: dict[str, float] | None = Field(
         default=None, description="the share of each surface `clean` needed (verdict `incomplete` below it)"
     )
+    decision_path: dict[str, str] | None = Field(
+        default=None, description="what each surface was judged against (CycleResult.decision_path)"
+    )
 
     @classmethod
     def of(cls, res: CycleResult) -> LastCycle:
@@ -429,6 +433,7 @@ class LastCycle(BaseModel):
             finished=res.finished,
             coverage_by_surface=res.coverage_by_surface,
             min_seen_fraction=res.min_seen_fraction,
+            decision_path=dict(res.decision_path) if res.decision_path else None,
         )
 
 

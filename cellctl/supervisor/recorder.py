@@ -122,7 +122,16 @@ class CycleRecorder(Recorder):
         self._log.write_message(keys.result(self.cell_id), result)
         # the models that decided, in the log's own metadata (readable without decoding a message)
         models = ",".join(result.classifier_models or [])
-        self._log.close({"outcome": result.outcome.value, "reason": result.reason or "", "classifier_models": models})
+        paths = ",".join(f"{s}={p}" for s, p in (result.decision_path or {}).items())  # external=references,…
+        self._log.close(
+            {
+                "outcome": result.outcome.value,
+                "reason": result.reason or "",
+                "classifier_models": models,
+                "decision_path": paths,
+                "reference_version": str(result.reference_version or ""),
+            }
+        )
         self.index.finish(
             self.cycle_id,
             result.outcome.value,

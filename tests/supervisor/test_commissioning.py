@@ -151,6 +151,11 @@ def test_commissioning_writes_a_reference_set_chained_into_the_audit(cfg, cell, 
     # a later cycle of the commissioned plan is judged against the references
     assert after.outcome == "completed" and after.decision_path == {"external": "references"}
     assert after.reference_version == 1
+    with open(cfg.path(after.log), "rb") as f:  # in the log's own metadata and in Status.admin too
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["result"]
+    assert meta["decision_path"] == "external=references" and meta["reference_version"] == "1"
+    last = plc.wait_for(lambda s: s.admin.last_cycle and s.admin.last_cycle.cycle_id == after.cycle_id, 5)
+    assert last is not None and last.admin.last_cycle.decision_path == {"external": "references"}
     # the audit notices an edited reference image and an edited manifest
     ref0 = lookup_reference(root, "case_study", "plan-1", 0)
     assert ref0 is not None
