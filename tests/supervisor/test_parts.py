@@ -56,7 +56,10 @@ def test_a_valid_start_is_accepted_with_typed_params() -> None:
             {"speed": 3},
             "unknown start params ['speed']; allowed: ['dataset', 'label', 'mode', 'perturb_m', 'seed', 'surface']",
         ),
-        ({"mode": "fast"}, "start param mode='fast'; expected 'evaluate', 'collect', 'wash_and_verify' or 'commission'"),
+        (
+            {"mode": "fast"},
+            "start param mode='fast'; expected 'evaluate', 'collect', 'wash_and_verify' or 'commission'",
+        ),
         ({"mode": "collect"}, "start param label=None; collect mode needs label 'clean' or 'dirty'"),
         ({"surface": "top"}, "start param surface='top'; expected 'external' or 'internal'"),
         ({"perturb_m": 0.5}, "start param perturb_m=0.5; expected a number in [0, 0.1] m"),
