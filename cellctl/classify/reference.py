@@ -95,7 +95,11 @@ pixel at 128 px): tighter only costs iterations (3 ms → 10 ms) for no change i
 LOG_EPS = 0.02
 """Added before the log (in [0, 1] units): keeps sensor noise in black pixels from dominating."""
 TEXTURE_FLOOR = 0.05
-"""Patch std (log units) below which a patch counts as flat: its structure term stays near 0."""
+"""Patch std (log units) below which a patch counts as flat in the contrast ratio."""
+ENVELOPE_PX = 2
+"""Half-width (work px) of the reference neighbourhood whose value range a new pixel may take
+without counting as changed: 2 px at 128 = 1/4 patch, about the residual of ECC plus a plane
+homography across a wall edge at the demo's parking error."""
 UNCOVERED_FEATURES = (0.0, 0.0, 0.0)
 """Change features of a patch the warped reference does not cover: no evidence of change."""
 FUSION_FORMAT = "cellctl-reference-fusion/1"
@@ -383,35 +387,43 @@ def change_features(
 ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Per-patch change features ``(3, grid, grid)`` and patch coverage ``(grid, grid)``.
 
-    Features (log-RGB, both images blurred σ 1 px so a residual misregistration of ~1 px averages
-    out; each channel's median offset over the overlap removed, which cancels a global exposure
-    and white-balance change):
+    In log-RGB, both images blurred σ 1 px, each channel's median offset over the overlap added to
+    the reference (a global exposure and white-balance change is exactly that offset). A pixel's
+    **envelope residual** is how far the new value lies outside the range of the reference's
+    values within ±:data:`ENVELOPE_PX` px (the golden-template tolerance band of print
+    inspection): a residual misregistration, a seam or a wall edge the plane homography does not
+    fit exactly, and the grain of brushed steel all stay inside it; new matter does not.
 
-    0. colour: norm over channels of the patch-mean residual (powder, stains, soot, tarnish);
-    1. structure: ``(v_n + v_r − 2 cov) / (v_n + v_r + τ²)`` of the zero-mean grey patches, 0 for
-       the same texture, ~1 for unrelated texture (fibres, streaks, droplets);
-    2. contrast: ``|½ log((v_n + τ²) / (v_r + τ²))|`` (a film that veils the texture).
+    0. colour: norm over channels of the patch-mean envelope residual (powder, stains, soot,
+       tarnish: a consistent shift of colour or brightness);
+    1. structure: RMS over the patch of the grey envelope residual (new lines and specks: fibres,
+       streaks, droplets, flakes, whichever sign);
+    2. contrast: ``|½ log((v_n + τ²) / (v_r + τ²))|`` of the grey patch variances (a film that
+       veils the texture stays inside the envelope but lowers the contrast).
 
     Patches covered less than half get :data:`UNCOVERED_FEATURES`.
     """
     ln = cv2.GaussianBlur(_log_rgb(new_work), (0, 0), 1.0)
     lr = cv2.GaussianBlur(_log_rgb(warped_ref), (0, 0), 1.0)
     w = valid.astype(np.float32)
-    d = ln - lr
     if w.sum() < 16:
         cover = np.zeros((grid, grid), np.float32)
         return np.zeros((3, grid, grid), np.float32) + np.asarray(UNCOVERED_FEATURES, np.float32)[:, None, None], cover
-    off = np.median(d[valid], axis=0)
-    res = d - off
+    lr = lr + np.median((ln - lr)[valid], axis=0)
+    kernel = np.ones((2 * ENVELOPE_PX + 1, 2 * ENVELOPE_PX + 1), np.uint8)
+
+    def envelope(n: NDArray[np.float32], r: NDArray[np.float32]) -> NDArray[np.float32]:
+        return np.maximum(n - cv2.dilate(r, kernel), 0.0) - np.maximum(cv2.erode(r, kernel) - n, 0.0)
+
+    res = envelope(ln, lr)
     colour = np.sqrt(sum(_patch_mean(np.ascontiguousarray(res[..., c]), w, grid) ** 2 for c in range(3)))
     gn = np.ascontiguousarray(ln.mean(axis=2))
     gr = np.ascontiguousarray(lr.mean(axis=2))
+    structure = np.sqrt(_patch_mean(envelope(gn, gr) ** 2, w, grid))
     mn, mr = _patch_mean(gn, w, grid), _patch_mean(gr, w, grid)
     vn = np.maximum(_patch_mean(gn * gn, w, grid) - mn * mn, 0.0)
     vr = np.maximum(_patch_mean(gr * gr, w, grid) - mr * mr, 0.0)
-    cov = _patch_mean(gn * gr, w, grid) - mn * mr
     tau2 = TEXTURE_FLOOR**2
-    structure = np.maximum(vn + vr - 2 * cov, 0.0) / (vn + vr + tau2)
     contrast = np.abs(0.5 * np.log((vn + tau2) / (vr + tau2)))
     cover = cv2.resize(w, (grid, grid), interpolation=cv2.INTER_AREA)
     feats = np.stack([colour, structure, contrast]).astype(np.float32)

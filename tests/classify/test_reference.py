@@ -109,6 +109,15 @@ def test_exposure_and_white_balance_give_no_change() -> None:
     assert feats[2].max() < 0.1  # contrast ratio
 
 
+def test_a_residual_misregistration_stays_inside_the_envelope() -> None:
+    """The reference 1.5 px off (what ECC and a plane homography leave at a wall edge): brushed
+    grain, seams and blobs stay inside the ±2 px envelope, no patch shows change."""
+    ref = _steel(10)
+    warped, valid = warp_reference(ref, _H((1.5, -1.0), 0.3))
+    feats, _ = change_features(warped, ref, valid)
+    assert feats[0].max() < 0.05 and feats[1].max() < 0.06
+
+
 def test_a_pasted_blob_gives_change_at_its_patches() -> None:
     """A matte cream blob of 14 px: the strongest colour change lies on the blob's patches."""
     ref = _steel(7)
