@@ -55,8 +55,9 @@ class Review:
 
     # --- the queue ----------------------------------------------------------------------------
 
-    def _views(self, cycle_id: str) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-        """The cycle's record and its reviewable views (dirty or uncertain), with surface and decision."""
+    def _views(self, cycle_id: str, files: bool = False) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+        """The cycle's record and its reviewable views (dirty or uncertain), with surface and decision
+        (``files``: with the reference's server path, never sent to a client)."""
         d = self.records.detail(cycle_id)
         res = d["result"] or {}
         if d["row"]["outcome"] != "completed" or not res:
@@ -70,6 +71,9 @@ class Review:
                 continue
             v = by_index.get(img.get("index"), {})
             e = decided.get(img["image"])
+            ref = self._reference(res, v, v.get("surface") or default_surface)
+            if ref is not None and not files:
+                ref = {k: x for k, x in ref.items() if k != "_file"}
             out.append({
                 "id": f"{cycle_id}/{img['image']}",
                 "cycle_id": cycle_id,
@@ -83,8 +87,8 @@ class Review:
                 "why": "uncertain" if img.get("uncertain") else "dirty",
                 "model_id": v.get("model_id"),
                 "heatmap": img.get("heatmap") is not None,
-                # a reference image of this viewpoint, when the cycle's record names one (commissioned plans)
-                "reference": v.get("reference"),
+                # the reference image of this viewpoint, when the cycle was judged against a commissioned set
+                "reference": ref,
                 "faces": v.get("faces"),
                 "bin_picture": bool(res.get("dirt_map")),
                 "bin_type": (res.get("bin") or {}).get("type") or d["row"].get("bin_type"),
@@ -92,6 +96,54 @@ class Review:
                 "decision": _public(e) if e else None,
             })  # fmt: skip
         return d, out
+
+    def _reference(self, res: dict[str, Any], v: dict[str, Any], surface: str) -> dict[str, Any] | None:
+        """Which reference the view was compared with: the set version the CycleResult names, the plan
+        the view's station scanned for its surface, its viewpoint; None when the surface was not judged
+        against references (not commissioned, or a replan since) or the set no longer holds it."""
+        from cellctl.recording.references import MANIFEST, read_manifest, reference_root, set_versions
+
+        version, bin_type = res.get("reference_version"), (res.get("bin") or {}).get("type")
+        if not version or not bin_type or (res.get("decision_path") or {}).get(surface) != "references":
+            return None
+        station = next((s for s in res.get("stations") or [] if s.get("station") == v.get("station")), None)
+        plan_id = (station or {}).get("plan_ids", {}).get(surface) if station else res.get("plan_id")
+        folder = next((f for ver, f in set_versions(reference_root(self.cfg), bin_type) if ver == version), None)
+        if folder is None or plan_id is None:
+            return None
+        try:
+            man = read_manifest(folder / MANIFEST)
+        except CellError as err:  # the audit names a damaged set; the review shows no reference
+            log.warning("reference set %s: %s", folder, err)
+            return None
+        plan = man.plans.get(plan_id)
+        view = plan.views.get(v.get("index", -1)) if plan is not None else None
+        if view is None:
+            return None
+        return {"version": version, "plan_id": plan_id, "viewpoint": view.viewpoint, "sha256": view.sha256,
+                "declared_by": man.declared_by, "commissioned_in": man.cycle_id,
+                "_file": str(folder / view.image)}  # fmt: skip
+
+    def reference_image(self, cycle_id: str, n: int) -> bytes:
+        """The reference image of queue item ``cycle_id/n``, checked against its manifest's sha256.
+
+        Raises:
+            NotFound: the view has no reference. RecordingError: the file differs from its manifest.
+        """
+        from pathlib import Path
+
+        from cellctl.errors import RecordingError
+        from cellctl.recording.references import reference_root
+
+        _, views = self._views(cycle_id, files=True)
+        ref = next((v["reference"] for v in views if v["image"] == n), None)
+        if ref is None:
+            raise NotFound(f"view {cycle_id}/{n} has no reference (its plan was not commissioned)")
+        p, root = Path(ref["_file"]).resolve(), reference_root(self.cfg).resolve()
+        data = p.read_bytes() if p.is_relative_to(root) and p.is_file() else b""
+        if bytes_sha256(data) != ref["sha256"]:
+            raise RecordingError(f"reference of view {cycle_id}/{n} is missing or differs from its set's manifest")
+        return data
 
     def queue(self, state: str = "open", limit: int = 100) -> list[dict[str, Any]]:
         """Reviewable views of the newest completed cycles, newest cycle first.

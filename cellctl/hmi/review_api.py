@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal
 
 from fastapi import FastAPI, Query, Request
 from fastapi import Path as FastApiPath
+from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field, StrictStr
 
 from cellctl.hmi.review import REVIEWERS, Conflict, Review
@@ -63,6 +64,13 @@ def add_review_routes(app: FastAPI, hmi: Any, need_user: Callable[..., Any], err
     def item(cycle_id: str, n: ImageNo) -> dict[str, Any]:
         """One view of the queue with its decision (null while open) and its cycle's release state."""
         return review.item(cycle_id, n)
+
+    @app.get("/api/review/items/{cycle_id}/{n}/reference", tags=["review"])
+    def reference(cycle_id: str, n: ImageNo) -> Response:
+        """The reference image of the view's viewpoint (its commissioned set's), checked against the set's
+        manifest; 404 when the view has none."""
+        return Response(review.reference_image(cycle_id, n), media_type="image/png",
+                        headers={"Cache-Control": "max-age=3600"})  # fmt: skip
 
     @app.post("/api/review/items/{cycle_id}/{n}", tags=["review"])
     def decide(cycle_id: str, n: ImageNo, request: Request, body: DecisionRequest) -> dict[str, Any]:

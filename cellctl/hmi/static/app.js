@@ -395,7 +395,10 @@ async function openItem(cycle, n) {
   $("rv-release").className = it.release.state === "review_required" || it.release.state === "ready" ? "release-open" : "";
   showImg("rv-img", null, `${base}/images/${n}`);
   showImg("rv-heat", "rv-noheat", it.heatmap ? `${base}/heatmaps/${n}` : null);
-  $("rv-ref").textContent = it.reference ? `reference: ${typeof it.reference === "string" ? it.reference : JSON.stringify(it.reference)}` : "no reference (this view's plan is not commissioned)";
+  const ref = it.reference;
+  $("rv-ref").textContent = ref ? "loading the reference …" : "no reference (this view's plan is not commissioned)";
+  showImg("rv-refimg", "rv-ref", ref ? `/api/review/items/${encodeURIComponent(cycle)}/${n}/reference` : null);
+  $("rv-refcap").textContent = ref ? `reference: set v${ref.version}, viewpoint ${ref.viewpoint} (declared clean by ${ref.declared_by})` : "reference";
   showImg("rv-bin", "rv-nobin", it.bin_picture ? `${base}/dirt_map.png` : null);
   $("rv-faces").textContent = it.faces ? `bin: faces ${it.faces.join(", ")}` : "bin: the cycle's dirt map (the view's faces are not in the record)";
   const can = !!session.user && REVIEWERS.has(session.role);
