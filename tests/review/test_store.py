@@ -66,3 +66,18 @@ def test_the_bank_keeps_provenance_and_evicts_the_oldest_beyond_its_bound(tmp_pa
         bank.files("internal", "clean")
     with pytest.raises(RecordingError, match="surface 'roof'"):
         bank.add("roof", "clean", b"x", "png", {"cycle_id": "c", "image": 0})
+
+
+def test_the_review_config_refuses_unknown_keys_and_bounds_the_bank(tmp_path: Path) -> None:
+    from cellctl.config import load_config
+    from cellctl.errors import ConfigError
+    from cellctl.review import bank_dir
+
+    cfg = load_config(None, [f"recording.dir={tmp_path / 'logs'}"])
+    assert cfg.review.require_for_uncertain and bank_dir(cfg) == tmp_path / "logs" / "review"
+    with pytest.raises(ConfigError, match="require_for_uncertian"):
+        load_config(None, ["review.require_for_uncertian=false"])
+    with pytest.raises(ConfigError, match="max_per_label"):
+        load_config(None, ["review.max_per_label=3"])
+    with pytest.raises(ConfigError, match="require_for_uncertain"):
+        load_config(None, ["review.require_for_uncertain=yes"])  # strict: only true/false
