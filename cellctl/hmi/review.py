@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 from typing import Any
 
 from cellctl.config import CellConfig
@@ -52,6 +53,9 @@ class Review:
         self.cfg, self.records = cfg, records
         self.ledger = Ledger(cfg.path(cfg.recording.dir) / LEDGER_NAME)
         self.bank = open_bank(cfg)
+        # one decision or release at a time: two operators answering the same view at once must not
+        # both pass the "not decided yet" check (the routes run in a thread pool)
+        self._decide = threading.Lock()
 
     # --- the queue ----------------------------------------------------------------------------
 
@@ -187,6 +191,10 @@ class Review:
             NotFound: not a queue item. Conflict: already decided, or the cycle was released.
             RecordingError: the ledger or the bank cannot be written.
         """
+        with self._decide:
+            return self._decide_locked(cycle_id, n, label, reason, user, role)
+
+    def _decide_locked(self, cycle_id: str, n: int, label: str, reason: str, user: str, role: str) -> dict[str, Any]:
         it = self.item(cycle_id, n)
         if it["decision"] is not None:
             d = it["decision"]
@@ -246,6 +254,10 @@ class Review:
             Conflict: nothing to release (auto, not a completed cycle, released already) or uncertain
                 views still undecided (named).
         """
+        with self._decide:
+            return self._release_locked(cycle_id, user, role, reason)
+
+    def _release_locked(self, cycle_id: str, user: str, role: str, reason: str) -> dict[str, Any]:
         st = self.release_state(cycle_id)
         if st["state"] == "review_required":
             raise Conflict(f"cycle {cycle_id!r} has {len(st['open_uncertain'])} uncertain view(s) not reviewed yet "

@@ -7,6 +7,7 @@ uncertain (tests/hmi/test_heatmap.py), so the cycle holds one dirty and one unce
 from __future__ import annotations
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 
 from cellctl.recording.audit import verify_audit
 from cellctl.review import LEDGER_NAME
@@ -123,3 +124,12 @@ def test_without_gating_a_verdict_stands_released(cfg, cell, hmi, client: Client
     assert st["state"] == "auto" and st["released_verdict"] == "dirty" and st["uncertain_views"] == 1
     r = _as(client, "alice").post(f"/api/cycles/{cid}/release", {})
     assert r.status == 409 and "stands released" in r.json()["error"]
+
+    # two reviewers answer the same view at once: one decision is recorded, the other is refused
+    uv = next(i["image"] for i in client.get("/api/review/queue").json()["items"] if i["uncertain"])
+    people = [_as(client, "alice"), _as(client, "carol")]
+    with ThreadPoolExecutor(2) as pool:
+        codes = sorted(pool.map(lambda c: c.post(f"/api/review/items/{cid}/{uv}", {"label": "clean",
+                                                 "reason": "seen at once"}).status, people))  # fmt: skip
+    assert codes == [200, 409]
+    assert len((cfg.path(cfg.recording.dir) / LEDGER_NAME).read_text().splitlines()) == 1
