@@ -67,6 +67,7 @@ __all__ = [
     "fusion_path",
     "homography_from_poses",
     "plane_from_depth",
+    "plane_from_mesh",
     "pose_delta",
     "squash_matrix",
     "to_work",
@@ -277,6 +278,50 @@ def plane_from_depth(
     if d < 0:
         n, d = -n, -d
     return Plane((float(n[0]), float(n[1]), float(n[2])), d)
+
+
+def plane_from_mesh(
+    caster: Any, mesh: Any, T_bin_cam: NDArray[np.float64], K: NDArray[np.float64], width: int, height: int
+) -> Plane:
+    """The viewed plane from the bin mesh: the face normal most of a 9×9 grid of rays through the
+    central half of the image hits, through the mean of those hits, in the camera's optical frame.
+
+    For references stored without depth (the commissioning set keeps image, poses and intrinsics).
+
+    Args:
+        caster: :class:`cellctl.classify.heatmap.MeshCaster` of ``mesh`` (bin frame).
+        mesh: the bin mesh (``vertices``, ``faces``, ``normals``).
+        T_bin_cam: (4, 4) the camera in the bin frame; K: its intrinsics at ``width``×``height``.
+
+    Raises:
+        ClassifierError: no ray of the grid hits the bin.
+    """
+    g = np.linspace(0.25, 0.75, 9)
+    xs, ys = np.meshgrid(g * (width - 1), g * (height - 1))
+    d_cam = np.c_[xs.ravel(), ys.ravel(), np.ones(xs.size)] @ np.linalg.inv(np.asarray(K, np.float64)).T
+    T = np.asarray(T_bin_cam, np.float64)
+    d = d_cam @ T[:3, :3].T
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    face, bary = caster.cast(np.broadcast_to(T[:3, 3], d.shape).copy(), d)
+    hit = face >= 0
+    if not hit.any():
+        raise ClassifierError(
+            f"no ray through the centre of the view hits the bin (camera at {T[:3, 3].round(3).tolist()})"
+        )
+    normals = np.asarray(mesh.normals, np.float64)[face[hit]]
+    # one plane: the normal most hits share (faces of one flat wall share it to rounding)
+    keys = [tuple(k) for k in np.round(normals, 2)]
+    best = max(set(keys), key=keys.count)
+    sel = np.array([k == best for k in keys])
+    tri = np.asarray(mesh.vertices, np.float64)[np.asarray(mesh.faces)[face[hit][sel]]]
+    u, v = bary[hit][sel, 0:1].astype(np.float64), bary[hit][sel, 1:2].astype(np.float64)
+    pts = (1 - u - v) * tri[:, 0] + u * tri[:, 1] + v * tri[:, 2]
+    n_cam = T[:3, :3].T @ normals[sel][0]
+    c_cam = T[:3, :3].T @ (pts.mean(0) - T[:3, 3])
+    dist = float(n_cam @ c_cam)
+    if dist < 0:
+        n_cam, dist = -n_cam, -dist
+    return Plane((float(n_cam[0]), float(n_cam[1]), float(n_cam[2])), dist)
 
 
 def squash_matrix(width: int, height: int, size: int = WORK_PX) -> NDArray[np.float64]:

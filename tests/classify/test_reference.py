@@ -225,3 +225,33 @@ def test_fusion_file_round_trip_and_refusals(tmp_path) -> None:
     p.write_text('{"format": "cellctl-reference-fusion/1", "surface": "external", "change": [1]}')
     with pytest.raises(ClassifierError, match="malformed"):
         ReferenceFusion.load(p)
+
+
+def test_plane_from_the_mesh_matches_the_plane_of_a_rendered_depth() -> None:
+    """A twin view of an external wall: the mesh's plane (no depth stored) agrees with the plane
+    fitted to the render's depth, and the two give the same homography to within a pixel."""
+    from cellctl.classify.heatmap import MeshCaster
+    from cellctl.classify.reference import plane_from_mesh
+    from cellctl.config import load_config
+    from cellctl.geometry.camera import D435_COLOR
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.sim.render import SimRenderer
+
+    cfg = load_config()
+    cat = load_catalog(cfg.path(cfg.catalog), cfg.root)
+    name = "case_study"
+    mesh = cat.load_mesh(name)
+    lo, hi = mesh.vertices.min(0), mesh.vertices.max(0)
+    target = np.array([0.0, lo[1], 0.5 * (lo[2] + hi[2])])  # the middle of the -y side wall
+    T = look_at(target + [0.1, -0.45, 0.05], target, (0, 0, 1))
+    intr = D435_COLOR.scaled(256 / D435_COLOR.width)
+    out = SimRenderer(cat).render_bin_view(name, T, intr, dirty=False)
+    K = intr.K()
+    a = plane_from_depth(out.depth, K)
+    b = plane_from_mesh(MeshCaster(mesh), mesh, T, K, intr.width, intr.height)
+    assert np.dot(a.normal, b.normal) > 0.999 and b.distance == pytest.approx(a.distance, abs=0.005)
+    T2 = T @ transform_from(rotation_about((0, 1, 0), math.radians(0.5)), [0.01, 0.0, 0.0])
+    ha, hb = homography_from_poses(K, T, T2, a), homography_from_poses(K, T, T2, b)
+    c = np.array([[64.0, 36, 1], [192, 108, 1]]).T
+    pa, pb = ha @ c, hb @ c
+    assert np.abs(pa[:2] / pa[2] - pb[:2] / pb[2]).max() < 1.0
