@@ -42,13 +42,17 @@ def fit_to_wire(res: CycleResult, limit: int = MAX_PAYLOAD_BYTES) -> bytes:
     A whole-bin wash cycle can carry a few hundred views with heat maps, past ``limit``; every subscriber
     (`PlcClient`, the gateway, the HMI) refuses such a payload, so the PLC would wait out its cycle timeout for a
     result that came. What is left out is what the cycle's MCAP holds anyway, least telling first: the views' heat
-    maps, then the clean views, then every view. ``viewpoints_omitted`` says how many views are missing or cut.
+    maps and model ids (``classifier_models`` names the models), then the clean views, then every view.
+    ``viewpoints_omitted`` says how many views are missing or cut.
     """
     data = encode(res)
     if len(data) <= limit:
         return data
     views = res.viewpoints
-    trimmed = [v.model_copy(update={"heatmap": None}) if v.heatmap is not None else v for v in views]
+    trimmed = [
+        v.model_copy(update={"heatmap": None, "model_id": None}) if v.heatmap is not None or v.model_id else v
+        for v in views
+    ]
     telling = [v for v in trimmed if v.label != "clean" or v.uncertain or v.error is not None]
     untouched = {id(v) for v in views}
     for kept in (trimmed, telling, []):

@@ -140,3 +140,19 @@ def test_a_cycle_result_and_its_log_name_the_models_that_decided(tmp_path: Path)
     with open(rec.path, "rb") as f:
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
     assert meta["result"]["classifier_models"] == "external-enrolled-0123456789ab,internal-detect-253d95cac5d8"
+
+
+def test_a_result_cut_for_the_wire_still_names_its_models() -> None:
+    """Views' model ids go with their heat maps when a result is too large (the MCAP keeps both);
+    ``classifier_models`` stays on the wire."""
+    from cellctl.bus.codec import decode_as, encode
+    from cellctl.messages import CycleResult
+    from cellctl.supervisor.publisher import fit_to_wire
+
+    mid = "internal-enrolled-0123456789ab"
+    views = [ViewpointResult(index=i, label="clean", p_dirty=0.01, heatmap="x" * 600, model_id=mid) for i in range(170)]
+    res = CycleResult(cycle_id="c1", outcome="completed", verdict="clean", viewpoints=views, classifier_models=[mid])
+    assert len(encode(res)) > 64 * 1024
+    got = decode_as(CycleResult, fit_to_wire(res))
+    assert len(got.viewpoints) == 170 and all(v.heatmap is None and v.model_id is None for v in got.viewpoints)
+    assert got.classifier_models == [mid]
