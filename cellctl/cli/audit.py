@@ -81,5 +81,9 @@ def run_head(args: argparse.Namespace) -> int:
     row = read_head(cfg.path(cfg.recording.index))
     head = {"seq": row.seq if row else 0, "row_hash": row.row_hash if row else GENESIS}
     head["cycle_id"] = row.cycle_id if row else None
+    from cellctl.review.ledger import LEDGER_NAME, Ledger
+
+    # the review ledger's head too: deleting the newest decisions is found against an exported one
+    head["reviews"] = Ledger(cfg.path(cfg.recording.dir) / LEDGER_NAME).head()
     print(json.dumps(head) if args.json else f"{head['row_hash']} {head['seq']}")
     return 0

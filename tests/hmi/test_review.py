@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from concurrent.futures import ThreadPoolExecutor
 
+from cellctl.cli import main
 from cellctl.recording.audit import verify_audit
 from cellctl.review import LEDGER_NAME
 from tests.hmi.conftest import PASSWORDS, Client, wait_reachable
@@ -34,7 +35,7 @@ def _as(client: Client, user: str) -> Client:
     return c
 
 
-def test_review_roles_ledger_bank_and_release(cfg, cell, hmi, client: Client) -> None:  # noqa: ANN001
+def test_review_roles_ledger_bank_and_release(cfg, cell, hmi, client: Client, capsys) -> None:  # noqa: ANN001
     cid = run_review_cycle(cfg, client)
     items = client.get("/api/review/queue").json()["items"]
     rec = client.get(f"/api/cycles/{cid}/record").json()
@@ -107,6 +108,10 @@ def test_review_roles_ledger_bank_and_release(cfg, cell, hmi, client: Client) ->
     # the audit checks the ledger: intact, then an edited decision is found
     report = client.get("/api/audit").json()
     assert report["ok"], report["findings"]
+    sets = [f"recording.index={cfg.path(cfg.recording.index)}", f"recording.dir={cfg.path(cfg.recording.dir)}"]
+    assert main(["audit", "head", "--json", "--set", sets[0], "--set", sets[1]]) == 0
+    head = json.loads(capsys.readouterr().out)["reviews"]
+    assert head["entries"] == 3 and head["entry_hash"] == client.get("/api/review/bank").json()["ledger"]["entry_hash"]
     lines = ledger.read_text().splitlines()
     forged = json.loads(lines[1])
     forged["label"] = "clean"
