@@ -69,6 +69,7 @@ __all__ = [
     "plane_from_depth",
     "plane_from_mesh",
     "pose_delta",
+    "reference_view",
     "squash_matrix",
     "to_work",
     "warp_reference",
@@ -322,6 +323,23 @@ def plane_from_mesh(
     if dist < 0:
         n_cam, dist = -n_cam, -dist
     return Plane((float(n_cam[0]), float(n_cam[1]), float(n_cam[2])), dist)
+
+
+def reference_view(
+    rgb: NDArray[np.uint8],
+    T_base_cam: NDArray[np.float64],
+    T_base_bin: NDArray[np.float64],
+    K: NDArray[np.float64],
+    caster: Any,
+    mesh: Any,
+) -> ReferenceView:
+    """A stored reference (image, camera and bin pose in the robot base frame, intrinsics at the
+    image's size) as a :class:`ReferenceView`: the camera in the bin frame and the viewed plane
+    from the mesh. The new view's pose must be taken in the bin frame the same way (its own
+    measured bin pose): a bin parked elsewhere moves both camera poses, not their delta."""
+    T_bin_cam = np.linalg.inv(np.asarray(T_base_bin, np.float64)) @ np.asarray(T_base_cam, np.float64)
+    h, w = rgb.shape[:2]
+    return ReferenceView(rgb, T_bin_cam, plane_from_mesh(caster, mesh, T_bin_cam, K, w, h), np.asarray(K, np.float64))
 
 
 def squash_matrix(width: int, height: int, size: int = WORK_PX) -> NDArray[np.float64]:

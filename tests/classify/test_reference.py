@@ -250,6 +250,12 @@ def test_plane_from_the_mesh_matches_the_plane_of_a_rendered_depth() -> None:
     a = plane_from_depth(out.depth, K)
     b = plane_from_mesh(MeshCaster(mesh), mesh, T, K, intr.width, intr.height)
     assert np.dot(a.normal, b.normal) > 0.999 and b.distance == pytest.approx(a.distance, abs=0.005)
+    # the stored form: poses in the robot base frame, the bin parked anywhere
+    from cellctl.classify.reference import reference_view
+
+    T_base_bin = transform_from(rotation_about((0, 0, 1), 0.7), [1.2, -0.3, 0.1])
+    rv = reference_view(out.rgb, T_base_bin @ T, T_base_bin, K, MeshCaster(mesh), mesh)
+    assert np.allclose(rv.T_bin_cam, T) and rv.plane.distance == pytest.approx(b.distance, abs=1e-9)
     T2 = T @ transform_from(rotation_about((0, 1, 0), math.radians(0.5)), [0.01, 0.0, 0.0])
     ha, hb = homography_from_poses(K, T, T2, a), homography_from_poses(K, T, T2, b)
     c = np.array([[64.0, 36, 1], [192, 108, 1]]).T
