@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import tempfile
 import threading
 import time
 from collections import defaultdict, deque
@@ -221,6 +222,18 @@ _VOLATILE = {"stamp", "cycle_id", "log", "started", "finished", "request_id", "t
 _GATE_FIELDS = ("coverage_by_surface", "min_seen_fraction")
 """CycleResult fields of the verdict's coverage gate (cellctl.seen); before it, single-station cycles left them null."""
 
+_REFERENCE_FIELDS = ("decision_path", "reference_version", "commission")
+"""CycleResult fields that depend on the reference sets on disk when the cycle ran, not on a worker's reply: a
+replay runs beside its own empty reference root (it must never add a set to the cell's), so they are not compared."""
+
+
+def _reference_relative(msg: dict[str, Any]) -> dict[str, Any]:
+    """An enroll request with its paths from the reference root on (the replay's root is a scratch folder)."""
+    if msg.get("type") != "cellctl/EnrollRequest":
+        return msg
+    cut = {k: str(msg.get(k, "")).rpartition("/references/")[2] for k in ("images", "out")}
+    return {**msg, **cut}
+
 
 def _strip(obj: Any) -> Any:
     """Drop the fields that legitimately differ between a run and its replay (times, ids)."""
@@ -316,8 +329,8 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
                 if not by_key[key]:
                     raise RecordingError(f"replay: unexpected extra request on {key}")
                 want, reply = by_key[key].popleft()
-            got = json.loads(req.model_dump_json())
-            want = _as_today(want)
+            got = _reference_relative(json.loads(req.model_dump_json()))
+            want = _reference_relative(_as_today(want))
             if _strip(got) != _strip(want):
                 differences.append(f"request on {key} differs: recorded {_strip(want)} replayed {_strip(got)}")
             assert reply is not None
@@ -357,7 +370,14 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     cfg = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"relook": relook})})
     # so does the station loop (a log without the key was recorded before whole-bin cycles existed)
     whole = rec.metadata.get("cycle", {}).get("whole_bin", "false") == "true"
-    planner = cfg.planner.model_copy(update={"whole": cfg.planner.whole.model_copy(update={"enabled": whole})})
+    # reference sets go to a scratch folder: a replayed commissioning must not add a set to the cell's
+    scratch = tempfile.TemporaryDirectory(prefix="cellctl-replay-")
+    planner = cfg.planner.model_copy(
+        update={
+            "whole": cfg.planner.whole.model_copy(update={"enabled": whole}),
+            "plans_dir": Path(scratch.name) / "plans",
+        }
+    )
     cfg = cfg.model_copy(update={"planner": planner})
     # and the verdict's coverage gate (a log without the key predates it: no minimum)
     minimum = json.loads(rec.metadata.get("cycle", {}).get("min_seen_fraction", "{}"))
@@ -391,9 +411,12 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
         while cell.supervisor.top_state != "Idle" and time.monotonic() < deadline:
             time.sleep(0.02)
         params = starts[0].get("params", {}) if starts else {}
+        user = starts[0].get("user") if starts else None
+        if params.get("mode") == "commission":  # staff started it in maintenance, signed (unit_modes.py)
+            send(Command(unit_mode="maintenance", user=user))
         while not statuses.empty():
             statuses.get_nowait()
-        ack = send(Command(command="start", params=params))
+        ack = send(Command(command="start", params=params, user=user))
         if not ack.accepted:
             differences.append(f"start refused on replay: {ack.reason}")
         try:
@@ -409,6 +432,7 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
             srv.close()
         session.close()
         cell.close()
+        scratch.cleanup()
     replayed_states = _state_sequence([s for s in seen if s.get("cycle_id")])
     if not any(s.endswith(".next_station") for s in recorded_states):
         # recorded before the station loop's state existed (a single-station cycle passes it at once)
@@ -432,6 +456,9 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
             if results[-1].get(k) is None:
                 want.pop(k, None)
                 got.pop(k, None)
+        for k in _REFERENCE_FIELDS:
+            want.pop(k, None)
+            got.pop(k, None)
         if want != got:
             differences.append(f"result differs: recorded {want} replayed {got}")
     left = {k: len(v) for k, v in by_key.items() if v}

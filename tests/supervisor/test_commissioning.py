@@ -229,3 +229,25 @@ class TestWholeBin:
         assert res.decision_path == {"external": "shipped", "internal": "shipped"}
         assert after.decision_path == {"external": "references", "internal": "references"}
         assert after.verdict == "clean" and after.reference_version == 1
+
+
+def test_replay_verify_of_commissioning_adds_no_set(cfg, cell, plc, tmp_path) -> None:  # noqa: ANN001, F811
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.recording.replay import verify
+    from tests.fakes.workers import fake_identify
+    from tests.supervisor.test_cycle_over_zenoh import _verify_config
+
+    with CommissionCell(cfg):
+        _to_maintenance(plc)
+        res = _cycle(plc, "commission")
+        after = _cycle(plc)
+    assert after.decision_path == {"external": "references"}
+    catalog = load_catalog(cfg.path(cfg.catalog))
+    for r in (res, after):
+        vcfg = _verify_config(tmp_path / f"v{r.cycle_id}", settle_s=0)
+        # the cell's own plan cache: the replay must still write no set beside it
+        vcfg = vcfg.model_copy(update={"planner": vcfg.planner.model_copy(update={"plans_dir": cfg.planner.plans_dir})})
+        report = verify(cfg.path(r.log), vcfg, timeout_s=30, identification=(fake_identify, catalog))
+        assert report.ok, report.differences
+    # the replayed commissioning wrote its set into a scratch folder, never beside the cell's plan cache
+    assert [v for v, _ in set_versions(reference_root(cfg), "case_study")] == [1]
