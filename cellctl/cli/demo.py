@@ -305,6 +305,8 @@ def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top
             row.ok = not problems
             row.note = "; ".join(problems) or (res.reason or "")[:60]
             failures += bool(problems)
+            if res.decision_path:  # what each surface was judged against (references / enrolled / shipped)
+                _say("   decision path: " + ", ".join(f"{s} {p}" for s, p in res.decision_path.items()))
             if res.wash is not None:  # wash_and_verify: the rounds and where their pictures are
                 w = res.wash
                 pics = [p for r in w.rounds for p in r.pictures]
