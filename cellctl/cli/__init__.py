@@ -25,6 +25,7 @@ VERB_MODULES = (
     "cellctl.cli.replay",
     "cellctl.cli.secure",
     "cellctl.cli.audit",
+    "cellctl.cli.references",
     "cellctl.cli.demo",
     "cellctl.cli.classify",
     "cellctl.cli.vision",

@@ -86,3 +86,20 @@ def test_check_set_files_names_an_edited_and_a_missing_image(tmp_path: Path) -> 
     (folder / "external" / "plan-1" / "0001.png").unlink()
     bad = check_set_files(folder, man)
     assert len(bad) == 2 and "edited or replaced" in bad[0] and "missing" in bad[1]
+
+
+def test_the_cli_lists_sets_and_shows_a_viewpoints_reference(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+    import json
+
+    from cellctl.cli import main
+
+    _commission(tmp_path / "references", "c1")
+    at = ["--set", f"planner.plans_dir={tmp_path / 'plans'}"]
+    assert main(["references", "list", *at]) == 0
+    (line,) = capsys.readouterr().out.splitlines()
+    s = json.loads(line)
+    assert s["version"] == 1 and s["declared_by"] == "hmi:alice" and s["plans"] == {"plan-1": 2}
+    assert main(["references", "show", "--bin", "case_study", "--plan", "plan-1", "--viewpoint", "1", *at]) == 0
+    ref = json.loads(capsys.readouterr().out)
+    assert Path(ref["image"]).read_bytes() == b"png-1" and ref["T_base_cam"] == T_CAM.tolist()
+    assert main(["references", "show", "--bin", "case_study", "--plan", "plan-9", "--viewpoint", "0", *at]) == 1
