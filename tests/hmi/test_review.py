@@ -16,12 +16,12 @@ from tests.hmi.conftest import PASSWORDS, Client, wait_reachable
 from tests.hmi.test_heatmap import _HeatCell
 
 
-def run_review_cycle(cfg, client: Client) -> str:  # noqa: ANN001
+def run_review_cycle(cfg, client: Client, doubles: type[_HeatCell] = _HeatCell) -> str:  # noqa: ANN001
     """One completed cycle with a dirty view (view 0) and an uncertain one (view 2); its id."""
     wait_reachable(client)
     op = Client(client.host, client.port)
     assert op.login("alice", PASSWORDS["alice"]).status == 200
-    with _HeatCell(cfg):
+    with doubles(cfg):
         assert op.cmd("reset").status == 200
         op.wait_state("Idle")
         assert op.cmd("start").status == 200

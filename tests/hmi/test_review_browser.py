@@ -8,17 +8,48 @@ releases the verdict. The page is saved to ``logs/hmi_review.png`` (the docs' re
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 
+import cv2
+import numpy as np
 import pytest
 from selenium.webdriver.common.by import By
 
+from cellctl.classify.contamination import closeup_steel
+from cellctl.classify.heatmap import encode_heat
 from cellctl.config import project_root
+from cellctl.messages import CaptureReply, CaptureRequest, ClassifyReply, ClassifyRequest
 from cellctl.review import LEDGER_NAME
+from tests.fakes.workers import CAM_POSE, INTRINSICS
 from tests.hmi.browser import login, make_driver, natural_width, post_from_page, text, wait_until
 from tests.hmi.conftest import PASSWORDS
+from tests.hmi.test_heatmap import GRID, _HeatCell
 from tests.hmi.test_review import run_review_cycle
 
 SHOT = project_root() / "logs" / "hmi_review.png"
+
+
+@dataclass
+class _SteelCell(_HeatCell):
+    """The review cycle's doubles with something to look at: brushed steel close-ups (256×192), a
+    bright streak on the uncertain view (its 3rd view) and a faint heat patch where it lies."""
+
+    def _capture(self, req: CaptureRequest, _: bytes | None) -> tuple[CaptureReply, bytes]:
+        self._guard("capture")
+        k = sum(c == "capture" for c in self.calls)  # 1: identification, 2-4: the views, 5: the re-look
+        img = closeup_steel("external", 192, 256, np.random.default_rng(k))
+        if k == 4:
+            cv2.line(img, (196, 150), (240, 172), (0.92, 0.9, 0.85), 3)
+        ok, buf = cv2.imencode(".png", cv2.cvtColor((img * 255).astype(np.uint8), cv2.COLOR_RGB2BGR))
+        return CaptureReply(format="png", intrinsics=INTRINSICS, camera_pose=CAM_POSE), buf.tobytes()
+
+    def _classify(self, req: ClassifyRequest, image: bytes | None) -> ClassifyReply:
+        reply = super()._classify(req, image)
+        if reply.uncertain:
+            heat = np.zeros((GRID, GRID))
+            heat[-1, -1] = 0.45
+            reply = reply.model_copy(update={"heatmap": encode_heat(heat)})
+        return reply
 
 
 @pytest.fixture
@@ -30,14 +61,18 @@ def driver():  # noqa: ANN201
 
 def _open_item(d, url: str, item: str) -> None:  # noqa: ANN001
     d.get(f"{url}/review")
-    row = wait_until(lambda: d.find_element(By.CSS_SELECTOR, f"#rv-rows tr[data-item='{item}']"), 30, f"{item} queued")
-    row.click()
+
+    def click() -> bool:  # the queue re-renders when the stream brings news: a row found may go stale
+        d.find_element(By.CSS_SELECTOR, f"#rv-rows tr[data-item='{item}']").click()
+        return True
+
+    wait_until(click, 30, f"{item} queued and clicked")
     wait_until(lambda: text(d, "rv-id") == item, 30, f"item {item} opened")
 
 
 def test_an_operator_reviews_and_releases_a_viewer_cannot(cfg, cell, hmi, client, driver) -> None:  # noqa: ANN001
     url = hmi.server.url
-    cid = run_review_cycle(cfg, client)
+    cid = run_review_cycle(cfg, client, _SteelCell)
     items = client.get("/api/review/queue").json()["items"]
     uv = next(i for i in items if i["why"] == "uncertain")["image"]
     item = f"{cid}/{uv}"
