@@ -61,3 +61,51 @@ def test_too_few_views_are_refused_and_the_detector_in_use_stays(service, tmp_pa
     with pytest.raises(ClassifierError, match=f"at least {MIN_IMAGES}"):
         enroll_surface(service, req, SHIPPED, "torch", 1)
     assert not out.exists() and service.describe().models["internal"].model_id == in_use
+
+
+@pytest.mark.slow  # ~50 s: the worker traces every detector at start, then one real enrollment
+def test_the_worker_serves_enroll_over_zenoh_and_its_models_op_follows(tmp_path: Path, port: int) -> None:
+    """The op as a commissioning cycle calls it (real Zenoh loopback): enrolled, then named by ``models``;
+    a refused enrollment is an error reply naming the count."""
+    import threading
+    import time
+
+    from cellctl.bus import keys
+    from cellctl.bus.rpc import request
+    from cellctl.bus.session import open_session
+    from cellctl.config import load_config
+    from cellctl.errors import WorkerFailed
+    from cellctl.messages import ClassifierModels, ClassifierModelsRequest, EnrollReply
+    from cellctl.workers.classifier import run_worker
+    from tests.conftest import cfg_overrides
+
+    cfg = load_config(None, [*cfg_overrides(tmp_path, port), "classifier.runtime=torch", "classifier.threads=1"])
+    _views(tmp_path / "ok" / "external", MIN_IMAGES)
+    _views(tmp_path / "few" / "external", 3)
+    stop = threading.Event()
+    with open_session(cfg, "router"):
+        t = threading.Thread(target=run_worker, args=(cfg, None, stop), daemon=True)
+        t.start()
+        try:
+            with open_session(cfg, "client") as cs:
+                deadline = time.monotonic() + 120  # detectors traced on shared cores
+                while not list(cs.liveliness().get(keys.alive(cfg.cell_id, "classifier"), timeout=1)):
+                    if time.monotonic() > deadline or not t.is_alive():
+                        pytest.fail("classifier worker never announced itself")
+                    stop.wait(0.2)
+                op = keys.worker_op(cfg.cell_id, "classifier", "enroll")
+                few = EnrollRequest(
+                    surface="external", images=str(tmp_path / "few" / "external"), out=str(tmp_path / "x.pt")
+                )
+                with pytest.raises(WorkerFailed, match=f"at least {MIN_IMAGES}"):
+                    request(cs, op, few, EnrollReply, timeout=30, role="classifier")
+                out = tmp_path / "ok" / "external.enrolled.pt"
+                req = EnrollRequest(surface="external", images=str(tmp_path / "ok" / "external"), out=str(out))
+                reply, _ = request(cs, op, req, EnrollReply, timeout=300, role="classifier")
+                key = keys.worker_op(cfg.cell_id, "classifier", "models")
+                models, _ = request(cs, key, ClassifierModelsRequest(), ClassifierModels, timeout=10)
+                assert models.models["external"].kind == "enrolled" and models.models["external"].path == str(out)
+                assert models.models["external"].model_id == reply.model_id and not (tmp_path / "x.pt").exists()
+        finally:
+            stop.set()
+            t.join(10)
