@@ -281,7 +281,14 @@ def mirror_sweep(det: Any, fusion: ReferenceFusion, draw: Any, n: int, seed: int
 
 
 def latency(det: Any, fusion: ReferenceFusion, pairs: list[Pair], n: int) -> dict[str, Any]:
-    """Batch-1 ms of :func:`decide` with the reference beside the detector alone (interleaved)."""
+    """Batch-1 ms of :func:`decide` with the reference beside the detector alone (interleaved).
+
+    OpenCV runs on one thread here, as ONNX Runtime does on 2 cores (``runtime.default_threads``):
+    at 128 px its thread hand-offs cost more than they save, and under load far more (ECC median
+    17 → 11 ms, change features 14 → 12 ms at load 30, measured)."""
+    import cv2
+
+    cv2.setNumThreads(1)
     refs = [ReferenceView(p.ref, p.T_ref, p.plane, p.K) for p in pairs]
     fns = {
         "detector_alone": lambda i: decide(det, None, pairs[i].new, pairs[i].T_new, None),
