@@ -15,10 +15,13 @@ What differs after alignment is what is new. The stages, each a function over ty
 2. **Compare** (:func:`change_features`): in log-RGB, after removing each channel's median offset
    over the overlap (a global exposure and white-balance change is exactly such an offset), per
    detector patch (16×16 at the 128 px input): the mean colour residual, the structure
-   dissimilarity of the zero-mean grey patches and the log contrast ratio. A fitted logistic
-   (:class:`ReferenceFusion`) turns them into a **change logit** per patch.
-3. **Fuse** (:func:`decide`): ``z = w_s·s + w_a·a + w_c·c + b`` per patch (detector head logit,
-   memory-bank distance, change logit), Platt scaling on the image's largest ``z`` and a
+   energy and the log contrast ratio, inside a ±2 px envelope of the reference. A fitted logistic
+   (:class:`ReferenceFusion`) turns them into a **change logit** ``c`` per patch.
+3. **Fuse** (:func:`decide`): ``z = w_s·s + w_a·a + w_c·c + g·(w_gs·s + w_ga·a) + b`` per patch
+   (detector head logit ``s``, memory-bank distance ``a``, change logit ``c``, ``g = sigmoid(c)``):
+   the detector's evidence may weigh more where something changed — the mirrored arm, a seam or a
+   reflection is anomalous to the detector on every visit, and the reference already shows it.
+   Platt scaling on the image's largest ``z`` and a
    threshold chosen on generated pairs for the false-clean target. Without a reference, or with a
    rejected alignment, the detector decides alone and the result says why
    (:class:`ReferenceDecision`). On polished (internal) steel a pose delta past
@@ -26,8 +29,8 @@ What differs after alignment is what is new. The stages, each a function over ty
    mirrored arm, camera and cabin no longer line up with the reference.
 
 The fused weights live in ``<models_dir>/<surface>.reference.json`` (:data:`FUSION_FORMAT`), fitted
-by ``cellctl detector reference-fit`` (:mod:`cellctl.classify.reference_bench`, on generated
-pairs); measurements are in ``docs/classifier/reference.md``.
+by ``cellctl bench reference`` (:mod:`cellctl.classify.reference_bench`, on generated pairs);
+measurements are in ``docs/classifier/reference.md``.
 
 Light: numpy + OpenCV at import; the detector (torch) is passed in.
 """
@@ -64,6 +67,7 @@ __all__ = [
     "align",
     "change_features",
     "decide",
+    "fusion_inputs",
     "fusion_path",
     "homography_from_poses",
     "plane_from_depth",
@@ -104,7 +108,8 @@ without counting as changed: 2 px at 128 = 1/4 patch, about the residual of ECC 
 homography across a wall edge at the demo's parking error."""
 UNCOVERED_FEATURES = (0.0, 0.0, 0.0)
 """Change features of a patch the warped reference does not cover: no evidence of change."""
-FUSION_FORMAT = "cellctl-reference-fusion/1"
+FUSION_FORMAT = "cellctl-reference-fusion/2"
+"""2: the detector's evidence also enters gated by the change probability (``fuse`` has 6 weights)."""
 REJECT_REASONS = (
     "no_reference",
     "out_of_tolerance",
@@ -506,6 +511,13 @@ def _sig(x: NDArray[np.float64] | float) -> NDArray[np.float64]:
     return 1.0 / (1.0 + np.exp(-np.asarray(x, np.float64)))
 
 
+def fusion_inputs(s: NDArray[np.floating], a: NDArray[np.floating], c: NDArray[np.floating]) -> NDArray[np.float64]:
+    """The fused logistic's inputs per patch ``(5, ...)``: ``s, a, c, g·s, g·a`` with ``g = sigmoid(c)``."""
+    s64, a64, c64 = (np.asarray(v, np.float64) for v in (s, a, c))
+    g = _sig(c64)
+    return np.stack([s64, a64, c64, g * s64, g * a64])
+
+
 @dataclass(frozen=True)
 class ReferenceFusion:
     """The fitted weights of the reference decision for one surface.
@@ -513,7 +525,8 @@ class ReferenceFusion:
     Attributes:
         surface: ``external`` or ``internal``.
         change: ``(w_colour, w_structure, w_contrast, b)``: change logit of a patch's features.
-        fuse: ``(w_s, w_a, w_c, b)``: patch logit from head logit, bank distance, change logit.
+        fuse: ``(w_s, w_a, w_c, w_gs, w_ga, b)``: patch logit from head logit, bank distance,
+            change logit and the two detector terms gated by the change probability.
         platt: ``(α, β)`` of the image's largest patch logit.
         threshold: dirty at ``p_dirty >= threshold`` (false-clean target on the fit pairs).
         band: uncertain band (logits), the detector's.
@@ -522,7 +535,7 @@ class ReferenceFusion:
 
     surface: str
     change: tuple[float, float, float, float]
-    fuse: tuple[float, float, float, float]
+    fuse: tuple[float, float, float, float, float, float]
     platt: tuple[float, float]
     threshold: float
     band: float
@@ -536,8 +549,7 @@ class ReferenceFusion:
     def patch_logit(
         self, s: NDArray[np.floating], a: NDArray[np.floating], c: NDArray[np.floating]
     ) -> NDArray[np.float64]:
-        ws, wa, wc, b = self.fuse
-        return ws * np.asarray(s, np.float64) + wa * np.asarray(a, np.float64) + wc * np.asarray(c, np.float64) + b
+        return np.tensordot(np.asarray(self.fuse[:5]), fusion_inputs(s, a, c), axes=1) + self.fuse[5]
 
     def p_image(self, z: NDArray[np.float64]) -> float:
         al, be = self.platt
@@ -574,8 +586,8 @@ class ReferenceFusion:
             raise ClassifierError(f"{str(p)!r} is for surface {blob.get('surface')!r}, expected {surface!r}")
         try:
             vals = [float(v) for v in (*blob["change"], *blob["fuse"], *blob["platt"], blob["threshold"], blob["band"])]
-            if len(blob["change"]) != 4 or len(blob["fuse"]) != 4 or len(blob["platt"]) != 2:
-                raise ValueError("change/fuse need 4 values, platt 2")
+            if len(blob["change"]) != 4 or len(blob["fuse"]) != 6 or len(blob["platt"]) != 2:
+                raise ValueError("change needs 4 values, fuse 6, platt 2")
         except (KeyError, TypeError, ValueError) as err:
             raise ClassifierError(f"{str(p)!r} is malformed: {err}") from err
         if not all(math.isfinite(v) for v in vals) or not 0 < blob["threshold"] < 1:

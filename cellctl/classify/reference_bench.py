@@ -8,7 +8,7 @@ Stages (each a function; :func:`bench_reference` runs them in order, every draw 
 2. :func:`score_pairs` — per pair: the detector's maps and its own ``p_dirty``, the alignment,
    the change features, the patch labels.
 3. :func:`fit_fusion` — change logistic on the aligned patches, the fused patch logistic
-   ``z = w_s·s + w_a·a + w_c·c + b`` (class-balanced), Platt on the image max, the threshold
+   ``z = w_s·s + w_a·a + w_c·c + g·(w_gs·s + w_ga·a) + b`` (class-balanced), Platt on the image max, the threshold
    for the false-clean target (1 %).
 4. :func:`measure` — per-view accuracy, false-clean, false-dirty (Clopper–Pearson) with the
    reference and with the detector alone on the same held-out pairs; per family.
@@ -27,6 +27,7 @@ is written beside ``--out`` too.
 from __future__ import annotations
 
 import os
+import pickle
 import sys
 import time
 from dataclasses import dataclass, field
@@ -45,6 +46,7 @@ from cellctl.classify.reference import (
     compare,
     decide,
     detector_maps,
+    fusion_inputs,
     to_work,
 )
 from cellctl.classify.reference_pairs import DEMO_PARKING_ERROR, Pair, make_pair_source
@@ -150,23 +152,16 @@ def fit_fusion(det: Any, scored: list[ScoredPair], surface: str, card: dict[str,
     wts = np.where(y > 0, (len(y) - y.sum()) / max(y.sum(), 1.0), 1.0)
     change = _fit_logistic(F[keep], y, wts)
     C = F @ change[:3] + change[3]
-    fuse = _fit_logistic(np.c_[S, A, C][keep], y, wts)
-    zmax = np.array(
-        [
-            float(
-                (
-                    fuse[0] * sp.s
-                    + fuse[1] * sp.a
-                    + fuse[2] * (np.tensordot(change[:3], sp.feats, 1) + change[3])
-                    + fuse[3]
-                ).max()
-            )
-            for sp in used
-        ]
-    )
+    fuse = _fit_logistic(fusion_inputs(S, A, C).T[keep], y, wts)
+
+    def zmax(sp: ScoredPair) -> float:
+        c = np.tensordot(change[:3], sp.feats, 1) + change[3]
+        return float((np.tensordot(fuse[:5], fusion_inputs(sp.s, sp.a, c), 1) + fuse[5]).max())
+
+    zmax_all = np.array([zmax(sp) for sp in used])
     yl = np.array([sp.label for sp in used], np.float64)
-    platt = _fit_logistic(zmax[:, None], yl, l2=0.0)
-    p = 1.0 / (1.0 + np.exp(-(platt[0] * zmax + platt[1])))
+    platt = _fit_logistic(zmax_all[:, None], yl, l2=0.0)
+    p = 1.0 / (1.0 + np.exp(-(platt[0] * zmax_all + platt[1])))
     thr = choose_threshold(p, yl, TARGET_FALSE_CLEAN)
     return ReferenceFusion(
         surface,
@@ -371,14 +366,18 @@ def reference_surface(cfg: Any, surface: str, n: int, seed: int, outdir: Path) -
     fusion.save(outdir / f"{surface}.reference.json")
     print(f"bench reference: {surface}: drawing {(2 * n) // 3} held-out pairs", file=sys.stderr)
     meas_pairs = draw_pairs(draw, (2 * n) // 3, seed + 1000, True)
+    held_sc = score_pairs(det, meas_pairs)
     res: dict[str, Any] = {
         "n_fit": n,
         "n_measure": len(meas_pairs),
         "fusion": {"change": fusion.change, "fuse": fusion.fuse, "platt": fusion.platt, "threshold": fusion.threshold},
         "fit_in_sample": measure(det, fusion, fit_sc),
-        "held_out": measure(det, fusion, score_pairs(det, meas_pairs)),
+        "held_out": measure(det, fusion, held_sc),
         "held_out_note": f"held-out families (shifted.HELD_OUT_FAMILIES) + twin powder, seed {seed + 1000}",
     }
+    with open(outdir / f"{surface}_scored.pkl", "wb") as f:
+        # the scored pairs, so a change of the fusion's form is refitted without re-rendering
+        pickle.dump({"fit": fit_sc, "held_out": held_sc}, f)
     res["latency"] = latency(det, fusion, meas_pairs, min(100, 2 * len(meas_pairs)))
     if surface == "internal":
         res["mirror"] = mirror_sweep(det, fusion, draw, max(12, n // 10), seed + 2000)

@@ -185,7 +185,7 @@ class _FakeDetector:
 
 
 def _fusion() -> ReferenceFusion:
-    return ReferenceFusion("external", (10.0, 3.0, 3.0, -4.0), (1.0, 0.0, 1.0, 0.0), (1.0, 0.0), 0.5, 1.5)
+    return ReferenceFusion("external", (10.0, 3.0, 3.0, -4.0), (1.0, 0.0, 1.0, 0.0, 0.0, 0.0), (1.0, 0.0), 0.5, 1.5)
 
 
 def test_fusion_falls_back_to_the_detector_without_a_usable_reference() -> None:
@@ -207,7 +207,7 @@ def test_fusion_falls_back_to_the_detector_without_a_usable_reference() -> None:
     assert good.p_dirty < 0.5 and good.label == "clean"
     assert to_work(img) is img
     # polished steel: a pose 50 mm from the reference's is past the mirror tolerance, no image work
-    internal = ReferenceFusion("internal", (10.0, 3.0, 3.0, -4.0), (1.0, 0.0, 1.0, 0.0), (1.0, 0.0), 0.5, 1.5)
+    internal = ReferenceFusion("internal", (10.0, 3.0, 3.0, -4.0), (1.0, 0.0, 1.0, 0.0, 0.0, 0.0), (1.0, 0.0), 0.5, 1.5)
     far = T @ transform_from(np.eye(3), [0.05, 0.0, 0.0])
     out = decide(det, internal, img, far, ReferenceView(img, T, plane, K))
     assert (out.path, out.reason) == ("detector", "out_of_tolerance")
@@ -222,7 +222,7 @@ def test_fusion_file_round_trip_and_refusals(tmp_path) -> None:
     assert g.change == f.change and g.fuse == f.fuse and g.threshold == f.threshold
     with pytest.raises(ClassifierError, match="'external', expected 'internal'"):
         ReferenceFusion.load(p, "internal")
-    p.write_text('{"format": "cellctl-reference-fusion/1", "surface": "external", "change": [1]}')
+    p.write_text('{"format": "cellctl-reference-fusion/2", "surface": "external", "change": [1]}')
     with pytest.raises(ClassifierError, match="malformed"):
         ReferenceFusion.load(p)
 
