@@ -1127,6 +1127,10 @@ class ClassifierModel(BaseModel):
     enrolled_on: dict[str, Any] | None = Field(
         default=None, description="enrolled: the card's source (folder, sha256, images) and base model id"
     )
+    runtime: dict[str, Any] | None = Field(
+        default=None,
+        description="detectors: what runs the networks — onnx (export file, its sha256, intra-op threads) or torch",
+    )
 
 
 class ClassifierModels(WireMessage):

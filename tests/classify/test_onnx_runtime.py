@@ -156,3 +156,20 @@ def test_classify_cli_runs_either_runtime_with_the_same_answer(exported: Path, t
     assert abs(lines["onnx"]["p_dirty"] - lines["torch"]["p_dirty"]) <= rt.PARITY_ATOL
     rc = main(["detector", "export", "--surface", "external", "--model", str(tmp_path / "none.detect.pt")])
     assert rc != 0 and not list(tmp_path.glob("*.onnx"))
+
+
+def test_the_worker_names_what_runs_each_detector(exported: Path) -> None:
+    """The classifier worker's ``models`` op says whether ORT (which export, threads) or PyTorch runs a detector."""
+    from cellctl.workers.classifier import ClassifierService
+
+    svc = ClassifierService.__new__(ClassifierService)  # describe() only: no supervised models to load
+    svc.detectors = {
+        "external": Detector.load(exported, runtime="onnx", threads=1),
+        "internal": Detector.load(exported, runtime="torch"),
+    }
+    svc.models, svc.problems, svc.decision = {}, {}, "detector"
+    svc.paths = {s: exported for s in svc.detectors}
+    got = svc.describe().models
+    assert got["external"].runtime["runtime"] == "onnx" and got["external"].runtime["intra_op_threads"] == 1
+    assert got["external"].runtime["sha256"] == file_sha256(rt.onnx_path(exported))
+    assert got["internal"].runtime == {"runtime": "torch"}

@@ -113,8 +113,14 @@ class ClassifierService:
             card = det.enrollment
             on = {"source": card.get("source"), "base": card.get("base", {}).get("model_id")} if card else None
             kind = "enrolled" if card else "detector"
+            run = det.engine.describe() if det.engine is not None else {"runtime": "torch"}
             out[s] = ClassifierModel(
-                model_id=det.model_id, kind=kind, path=str(self.paths[s]), threshold=det.threshold, enrolled_on=on
+                model_id=det.model_id,
+                kind=kind,
+                path=str(self.paths[s]),
+                threshold=det.threshold,
+                enrolled_on=on,
+                runtime=run,
             )
         for s, m in self.models.items():
             if s not in out:
