@@ -7,6 +7,7 @@ import sys
 from typing import Any
 
 from cellctl.bench_options import BenchOptions
+from cellctl.planning.bench_rows import PROCESSES, median_worst, whole_row
 
 __all__ = ["FOREIGN", "bench_plan", "bench_whole_bin", "foreign_mesh"]
 
@@ -47,11 +48,6 @@ def bench_plan(opts: BenchOptions) -> dict[str, Any]:
 
 WHOLE_SEEDS = 10
 """Seeds per bin (``--n`` overrides): every figure is reported as median and worst over them."""
-PROCESSES = 1
-"""Plans at a time: one, so that each plan's wall time is its own (a plan itself evaluates its
-candidate stations on every core: :attr:`cellctl.planning.whole.WholeParams.workers`)."""
-
-
 FOREIGN = ("foreign_long", "foreign_basin")
 """Generated meshes not designed like the catalog's (:func:`foreign_mesh`), benched beside it."""
 
@@ -113,68 +109,6 @@ def foreign_mesh(name: str = "foreign_long") -> Any:
     return mesh_from_arrays(V, F, name=d.name, internal=S == FACE_TAG["internal"])
 
 
-def _whole_row(plan: Any, plan_load: float | None = None) -> dict[str, Any]:
-    j = plan.to_json()
-    return {
-        "seed": j["seed"],
-        "stations": len(plan.stations),
-        "station_candidates": [s["candidate"] for s in j["stations"]],
-        "surfaces": {
-            k: {kk: v[kk] for kk in ("area_fraction", "bound_fraction", "viewpoints", "reason")}
-            for k, v in j["surfaces"].items()
-        },
-        "viewpoints": sum(v.viewpoints for v in plan.surfaces.values()),
-        "planning_s": plan.times_s["total"],
-        "planning_cpu_s": plan.times_s["cpu"],
-        "planning_cpu_workers_s": plan.times_s.get("cpu_workers", 0.0),
-        "load_avg_1min": plan_load,
-        "cycle_time_s": plan.cycle_time_s,
-        "base_moves_s": plan.base_moves_s,
-        "exact_cover": j["exact_cover"],
-        "dropped_unconnected": j["dropped_unconnected"],
-        "unverified_moves": plan.counts.get("unverified_moves", 0),
-        "replaced_unconnected": plan.counts.get("replaced_unconnected", 0),
-        "unconnected_directions": plan.counts.get("unconnected_directions", 0),
-        "reason": plan.reason,
-    }
-
-
-def _median_worst(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """Median and worst over seeds: worst = lowest coverage, highest times and counts of losses."""
-    import numpy as np
-
-    def pair(vals: list[float], worst: str) -> dict[str, float]:
-        a = np.asarray(vals, dtype=float)
-        return {"median": float(np.median(a)), "worst": float(a.min() if worst == "min" else a.max())}
-
-    proven = [r["exact_cover"] for r in rows if r["exact_cover"] and r["exact_cover"]["proven"]]
-    out: dict[str, Any] = {
-        "stations": pair([r["stations"] for r in rows], "max"),
-        "viewpoints": pair([r["viewpoints"] for r in rows], "max"),
-        "planning_s": pair([r["planning_s"] for r in rows], "max"),
-        "planning_cpu_s": pair([r["planning_cpu_s"] for r in rows], "max"),
-        "load_avg_1min": pair([r.get("load_avg_1min") or 0.0 for r in rows], "max"),
-        "cycle_time_s": pair([r["cycle_time_s"] for r in rows], "max"),
-        "dropped_unconnected": pair([r["dropped_unconnected"] for r in rows], "max"),
-        "unverified_moves": pair([r["unverified_moves"] for r in rows], "max"),
-        # only proven covers are a bound (a timed-out MILP's incumbent is not)
-        "exact_cover_stations": pair([e["stations"] for e in proven], "max") if proven else None,
-        "exact_cover_viewpoints": pair([e["viewpoints"] for e in proven], "max") if proven else None,
-        "exact_cover_proven": sum(bool(r["exact_cover"] and r["exact_cover"]["proven"]) for r in rows),
-    }
-    for surf in rows[0]["surfaces"]:
-        got = [r["surfaces"][surf] for r in rows if r["surfaces"][surf]["reason"] is None]
-        if not got:
-            out[surf] = {"reason": rows[0]["surfaces"][surf]["reason"]}
-            continue
-        out[surf] = {
-            "area_fraction": pair([g["area_fraction"] for g in got], "min"),
-            "bound_fraction": pair([g["bound_fraction"] for g in got], "min"),
-            "viewpoints": pair([g["viewpoints"] for g in got], "max"),
-        }
-    return out
-
-
 def _whole_task(task: tuple[str, int, str, tuple[str, ...], Any]) -> tuple[str, int, dict[str, Any]]:
     """One (bin, seed) whole plan in a worker process (a fresh interpreter per bench run)."""
     from cellctl.geometry.camera import CameraModel
@@ -202,7 +136,7 @@ def _whole_task(task: tuple[str, int, str, tuple[str, ...], Any]) -> tuple[str, 
     with _quiet_stdout():  # ur-analytic-ik's C++ warnings on fd 1 would corrupt the bench's JSON
         plan = plan_whole(mesh, params, default_robot_model(), bin_type=bt)
     # the machine's load over the plan's last minute: what its wall time was measured under
-    return name, seed, _whole_row(plan, os.getloadavg()[0])
+    return name, seed, whole_row(plan, os.getloadavg()[0])
 
 
 def bench_whole_bin(opts: BenchOptions) -> dict[str, Any]:
@@ -221,7 +155,8 @@ def bench_bins(opts: BenchOptions, only: list[str] | None) -> dict[str, Any]:
     """:func:`bench_whole_bin` on ``only`` of its bins (all for None), e.g. the case study alone.
 
     Per bin: per seed the plan's figures, and median / worst over the seeds. ``--n`` = seeds
-    (default 10), ``--seed`` = the first seed. Plans run :data:`PROCESSES` at a time (spawned
+    (default 10), ``--seed`` = the first seed. Plans run
+    :data:`~cellctl.planning.bench_rows.PROCESSES` at a time (spawned
     processes; each plan evaluates its stations on every core); planning time is reported as
     wall time, CPU seconds (its workers' included) and the load it ran under — on a machine
     shared with other work only the CPU figure is comparable. With ``--out`` the file
@@ -271,7 +206,7 @@ def bench_bins(opts: BenchOptions, only: list[str] | None) -> dict[str, Any]:
         for name, seed, row in pool.map(_whole_task, tasks):
             rows[name][seed] = row
             got = [rows[name][k] for k in sorted(rows[name])]
-            out["bins"][name] = {"summary": _median_worst(got), "runs": got}
+            out["bins"][name] = {"summary": median_worst(got), "runs": got}
             if opts.out is not None:
                 out["machine"]["load_avg_now"] = list(os.getloadavg())
                 opts.out.write_text(json.dumps(out, indent=2) + "\n")

@@ -2,7 +2,7 @@
 (:mod:`cellctl.geometry.family`, meshes A..B of family F, default ``mixed:0-11``) over planner seeds
 (``--n``, default 3; ``--seed`` the first).
 
-Per mesh and seed the figures of ``bench whole-bin`` (:func:`cellctl.planning.bench._whole_row`),
+Per mesh and seed the figures of ``bench whole-bin`` (:func:`cellctl.planning.bench_rows.whole_row`),
 and beside each surface's bound fraction its **arm-aware** one (seen / the area some reachable,
 collision-free camera pose sees from any candidate station) and the arm-aware bound's share of the
 arm-free bound (``arm_bound_of_bound``: below 1, "no arm at these stations could"); the cycle time
@@ -20,6 +20,7 @@ from typing import Any
 
 from cellctl.bench_options import BenchOptions
 from cellctl.errors import ConfigError
+from cellctl.surface import SURFACES
 
 __all__ = ["FAMILY_MESHES", "FAMILY_SEEDS", "bench_family", "parse_family"]
 
@@ -53,9 +54,9 @@ def parse_family(spec: str) -> tuple[str, list[int]]:
 
 
 def _family_row(plan: Any, load: float) -> dict[str, Any]:
-    from cellctl.planning.bench import _whole_row
+    from cellctl.planning.bench_rows import whole_row
 
-    row = _whole_row(plan, load)
+    row = whole_row(plan, load)
     seen = 0.0
     for k, v in plan.surfaces.items():
         if v.reason is None:
@@ -100,12 +101,12 @@ def _family_task(
 
 
 def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """:func:`cellctl.planning.bench._median_worst` plus the arm-aware fractions and cycle s/m²."""
+    """:func:`cellctl.planning.bench_rows.median_worst` plus the arm-aware fractions and cycle s/m²."""
     import numpy as np
 
-    from cellctl.planning.bench import _median_worst
+    from cellctl.planning.bench_rows import median_worst
 
-    out = _median_worst(rows)
+    out = median_worst(rows)
     for surf, s in out.items():
         if not isinstance(s, dict) or "bound_fraction" not in s:
             continue
@@ -138,7 +139,7 @@ def table(meshes: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
     for name, e in sorted(meshes.items(), key=lambda kv: _worst_key(kv[1])):
         s = e["summary"]
         r: dict[str, Any] = {"mesh": name, "shape": e["shape"], "stations": mw(s["stations"], False)}
-        for surf in ("external", "internal"):
+        for surf in SURFACES:
             v = s.get(surf, {})
             if "bound_fraction" not in v:
                 r[surf] = v.get("reason")
@@ -170,7 +171,7 @@ def bench_family(opts: BenchOptions) -> dict[str, Any]:
     from concurrent.futures import ProcessPoolExecutor
 
     from cellctl.geometry.family import build_family_mesh, draw_params
-    from cellctl.planning.bench import PROCESSES
+    from cellctl.planning.bench_rows import PROCESSES
     from cellctl.planning.parallel import default_workers
 
     family, mesh_seeds = parse_family(opts.family or "mixed")

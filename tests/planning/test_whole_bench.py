@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from cellctl.cli.bench import BENCHES
-from cellctl.planning.bench import _median_worst, foreign_mesh
+from cellctl.planning.bench import foreign_mesh
+from cellctl.planning.bench_rows import median_worst
 
 
 def test_the_foreign_mesh_is_not_shaped_like_the_catalog_bins():
@@ -55,14 +56,14 @@ def _row(seed, ext, cycle, planning):
 
 def test_summary_reports_the_median_and_the_worst_direction_of_each_figure():
     rows = [_row(0, 0.95, 200.0, 20.0), _row(1, 0.90, 260.0, 35.0), _row(2, 0.93, 210.0, 25.0)]
-    s = _median_worst(rows)
+    s = median_worst(rows)
     assert s["external"]["bound_fraction"] == {"median": 0.93, "worst": 0.90}  # worst coverage = lowest
     assert s["cycle_time_s"] == {"median": 210.0, "worst": 260.0}  # worst time = highest
     assert s["planning_s"]["worst"] == 35.0 and s["unverified_moves"]["worst"] == 1
     assert s["exact_cover_proven"] == 2
     assert s["exact_cover_stations"] == {"median": 3.0, "worst": 3.0}  # of the proven covers only
     rows[0]["exact_cover"] = rows[2]["exact_cover"] = {"stations": 7, "viewpoints": 90, "proven": False}
-    assert _median_worst(rows)["exact_cover_stations"] is None  # no proven cover: no bound
+    assert median_worst(rows)["exact_cover_stations"] is None  # no proven cover: no bound
     assert s["internal"] == {"reason": "no internal faces"}
 
 
