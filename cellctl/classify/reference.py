@@ -138,11 +138,16 @@ class PoseTolerance:
         return translation_mm <= self.translation_mm and rotation_deg <= self.rotation_deg
 
 
-MIRROR_POSE_TOLERANCE = PoseTolerance(translation_mm=20.0, rotation_deg=2.0)
-"""Pose delta up to which mirrored content (arm, camera, cabin in polished internal steel) keeps
-the clean false-change rate at the level of a zero delta (measured: ``docs/classifier/reference.md``,
-``docs/classifier/reference_mirror.json``). The planner/scan holds it where references are used;
-beyond it the reference comparison is skipped and the detector decides alone."""
+MIRROR_POSE_TOLERANCE = PoseTolerance(translation_mm=7.5, rotation_deg=4.0)
+"""Pose delta (camera in the bin frame, reference against now) up to which mirrored content (arm,
+camera, cabin in polished internal steel) keeps the clean false-change rate at its zero-delta
+level. Measured on twin pairs with the arm and camera mirrored (``docs/classifier/reference.md``,
+``docs/classifier/reference.json`` ``mirror``, 20 clean pairs a level): the share of clean pairs
+with a changed patch is 25 % from 0 to 5 mm, 40 % at 7.5 mm, 50 % at 10 mm, 65 % at 20 mm; a
+rotation about the camera moves mirrored and real content alike (25–30 % up to 4°, the largest
+tested). The plan adjusted to the measured bin pose keeps the camera within a few mm of its
+reference pose; past this the comparison is skipped (``out_of_tolerance``) and the detector
+decides alone. The planner/scan holds it where references are used."""
 
 
 @dataclass(frozen=True)
