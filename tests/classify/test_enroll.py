@@ -17,9 +17,9 @@ from cellctl.errors import ClassifierError
 SHIPPED = project_root() / "models" / "classifier"
 
 
-def _swirl_steel(n: int, seed: int, size: int = 128) -> list[np.ndarray]:
-    """Clean orbital-sanded steel (circular swirl marks over the brushed grain): a finish the shipped
-    external detector never saw, several of whose clean views it calls dirty."""
+def _swirl_steel(n: int, seed: int, size: int = 128, amp: float = 0.06) -> list[np.ndarray]:
+    """Clean orbital-sanded steel (circular swirl marks of contrast ``amp`` over the brushed grain): a
+    finish the shipped external detector never saw, several of whose clean views it calls dirty."""
     from cellctl.classify.contamination import closeup_steel
 
     rng = np.random.default_rng(seed)
@@ -29,7 +29,7 @@ def _swirl_steel(n: int, seed: int, size: int = 128) -> list[np.ndarray]:
         img = closeup_steel("external", size, size, rng)
         cx, cy = rng.uniform(-size, 2 * size, 2)
         ring = np.sin(np.hypot(xx - cx, yy - cy) * 6.283 / rng.uniform(3, 5))
-        out.append((np.clip(img * 0.8 + 0.12 * ring[..., None] + 0.1, 0, 1) * 255).astype(np.uint8))
+        out.append((np.clip(img * 0.8 + amp * ring[..., None] + 0.1, 0, 1) * 255).astype(np.uint8))
     return out
 
 
@@ -70,7 +70,7 @@ def test_enrollment_lowers_false_alarms_on_the_sites_own_steel(
     fresh = _swirl_steel(30, seed=2)
     before = sum(d.label == "dirty" for d in shipped_external.predict(fresh))
     after = sum(d.label == "dirty" for d in det.predict(fresh))
-    assert before >= 5 and after <= before // 2, (before, after)
+    assert before >= 4 and after <= before // 2, (before, after)
     rng = np.random.default_rng(5)
     dirty = [got[0] for im in fresh if (got := _dirty_version(_at_dirt_size(im), rng)) is not None]
     assert len(dirty) >= 15
@@ -96,6 +96,16 @@ def test_threshold_comes_from_the_held_out_images_and_the_card_says_so(
     assert det.threshold > held["max_clean_p_dirty"] - 1e-5 and det.threshold <= 0.95
     assert card["bank"]["size"] == shipped_external.bank.bank.shape[0] + card["bank"]["site_patches"]
     assert card["bank"]["site_patches"] == 512 and card["fuse"] != shipped_external.fuse
+
+
+def test_a_steel_it_cannot_tell_from_dirt_is_refused_rather_than_enrolled_blind(
+    shipped_external: Detector, tmp_path: Path
+) -> None:
+    """Deep swirl marks: silencing their false alarms would pass more than 10 % of the held-out views'
+    synthetic dirt, so enrollment refuses, naming the count."""
+    paths = _write(_swirl_steel(24, seed=1, amp=0.12), tmp_path / "site")
+    with pytest.raises(ClassifierError, match=r"would pass \d+ of \d+ held-out synthetic dirty views as clean"):
+        enroll_detector(shipped_external, paths, "external", progress=None)
 
 
 def test_the_enrolled_file_loads_through_the_one_loader(enrolled: tuple[Detector, Path, Path]) -> None:
@@ -136,7 +146,7 @@ def test_enroll_cli_writes_one_file_with_its_card(tmp_path: Path, capsys) -> Non
     """Any size, JPEG and PNG, nested folders; progress lines on stderr; the card on stdout."""
     from cellctl.cli import main
 
-    ims = _swirl_steel(12, seed=3, size=96)
+    ims = _swirl_steel(12, seed=3, size=96, amp=0.0)
     _write(ims[:6], tmp_path / "in" / "x", ".jpg")
     _write([cv2.resize(im, (200, 150)) for im in ims[6:]], tmp_path / "in" / "y" / "z")
     out = tmp_path / "e.pt"
