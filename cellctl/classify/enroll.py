@@ -171,6 +171,7 @@ def enroll_detector(
     dirt_per_image: int = DIRT_PER_IMAGE,
     source: Path | None = None,
     progress: Callable[[str], None] | None = _stderr,
+    max_synthetic_miss: float = MAX_SYNTHETIC_MISS,
 ) -> Detector:
     """Adapt ``base`` to a site's clean images (module doc): merged bank, fusion refitted on the
     site's steel with synthetic dirt, threshold from the held-out clean images' scores.
@@ -184,6 +185,8 @@ def enroll_detector(
         dirt_per_image: synthetic dirty versions drawn of each image (training families).
         source: the folder the images came from (the card's hash names paths relative to it).
         progress: receives one line per stage (None: silent).
+        max_synthetic_miss: refuse above this share of held-out synthetic dirt called clean (1.0: never;
+            for measuring what enrollment does, e.g. ``cellctl detector proof``; the CLI keeps the default).
 
     Returns:
         A :class:`~cellctl.classify.fusion.Detector` with ``enrollment`` (the card) and ``blob``
@@ -223,10 +226,10 @@ def enroll_detector(
             f"the threshold would exceed {MAX_THRESHOLD}: check they are clean {surface} views, or enrol more"
         )
     missed = int((dirt_p < threshold).sum())
-    if len(dirt_p) and missed > MAX_SYNTHETIC_MISS * len(dirt_p):
+    if len(dirt_p) and missed > max_synthetic_miss * len(dirt_p):
         raise ClassifierError(
             f"at threshold {threshold:.3f} the enrolled {surface} detector would pass {missed} of {len(dirt_p)} "
-            f"held-out synthetic dirty views as clean (more than {MAX_SYNTHETIC_MISS:.0%}): this steel cannot be "
+            f"held-out synthetic dirty views as clean (more than {max_synthetic_miss:.0%}): this steel cannot be "
             f"enrolled safely from these {len(images)} images; enrol more views, or keep the shipped detector"
         )
     amax = hold_maps.a[torch.from_numpy(hold_maps.y == 0)].double().numpy().reshape(len(clean_p), -1).max(1)
