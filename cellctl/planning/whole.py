@@ -706,6 +706,7 @@ def _timed_tour(
     tuck: bool = True,
     q_sel: NDArray[np.float64] | None = None,
     init: NDArray[np.int64] | None = None,
+    after: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], list[NDArray[np.float64]], list[float], int, int]:
     """Order ``[start, *Q[sel]]`` by motion time; every move straight or via home along the chains.
 
@@ -714,6 +715,9 @@ def _timed_tour(
     ``q_sel``: the viewpoints' configurations (len(sel), 6) instead of ``Q[sel]`` (a refined
     tour's); one that differs from ``Q[sel]`` goes home straight only (its chain starts elsewhere).
     ``init``: a node order to start 2-opt from instead of the ant colony's (a second order).
+    ``after`` (with ``tuck`` False): the next surface's configurations here; the tour ends at the
+    direct viewpoint whose move on to the nearest is fastest (scored by the move home instead,
+    case study seed 5's internal tour began with a 7.8 s move via home).
 
     Ant colony + 2-opt on the motion-time matrix (pairs checked at ``max_step``; a colliding
     pair costs its way via home: both ends' chains of straight motions, known free). The moves
@@ -754,7 +758,11 @@ def _timed_tour(
     # node n = home at the end of the tour (the arm tucks before the base drives): reached from a
     # direct node only, with a penalty that an interior visit pays twice, so it ends the tour
     Tm = np.zeros((n + 1, n + 1))
-    Tm[:n, n] = Tm[n, :n] = np.where(direct, home_t + END_PENALTY_S, NO_MOVE_S)
+    # no tuck: the end scored by the move on to the next surface; still a direct node (the next
+    # tour's start may go via home: ending anywhere made moves the arm may refuse, seeds 3 and 8)
+    on = not tuck and after is not None and len(after) > 0
+    on_t = np.array([_on_s(q, after, timing) for q in nodes]) if on and after is not None else home_t
+    Tm[:n, n] = Tm[n, :n] = np.where(direct, on_t + END_PENALTY_S, NO_MOVE_S)
     straight = np.zeros((n + 1, n + 1), dtype=bool)
     for k, (i, j) in enumerate(zip(iu, ju, strict=True)):
         if free[k]:
@@ -820,18 +828,7 @@ def _timed_tour(
         paths.append(path)
         secs.append(timing.motion_s(path))
         Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
-    # a move via home (a colliding straight one): a shorter way round, proven free at the sim
-    # arm's step, where there is one (the arm's own planner then finds such a path; the model
-    # takes the detour's time)
-    detoured = np.zeros(len(paths), dtype=bool)
-    for e, (a, b) in enumerate(zip(order[:-1].tolist(), order[1:].tolist(), strict=True)):
-        if len(paths[e]) > 2:
-            d = _detour(nodes[a], nodes[b], q_home, world, fine_step)
-            if d is not None:
-                t_d = timing.motion_s(d)
-                if t_d < secs[e] or not (direct[a] and direct[b]):
-                    paths[e], secs[e], detoured[e] = d, t_d, True
-                    Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(d, axis=0), axis=1).sum())
+    detoured = _take_detours(order, nodes, paths, secs, Dr, direct, q_home, world, timing, fine_step)
     # moves the sim arm could not make: via home from/to a node that is not direct, and the end
     bad = [
         (a, b)
@@ -845,6 +842,42 @@ def _timed_tour(
     stuck = {x for e in bad for x in e if not direct[x]} | ({last} if tuck and not direct[last] else set())
     stuck_ids = np.array(sorted(int(sel[x - 1]) for x in stuck if x > 0), dtype=np.int64)
     return order, Dr, paths, secs, int(free.sum()), int(unverified), stuck_ids
+
+
+def _take_detours(
+    order: NDArray[np.int64],
+    nodes: NDArray[np.float64],
+    paths: list[NDArray[np.float64]],
+    secs: list[float],
+    Dr: NDArray[np.float64],
+    direct: NDArray[np.bool_],
+    q_home: NDArray[np.float64],
+    world: PlanningWorld,
+    timing: TimingModel,
+    step: float,
+) -> NDArray[np.bool_]:
+    """A tour's moves via home replaced in place (``paths``, ``secs``, ``Dr``) by a shorter way round,
+    proven free at ``step`` (:func:`_detour`), where there is one and it is faster or via home is not
+    provable (the arm's own planner then finds such a path; the model takes the detour's time).
+
+    Returns:
+        (len(paths),) True where a move took a detour.
+    """
+    detoured = np.zeros(len(paths), dtype=bool)
+    for e, (a, b) in enumerate(zip(order[:-1].tolist(), order[1:].tolist(), strict=True)):
+        if len(paths[e]) > 2:
+            d = _detour(nodes[a], nodes[b], q_home, world, step)
+            if d is not None:
+                t_d = timing.motion_s(d)
+                if t_d < secs[e] or not (direct[a] and direct[b]):
+                    paths[e], secs[e], detoured[e] = d, t_d, True
+                    Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(d, axis=0), axis=1).sum())
+    return detoured
+
+
+def _on_s(q: NDArray[np.float64], after: NDArray[np.float64], timing: TimingModel) -> float:
+    """Seconds of the straight move from ``q`` to the nearest (in time) of ``after`` (K, 6)."""
+    return min(timing.motion_s(np.array([q, a])) for a in after)
 
 
 DETOUR_PULLS = (0.25, 0.5, 0.75)  # how far towards home a detour's waypoints are pulled
@@ -894,10 +927,14 @@ def _end_s(
     Q: NDArray[np.float64],
     q_home: NDArray[np.float64],
     timing: TimingModel,
+    after: NDArray[np.float64] | None = None,
 ) -> float:
     """Seconds home from a tour's last node (configurations ``q`` per node): along its chain when
-    its configuration is the reached one, else straight."""
+    its configuration is the reached one, else straight. ``after`` (the next surface's
+    configurations at the station, no tuck): the move to the nearest of them instead."""
     last = int(order[-1])
+    if after is not None and len(after):
+        return _on_s(q[last], after, timing)
     k = int(sel[last - 1])
     if np.array_equal(q[last], Q[k]):
         return timing.motion_s(np.array([*chain_to_start(k, parent, Q), q_home]))
@@ -961,6 +998,7 @@ def _refine_configurations(
     q_home: NDArray[np.float64],
     step: float,
     half_turn: bool = False,
+    after: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], list[NDArray[np.float64]], list[float], int]:
     """The tour's order kept, each viewpoint's configuration chosen to make it fastest.
 
@@ -973,6 +1011,9 @@ def _refine_configurations(
     original configurations). Viewpoints next to a move that is not straight (via home) keep
     theirs. The camera poses (and so what is seen) do not change; with ``half_turn`` a camera may
     turn by π about its optical axis (:func:`_alternatives`: the same view for a centred image).
+    ``after``: the next surface's configurations at this station (no tuck here): the last move is
+    scored to the nearest of them instead of home (a changed last configuration still has its
+    straight way home checked: the next tour's start may go via home).
 
     Args:
         nodes: (n, 6) the tour's nodes: the start, then the selected viewpoints' configurations.
@@ -1013,7 +1054,10 @@ def _refine_configurations(
         if key in barred:
             return np.inf
         if key not in t_cache:
-            t_cache[key] = timing.motion_s(np.array([alts[m - 1][ib], q_home]))
+            q = alts[m - 1][ib]
+            t_cache[key] = (
+                timing.motion_s(np.array([q, q_home])) if after is None or len(after) == 0 else _on_s(q, after, timing)
+            )
         return t_cache[key]
 
     pick = [0] * m
@@ -1053,6 +1097,113 @@ def _refine_configurations(
     return out, new_paths, new_secs, int(sum(1 for k in pick if k))
 
 
+SHIFT_TRIES = 6  # whole-tour turns × directions, fastest first, whose new moves are checked
+
+
+def _shift_tour(
+    q_prev: NDArray[np.float64],
+    nodes: NDArray[np.float64],
+    order: NDArray[np.int64],
+    paths: list[NDArray[np.float64]],
+    secs: list[float],
+    end_s: float,
+    after: NDArray[np.float64] | None,
+    robot: RobotModel,
+    world: PlanningWorld,
+    timing: TimingModel,
+    q_home: NDArray[np.float64],
+    step: float,
+) -> tuple[NDArray[np.float64], NDArray[np.int64], list[NDArray[np.float64]], list[float]] | None:
+    """The whole tour turned by 2π on some ±2π joints (and maybe run backwards), where that makes
+    its two ends faster; or None.
+
+    q and q + 2πk of the ±2π joints are the same arm, so the tour's own moves (every waypoint
+    turned alike, or the same moves backwards) sweep the same space in the same time; only the
+    move in from ``q_prev`` and the move out change. :func:`wrap_window` puts a station's
+    viewpoints into one 2π window but picks the window by home, not by the tour's neighbours
+    (case study seed 5 station 1: the external tour's base joint at 2.0…4.1 rad between an
+    identification at −2.5 and an internal start at 0.4: 8.2 rad of base travel in and out).
+
+    Scored: the move in + the move out — to the nearest of ``after`` (the next surface's
+    configurations: its tour starts near one), or home (``after`` None) — against
+    ``secs[0] + end_s`` as planned. The move in is straight where that is free at ``step``,
+    else the fastest free way round (:func:`_detour`, bent towards the nearest turn of home); the
+    straight move home from the new last viewpoint (the next tour's way home from its start, or
+    the tuck) must be free.
+
+    Returns:
+        ``(nodes, order, paths, seconds)`` of the new tour, or None (no faster free one).
+    """
+    from itertools import product
+
+    from cellctl.planning.reach import _WRAPPABLE
+
+    vps = np.array([nodes[int(k)] for k in order[1:]])
+    way = np.vstack([vps, *paths[1:]]) if len(paths) > 1 else vps
+
+    def out_s(q: NDArray[np.float64]) -> float:
+        if after is None or len(after) == 0:
+            return timing.motion_s(np.array([q, q_home]))
+        return _on_s(q, after, timing)
+
+    def near(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Home turned by 2π on the ±2π joints nearest to between ``a`` and ``b`` (the same arm:
+        a way round a turned tour's move in bends towards it, not back across a turn)."""
+        h = q_home.copy()
+        j = list(_WRAPPABLE)
+        h[j] += 2.0 * np.pi * np.round((0.5 * (a[j] + b[j]) - h[j]) / (2.0 * np.pi))
+        return np.where((h >= robot.q_min) & (h <= robot.q_max), h, q_home)
+
+    base = float(secs[0]) + float(end_s)
+    ends = {False: (int(order[1]), int(order[-1])), True: (int(order[-1]), int(order[1]))}
+    cands: list[tuple[float, NDArray[np.float64], bool]] = []
+    for ks in product((-1, 0, 1), repeat=len(_WRAPPABLE)):
+        sh = np.zeros(6)
+        sh[list(_WRAPPABLE)] = 2.0 * np.pi * np.array(ks, dtype=np.float64)
+        if any(ks) and not np.all((way + sh >= robot.q_min - 1e-9) & (way + sh <= robot.q_max + 1e-9)):
+            continue
+        for back in (False, True) if len(order) > 2 else (False,):
+            if not any(ks) and not back:
+                continue  # the tour as planned
+            first, last = ends[back]
+            t = timing.motion_s(np.array([q_prev, nodes[first] + sh])) + out_s(nodes[last] + sh)
+            if t < base - 1e-3:  # a lower bound: a detour in only adds
+                cands.append((t, sh, back))
+    cands.sort(key=lambda c: c[0])
+    cands = cands[:SHIFT_TRIES]
+    if not cands:
+        return None
+    A = np.array([x for _, sh, bk in cands for x in (q_prev, nodes[ends[bk][1]] + sh)])
+    B = np.array([x for _, sh, bk in cands for x in (nodes[ends[bk][0]] + sh, q_home)])
+    ok = world.motion_free(A, B, step).reshape(-1, 2)
+    best: tuple[float, NDArray[np.float64], bool, NDArray[np.float64]] | None = None
+    for i, (t, sh, back) in enumerate(cands):
+        if best is not None and t >= best[0]:
+            break
+        if not ok[i, 1]:
+            continue
+        first, last = ends[back]
+        q_in = nodes[first] + sh
+        move_in = np.array([q_prev, q_in]) if ok[i, 0] else _detour(q_prev, q_in, near(q_prev, q_in), world, step)
+        if move_in is None:
+            continue
+        t_real = timing.motion_s(move_in) + out_s(nodes[last] + sh)
+        if t_real < base - 1e-3 and (best is None or t_real < best[0]):
+            best = (t_real, sh, back, move_in)
+    if best is None:
+        return None
+    _t, sh, back, move_in = best
+    out = nodes.copy()
+    out[1:] += sh
+    rest = [p + sh for p in paths[1:]]
+    rest_s = list(secs[1:])
+    new_order = order.copy()
+    if back:
+        new_order = np.r_[order[:1], order[1:][::-1]]
+        rest, rest_s = [p[::-1] for p in rest[::-1]], rest_s[::-1]
+    return out, new_order, [move_in, *rest], [timing.motion_s(move_in), *rest_s]
+
+
 # --- the whole-bin pipeline ------------------------------------------------------------------
 
 
@@ -1080,11 +1231,15 @@ def _identification(
     """The first observation pose (looking at the board) the arm reaches from home by a straight free motion."""
     if bin_type is None:
         return None, "no bin type (a mesh without a catalog board): the bin pose comes from the cycle's first station"
+    from cellctl.planning.reach import wrap_towards
     from cellctl.sim.scene import n_observation_poses, observation_T_bin_cam
 
     for k in range(n_observation_poses()):
         T = observation_T_bin_cam(bin_type, k)
-        S = robot.ik_cam(T_base_bin @ T)
+        # each joint's 2π turn nearest home, nearest first: what the arm takes at run time (its IK
+        # wraps towards the current joints, home; cellctl.geometry.robot_model.ik). IK's own (−π, π]
+        # put the base joint 5.6 rad from home's π where its turn is 0.7 rad away (case study seed 5)
+        S = wrap_towards(robot.ik_cam(T_base_bin @ T), q_home, robot)
         if len(S) == 0:
             continue
         S = S[np.argsort(np.linalg.norm(S - q_home, axis=1))]
@@ -1505,8 +1660,11 @@ def plan_whole(
                 motion[surf] = 0.0
                 continue
             con = e.con[surf]
+            # the next surface's configurations here (its tour starts near one): where this tour ends
+            nxt = [s2 for s2 in order_s[order_s.index(surf) + 1 :] if len(picked[s2][rank])]
+            after = e.con[nxt[0]].reached.q[picked[nxt[0]][rank]] if nxt else None
             order, Dr, paths, secs_e, n_straight, unverified, stuck = _timed_tour(
-                q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step, tuck
+                q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step, tuck, after=after
             )
             if unverified:
                 sel, got = _readd_chains(
@@ -1526,6 +1684,7 @@ def plan_whole(
                         max_step=COARSE_STEP_RAD,
                         fine_step=step,
                         tuck=tuck,
+                        after=after,
                     ),
                 )
                 if len(sel) > len(sels[surf]):
@@ -1533,24 +1692,44 @@ def plan_whole(
                 sels[surf] = sel
                 order, Dr, paths, secs_e, n_straight, unverified = got
             q_chain = con.reached.q.copy()  # the chains home are straight between these configurations
+            # seconds from the tour's end on: home (it tucks), else to the next surface's nearest
+            end_t = partial(_end_s, sel=sel, parent=con.parent, q_home=q_home, timing=timing, after=after)
             nodes = np.vstack([q_now[None], con.reached.q[sel]])
             new_q, paths, secs_e, n_changed = _refine_configurations(
-                nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step, half_turn
+                nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step, half_turn, after
             )
             if n_changed and len(sel) > 2:  # a second order over the refined configurations
                 # 2-opt from the refined tour's order (no ant colony, no second refinement: ~CPU)
                 o2, Dr2, p2, t2, ns2, u2, _stuck2 = _timed_tour(
-                    q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step, tuck, new_q[1:], order
+                    q_now,
+                    hub,
+                    sel,
+                    con,
+                    q_home,
+                    s.world,
+                    timing,
+                    s.rng,
+                    COARSE_STEP_RAD,
+                    step,
+                    tuck,
+                    new_q[1:],
+                    order,
+                    after,
                 )
                 Q0 = con.reached.q
-                t_new = sum(t2) + _end_s(o2, new_q, sel, con.parent, Q0, q_home, timing)
-                if (
-                    u2 <= unverified
-                    and t_new < sum(secs_e) + _end_s(order, new_q, sel, con.parent, Q0, q_home, timing) - 1e-6
-                ):
+                t_new = sum(t2) + end_t(o2, new_q, Q=Q0)
+                if u2 <= unverified and t_new < sum(secs_e) + end_t(order, new_q, Q=Q0) - 1e-6:
                     order, Dr, paths, secs_e, n_straight, unverified = o2, Dr2, p2, t2, ns2, u2
                     n_changed = int(np.any(np.abs(new_q[1:] - con.reached.q[sel]) > 0, axis=1).sum())
                     mine["retoured"] = mine.get("retoured", 0) + 1
+            # the whole tour a 2π turn over on the ±2π joints where its move in and out are faster
+            end_now = end_t(order, new_q, Q=con.reached.q)
+            shifted = _shift_tour(
+                q_now, new_q, order, paths, secs_e, end_now, after, robot, s.world, timing, q_home, step
+            )
+            if shifted is not None:
+                new_q, order, paths, secs_e = shifted
+                mine["tour_shifted"] = mine.get("tour_shifted", 0) + 1
             turned = _half_turned(robot, con.reached.q[sel], new_q[1:])
             if turned.any():  # the camera turned by π about its axis: the same view, its pose and roll
                 ids = sel[turned]
@@ -1800,7 +1979,7 @@ def plan_whole(
 
 
 FEWER_TRIES = 2  # station sets one smaller a plan over its budget selects viewpoints for
-BUDGET_ROUNDS = 3  # trim-and-tour rounds of a plan over its budget
+BUDGET_ROUNDS = 5  # trim-and-tour rounds of a plan over its budget
 BUDGET_EXACT_S = 2.0  # the exact cover of a selection the budget changed: its MILP's time limit
 
 

@@ -105,3 +105,73 @@ def test_the_budget_comes_from_the_cell_config_and_refuses_a_negative_one():
     assert WholeParams().cycle_budget_s == 0.0  # a bare parameter set: no budget
     with pytest.raises(PlanningError, match=r"cycle_budget_s -1.0 must be ≥ 0"):
         WholeParams(cycle_budget_s=-1.0).check()
+
+
+class _Free:
+    """A world without obstacles."""
+
+    def motion_free(self, A, B, step):
+        return np.ones(len(np.atleast_2d(A)), dtype=bool)
+
+
+def test_a_tour_on_the_wrong_2pi_turn_is_shifted_as_a_whole_the_same_arm_and_never_slower(robot):
+    from cellctl.planning.whole import TimingModel, _shift_tour
+
+    timing = TimingModel()
+    rng = np.random.default_rng(5)
+    # identification with the base joint at -2.5 rad, the next surface's tour at -2.8 rad: the tour
+    # between them sits a turn away (3.2..3.6 rad), as case study seed 5's second station did
+    q_prev = robot.q_home + np.r_[0.0, 0.3, 0.4, 0.0, 0.2, 0.0]
+    q_prev[0] = -2.5
+    tour = np.tile(q_prev, (5, 1)) + rng.normal(0.0, 0.1, (5, 6))
+    tour[:, 0] = np.linspace(3.2, 3.6, 5)
+    nodes = np.vstack([q_prev[None], tour])
+    order = np.arange(6)
+    paths = [np.array([nodes[a], nodes[b]]) for a, b in zip(order[:-1], order[1:], strict=True)]
+    secs = [timing.motion_s(p) for p in paths]
+    after = q_prev[None] + np.r_[-0.3, 0.1, 0.0, 0.0, 0.0, 0.0]
+    end_s = timing.motion_s(np.array([nodes[-1], after[0]]))
+    got = _shift_tour(q_prev, nodes, order, paths, secs, end_s, after, robot, _Free(), timing, robot.q_home, 0.004)
+    assert got is not None
+    new_nodes, new_order, new_paths, new_secs = got
+    assert np.allclose(robot.fk_cam(new_nodes[1:]), robot.fk_cam(nodes[1:]), atol=1e-9)  # the same arm
+    assert np.all(np.abs(new_nodes[1:, 0] - (-2.5)) < 1.5)  # on the identification's turn
+    assert robot.within_limits(new_nodes).all()
+    out_new = min(timing.motion_s(np.array([new_nodes[int(new_order[-1])], a])) for a in after)
+    assert new_secs[0] + out_new < secs[0] + end_s - 3.0  # seconds saved at both ends
+    assert sum(new_secs[1:]) == pytest.approx(sum(secs[1:]))  # its own moves take as long
+    assert np.array_equal(new_paths[0][0], q_prev) and np.array_equal(new_paths[0][-1], new_nodes[int(new_order[1])])
+    # a tour already on the right turn is left as it is
+    same = _shift_tour(
+        q_prev, new_nodes, new_order, new_paths, new_secs, out_new, after, robot, _Free(), timing, robot.q_home, 0.004
+    )
+    assert same is None
+
+
+def test_a_tour_followed_by_another_surface_ends_near_it_not_near_home(robot):
+    from cellctl.planning.reach import Reached
+    from cellctl.planning.whole import Connected, TimingModel, _timed_tour
+
+    timing = TimingModel()
+    home = robot.q_home
+    # viewpoints along the base joint from home; the next surface's tour lies beyond the far end
+    Q = np.tile(home + np.r_[0.0, 0.4, 0.5, 0.0, 0.3, 0.0], (5, 1))
+    Q[:, 0] = home[0] - np.linspace(0.3, 1.5, 5)
+    con = Connected(Reached(np.arange(5), np.tile(np.eye(4), (5, 1, 1)), Q, np.zeros(5), 0, 0), np.full(5, -1), 0, 0)
+    after = Q[-1:] + np.r_[-0.8, 0.0, 0.0, 0.0, 0.0, 0.0]
+    sel = np.arange(5)
+
+    def tour(**kw):
+        return _timed_tour(
+            home, [home, home], sel, con, home, _Free(), timing, np.random.default_rng(0), 0.02, 0.004, **kw
+        )
+
+    to_home = tour(tuck=True)
+    on = tour(tuck=False, after=after)
+    assert int(sel[on[0][-1] - 1]) == 4  # ends at the viewpoint nearest the next surface
+    assert on[5] == 0 and to_home[5] == 0  # no unverified move
+
+    def on_s(t):
+        return sum(t[3]) + timing.motion_s(np.array([Q[int(sel[t[0][-1] - 1])], after[0]]))
+
+    assert on_s(on) <= on_s(to_home) + 1e-9
