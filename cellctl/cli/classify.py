@@ -518,7 +518,7 @@ def run_classify(args: argparse.Namespace) -> int:
     rc = 0
     for path in args.images:
         try:
-            pred = model.predict([load_image(path)])[0]
+            pred = model.predict([load_image(path, cfg.camera.max_image_pixels)])[0]
             out = {"image": path, **pred.as_dict()}
         except CellError as err:
             out = {"image": path, "error": str(err)}

@@ -140,7 +140,7 @@ class CycleRecords:
             raise NotFound(f"cycle id {cycle_id[:80]!r} is not a cycle id; expected letters, digits, '_', '.', '-'")
         rows = self._query("WHERE cycle_id = ?", (cycle_id,))
         if not rows:
-            raise NotFound(f"cycle {cycle_id!r} is not in the cycle index {str(self.index_path)!r}")
+            raise NotFound(f"cycle {cycle_id!r} is not in the cycle index")  # no server path in a 404
         return rows[0]
 
     def running_row(self) -> CycleRow | None:

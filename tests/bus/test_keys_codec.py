@@ -105,7 +105,7 @@ def test_schemas_show_the_start_params_and_the_new_status_fields() -> None:
     schemas = json_schemas()
     start = schemas["cellctl/StartParams"]["properties"]
     assert {"mode", "label", "surface", "perturb_m", "seed", "dataset"} <= set(start)
-    assert start["mode"]["enum"] == ["evaluate", "collect", "wash_and_verify"]
+    assert start["mode"]["enum"] == ["evaluate", "collect", "wash_and_verify", "commission"]
     assert {"unit_mode", "unit_mode_code", "admin"} <= set(schemas["cellctl/Status"]["properties"])
     assert {"unit_mode", "unit_mode_code", "user"} <= set(schemas["cellctl/Command"]["properties"])
     assert {"user", "unit_mode"} <= set(schemas["cellctl/Ack"]["properties"])
