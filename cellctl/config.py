@@ -23,7 +23,7 @@ from cellctl.bus.keys import ROLES, check_cell_id
 from cellctl.errors import ConfigError
 from cellctl.images import MAX_IMAGE_PIXELS, MIN_IMAGE_SIDE
 from cellctl.review.config import ReviewConfig
-from cellctl.surface import Surface
+from cellctl.surface import SURFACES, Surface
 
 __all__ = [
     "BaseConfig",
@@ -386,7 +386,7 @@ class ClassifierConfig(_Model):
 
     @model_validator(mode="after")
     def _enrolled_files_need_the_detector(self) -> ClassifierConfig:
-        given = [s for s in ("external", "internal") if getattr(self.detector_files, s) is not None]
+        given = [s for s in SURFACES if getattr(self.detector_files, s) is not None]
         if given and self.decision == "supervised":
             raise ValueError(
                 f"detector_files {given} name enrolled detectors but decision is 'supervised'; "

@@ -61,6 +61,7 @@ from cellctl.classify.anomaly import GRID, INPUT_SIZE, MemoryBank, greedy_corese
 from cellctl.classify.contamination import FAMILIES, VISIBLE_ALPHA, composite, draw_family, visible_mask
 from cellctl.classify.data import IMAGE_EXTS, load_image, prepare
 from cellctl.classify.decision import logit
+from cellctl.classify.enrollment_card import ENROLLMENT_FORMAT, check_enrollment
 from cellctl.classify.finetune import PATCH_DIRTY
 from cellctl.classify.fusion import Detector, _fit_logistic, _rel
 from cellctl.classify.sample import label_from_mask
@@ -79,7 +80,6 @@ __all__ = [
     "save_enrolled",
 ]
 
-ENROLLMENT_FORMAT = "cellctl-enrollment/1"
 MIN_IMAGES = 10
 """Fewest clean images accepted: 5 fit + 5 held out; at 5 held-out images with none above the
 threshold the 95 % false-dirty bound is already 45 %, so the card makes the weakness visible.
@@ -481,25 +481,3 @@ def save_enrolled(det: Detector, path: Path | str) -> None:
     except OSError as err:
         tmp.unlink(missing_ok=True)
         raise ClassifierError(f"enrolled detector {str(out)!r} cannot be written: {err.strerror}") from err
-
-
-def check_enrollment(blob: dict[str, Any], path: Path) -> dict[str, Any]:
-    """The enrollment card of a loaded blob, checked (called by ``Detector.load``).
-
-    Raises:
-        ClassifierError: the card is not ours, or disagrees with the blob.
-    """
-    card = blob.get("enrollment")
-    if not isinstance(card, dict) or card.get("format") != ENROLLMENT_FORMAT:
-        got = card.get("format") if isinstance(card, dict) else type(card).__name__
-        raise ClassifierError(f"{str(path)!r}: enrollment card format {got!r}, expected {ENROLLMENT_FORMAT!r}")
-    if card.get("surface") != blob.get("surface"):
-        raise ClassifierError(
-            f"{str(path)!r}: enrollment card is for {card.get('surface')!r}, weights for {blob.get('surface')!r}"
-        )
-    if card.get("threshold") != blob.get("threshold"):
-        raise ClassifierError(
-            f"{str(path)!r}: enrollment card threshold {card.get('threshold')!r} is not the file's "
-            f"{blob.get('threshold')!r}"
-        )
-    return card

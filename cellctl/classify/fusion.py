@@ -236,7 +236,7 @@ class Detector:
         kind = "detect"
         if "enrollment" in blob:
             # a site-enrolled file carries its card inside (one file, cellctl.classify.enroll)
-            from cellctl.classify.enroll import check_enrollment
+            from cellctl.classify.enrollment_card import check_enrollment
 
             card = check_enrollment(blob, p)
             kind = "enrolled"

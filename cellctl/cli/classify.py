@@ -375,7 +375,7 @@ def run_detector_train(args: argparse.Namespace) -> int:
         init_from=args.init_from,
         calib=args.calib,
     )
-    from cellctl.classify.runtime import export_detector
+    from cellctl.classify.onnx_export import export_detector
 
     # the export belongs to the weights just written: made now, so no stale one is left beside them
     onnx = export_detector(_detector_path(args), command=card["command"])
@@ -393,7 +393,7 @@ def run_detector_train(args: argparse.Namespace) -> int:
 
 
 def run_detector_export(args: argparse.Namespace) -> int:
-    from cellctl.classify.runtime import export_detector
+    from cellctl.classify.onnx_export import export_detector
 
     cmd = f"cellctl detector export --surface {args.surface}" + (f" --model {args.model}" if args.model else "")
     print(json.dumps(export_detector(_detector_path(args), command=cmd)))

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 
+from cellctl.classify import onnx_export as ox
 from cellctl.classify import runtime as rt
 from cellctl.classify.fusion import Detector, detector_path
 from cellctl.config import ClassifierConfig
@@ -28,7 +29,7 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("onnx")
     for f in (src, src.with_suffix(".json")):
         shutil.copy(f, d / f.name)
-    rt.export_detector(d / src.name)
+    ox.export_detector(d / src.name)
     return d / src.name
 
 
@@ -39,8 +40,8 @@ def test_ort_and_torch_agree_on_a_fixed_batch_and_label_alike(exported: Path) ->
     ort = Detector.load(exported, runtime="onnx")
     assert ref.engine is None and isinstance(ort.engine, rt.OnnxMaps)
     for surface, seed in (("external", 1), ("internal", 2)):
-        images = rt.parity_images(surface, 12, seed=seed, size=160)
-        par = rt.parity(ref, ort, images)
+        images = ox.parity_images(surface, 12, seed=seed, size=160)
+        par = ox.parity(ref, ort, images)
         assert par["max_abs_logit"] <= rt.PARITY_ATOL and par["max_abs_distance"] <= rt.PARITY_ATOL, par
         assert par["labels_differ"] == 0, par
         a, b = ref.predict(images, batch=5), ort.predict(images, batch=5)
@@ -48,7 +49,7 @@ def test_ort_and_torch_agree_on_a_fixed_batch_and_label_alike(exported: Path) ->
         assert [d.uncertain for d in a] == [d.uncertain for d in b]
         assert np.allclose([d.p_dirty for d in a], [d.p_dirty for d in b], atol=rt.PARITY_ATOL)
         assert np.abs(np.stack([d.heat for d in a]) - np.stack([d.heat for d in b])).max() <= rt.PARITY_ATOL
-    labels = {d.label for d in ort.predict(rt.parity_images("external", 12, seed=1, size=160))}
+    labels = {d.label for d in ort.predict(ox.parity_images("external", 12, seed=1, size=160))}
     assert labels == {"clean", "dirty"}  # the fixed set exercises both decisions
 
 
@@ -105,9 +106,9 @@ def test_a_file_with_another_bank_shares_the_export_and_searches_its_own_bank(ex
     ort = Detector.load(site, runtime="onnx", also_onnx=also)
     ref = Detector.load(site, runtime="torch")
     base = Detector.load(exported, runtime="onnx")
-    images = rt.parity_images("external", 4, seed=3, size=128)
-    assert rt.parity(ref, ort, images)["max_abs_distance"] <= rt.PARITY_ATOL
-    assert rt.parity(base, ort, images)["max_abs_distance"] > 0.1
+    images = ox.parity_images("external", 4, seed=3, size=128)
+    assert ox.parity(ref, ort, images)["max_abs_distance"] <= rt.PARITY_ATOL
+    assert ox.parity(base, ort, images)["max_abs_distance"] > 0.1
     other = tmp_path / "other"
     stale = _with_networks_changed(exported, other)
     stale.with_name("external.detect.onnx").unlink()
@@ -119,9 +120,9 @@ def test_an_export_that_disagrees_is_not_written(
 ) -> None:
     src = tmp_path / exported.name
     shutil.copy(exported, src)
-    monkeypatch.setattr(rt, "PARITY_ATOL", 0.0)
+    monkeypatch.setattr(ox, "PARITY_ATOL", 0.0)
     with pytest.raises(ClassifierError, match="disagrees with PyTorch"):
-        rt.export_detector(src)
+        ox.export_detector(src)
     assert not rt.onnx_path(src).exists() and not list(tmp_path.glob("*.tmp"))
 
 
@@ -143,7 +144,7 @@ def test_classify_cli_runs_either_runtime_with_the_same_answer(exported: Path, t
     from cellctl.cli import main
 
     img = tmp_path / "v.png"
-    cv2.imwrite(str(img), cv2.cvtColor(rt.parity_images("external", 2, seed=9, size=128)[1], cv2.COLOR_RGB2BGR))
+    cv2.imwrite(str(img), cv2.cvtColor(ox.parity_images("external", 2, seed=9, size=128)[1], cv2.COLOR_RGB2BGR))
     lines = {}
     for runtime in ("onnx", "torch"):
         rc = main(

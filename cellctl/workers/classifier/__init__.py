@@ -41,7 +41,7 @@ from cellctl.messages import (
     EnrollRequest,
     ErrorReply,
 )
-from cellctl.surface import check_surface
+from cellctl.surface import SURFACES, check_surface
 
 __all__ = ["BACKENDS", "BatchingClassifyServer", "ClassifierService", "run_worker"]
 
@@ -278,7 +278,7 @@ def run_worker(cfg: CellConfig, backend: str | None, stop_event: threading.Event
     if name not in BACKENDS:
         raise ConfigError(f"classifier backend {name!r} is unknown; expected one of {list(BACKENDS)}")
     c = cfg.classifier
-    files = {s: cfg.path(p) for s in ("external", "internal") if (p := getattr(c.detector_files, s)) is not None}
+    files = {s: cfg.path(p) for s in SURFACES if (p := getattr(c.detector_files, s)) is not None}
     service = ClassifierService(
         cfg.path(c.models_dir),
         c.variant,
