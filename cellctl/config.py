@@ -277,11 +277,12 @@ class WashConfig(_Model):
 class VerdictConfig(_Model):
     """How a cycle's per-face dirt evidence becomes the bin verdict (docs/classifier/inspect.md)."""
 
-    # "views" by default: on bench inspect the faces rule missed 7.6 % of dirty bins (10/132, round 6:
-    # 9 external and 1 internal one-spot bins, six of them clumps no view's heat shows; a false clean
-    # sends a contaminated bin back to production); the per-face map is still computed and shown.
+    # "faces" by default since the detector became the default decision (issue 31): with it the any-view
+    # rule called every clean bin dirty (68/68 on bench inspect, round 6; 14 of 72 views of the shipped
+    # whole-bin twin cycle) — a rule that fails every clean bin is no rule. Faces, round 6: false-clean
+    # 10/132, false-dirty 1/68 (docs/decisions.md, "The verdict rule follows the detector").
     rule: Literal["faces", "views"] = Field(
-        default="views", description="faces: fused per-face probabilities; views: dirty if any view is dirty"
+        default="faces", description="faces: fused per-face probabilities; views: dirty if any view is dirty"
     )
     # a face's verdict depends on logit(face_threshold) - logit(face_prior) only: 0.5 / 0.1 and 0.7 / 0.2
     # (2.20 / 2.23) decided the same bins on the round 6 validation bench; patches there: false-clean

@@ -48,6 +48,9 @@ def cfg_overrides(tmp_path: Path, port: int) -> list[str]:
         # (tests/supervisor/test_whole_default.py)
         "planner.whole.enabled=false",
         "classifier.verdict.min_seen_fraction={}",
+        # ...and their views carry labels, not the heat maps and faces the default faces rule fuses:
+        # the any-view rule decides their bins (the faces rule has its own tests, tests/classify)
+        "classifier.verdict.rule=views",
     ]
 
 
