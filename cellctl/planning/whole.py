@@ -706,7 +706,6 @@ def _timed_tour(
     tuck: bool = True,
     q_sel: NDArray[np.float64] | None = None,
     init: NDArray[np.int64] | None = None,
-    after: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], list[NDArray[np.float64]], list[float], int, int]:
     """Order ``[start, *Q[sel]]`` by motion time; every move straight or via home along the chains.
 
@@ -715,9 +714,6 @@ def _timed_tour(
     ``q_sel``: the viewpoints' configurations (len(sel), 6) instead of ``Q[sel]`` (a refined
     tour's); one that differs from ``Q[sel]`` goes home straight only (its chain starts elsewhere).
     ``init``: a node order to start 2-opt from instead of the ant colony's (a second order).
-    ``after`` (with ``tuck`` False): the next surface's configurations here; the tour ends at the
-    direct viewpoint whose move on to the nearest is fastest (scored by the move home instead,
-    case study seed 5's internal tour began with a 7.8 s move via home).
 
     Ant colony + 2-opt on the motion-time matrix (pairs checked at ``max_step``; a colliding
     pair costs its way via home: both ends' chains of straight motions, known free). The moves
@@ -758,11 +754,7 @@ def _timed_tour(
     # node n = home at the end of the tour (the arm tucks before the base drives): reached from a
     # direct node only, with a penalty that an interior visit pays twice, so it ends the tour
     Tm = np.zeros((n + 1, n + 1))
-    # no tuck: the end scored by the move on to the next surface; still a direct node (the next
-    # tour's start may go via home: ending anywhere made moves the arm may refuse, seeds 3 and 8)
-    on = not tuck and after is not None and len(after) > 0
-    on_t = np.array([_on_s(q, after, timing) for q in nodes]) if on and after is not None else home_t
-    Tm[:n, n] = Tm[n, :n] = np.where(direct, on_t + END_PENALTY_S, NO_MOVE_S)
+    Tm[:n, n] = Tm[n, :n] = np.where(direct, home_t + END_PENALTY_S, NO_MOVE_S)
     straight = np.zeros((n + 1, n + 1), dtype=bool)
     for k, (i, j) in enumerate(zip(iu, ju, strict=True)):
         if free[k]:
@@ -998,7 +990,6 @@ def _refine_configurations(
     q_home: NDArray[np.float64],
     step: float,
     half_turn: bool = False,
-    after: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], list[NDArray[np.float64]], list[float], int]:
     """The tour's order kept, each viewpoint's configuration chosen to make it fastest.
 
@@ -1011,9 +1002,6 @@ def _refine_configurations(
     original configurations). Viewpoints next to a move that is not straight (via home) keep
     theirs. The camera poses (and so what is seen) do not change; with ``half_turn`` a camera may
     turn by π about its optical axis (:func:`_alternatives`: the same view for a centred image).
-    ``after``: the next surface's configurations at this station (no tuck here): the last move is
-    scored to the nearest of them instead of home (a changed last configuration still has its
-    straight way home checked: the next tour's start may go via home).
 
     Args:
         nodes: (n, 6) the tour's nodes: the start, then the selected viewpoints' configurations.
@@ -1054,10 +1042,7 @@ def _refine_configurations(
         if key in barred:
             return np.inf
         if key not in t_cache:
-            q = alts[m - 1][ib]
-            t_cache[key] = (
-                timing.motion_s(np.array([q, q_home])) if after is None or len(after) == 0 else _on_s(q, after, timing)
-            )
+            t_cache[key] = timing.motion_s(np.array([alts[m - 1][ib], q_home]))
         return t_cache[key]
 
     pick = [0] * m
@@ -1660,11 +1645,11 @@ def plan_whole(
                 motion[surf] = 0.0
                 continue
             con = e.con[surf]
-            # the next surface's configurations here (its tour starts near one): where this tour ends
+            # the next surface's configurations here (its tour starts near one): what the shift aims at
             nxt = [s2 for s2 in order_s[order_s.index(surf) + 1 :] if len(picked[s2][rank])]
             after = e.con[nxt[0]].reached.q[picked[nxt[0]][rank]] if nxt else None
             order, Dr, paths, secs_e, n_straight, unverified, stuck = _timed_tour(
-                q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step, tuck, after=after
+                q_now, hub, sel, con, q_home, s.world, timing, s.rng, COARSE_STEP_RAD, step, tuck
             )
             if unverified:
                 sel, got = _readd_chains(
@@ -1684,7 +1669,6 @@ def plan_whole(
                         max_step=COARSE_STEP_RAD,
                         fine_step=step,
                         tuck=tuck,
-                        after=after,
                     ),
                 )
                 if len(sel) > len(sels[surf]):
@@ -1696,7 +1680,7 @@ def plan_whole(
             end_t = partial(_end_s, sel=sel, parent=con.parent, q_home=q_home, timing=timing, after=after)
             nodes = np.vstack([q_now[None], con.reached.q[sel]])
             new_q, paths, secs_e, n_changed = _refine_configurations(
-                nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step, half_turn, after
+                nodes, order, paths, secs_e, robot, s.world, e.accept, timing, q_home, step, half_turn
             )
             if n_changed and len(sel) > 2:  # a second order over the refined configurations
                 # 2-opt from the refined tour's order (no ant colony, no second refinement: ~CPU)
@@ -1714,7 +1698,6 @@ def plan_whole(
                     tuck,
                     new_q[1:],
                     order,
-                    after,
                 )
                 Q0 = con.reached.q
                 t_new = sum(t2) + end_t(o2, new_q, Q=Q0)

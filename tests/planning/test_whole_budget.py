@@ -146,32 +146,3 @@ def test_a_tour_on_the_wrong_2pi_turn_is_shifted_as_a_whole_the_same_arm_and_nev
         q_prev, new_nodes, new_order, new_paths, new_secs, out_new, after, robot, _Free(), timing, robot.q_home, 0.004
     )
     assert same is None
-
-
-def test_a_tour_followed_by_another_surface_ends_near_it_not_near_home(robot):
-    from cellctl.planning.reach import Reached
-    from cellctl.planning.whole import Connected, TimingModel, _timed_tour
-
-    timing = TimingModel()
-    home = robot.q_home
-    # viewpoints along the base joint from home; the next surface's tour lies beyond the far end
-    Q = np.tile(home + np.r_[0.0, 0.4, 0.5, 0.0, 0.3, 0.0], (5, 1))
-    Q[:, 0] = home[0] - np.linspace(0.3, 1.5, 5)
-    con = Connected(Reached(np.arange(5), np.tile(np.eye(4), (5, 1, 1)), Q, np.zeros(5), 0, 0), np.full(5, -1), 0, 0)
-    after = Q[-1:] + np.r_[-0.8, 0.0, 0.0, 0.0, 0.0, 0.0]
-    sel = np.arange(5)
-
-    def tour(**kw):
-        return _timed_tour(
-            home, [home, home], sel, con, home, _Free(), timing, np.random.default_rng(0), 0.02, 0.004, **kw
-        )
-
-    to_home = tour(tuck=True)
-    on = tour(tuck=False, after=after)
-    assert int(sel[on[0][-1] - 1]) == 4  # ends at the viewpoint nearest the next surface
-    assert on[5] == 0 and to_home[5] == 0  # no unverified move
-
-    def on_s(t):
-        return sum(t[3]) + timing.motion_s(np.array([Q[int(sel[t[0][-1] - 1])], after[0]]))
-
-    assert on_s(on) <= on_s(to_home) + 1e-9
