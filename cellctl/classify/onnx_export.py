@@ -199,7 +199,7 @@ def export_detector(pt: Path | str, out: Path | str | None = None, command: str 
         "source_sha256": meta["source_sha256"],
         "command": command or f"cellctl detector export --surface {blob['surface']}",
         "exported": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "parity": {**par, "tolerance": PARITY_ATOL, "images": "runtime.parity_images(surface, 8, seed 0)"},
+        "parity": {**par, "tolerance": PARITY_ATOL, "images": "onnx_export.parity_images(surface, 8, seed 0)"},
         "versions": {"torch": torch.__version__, "onnx": onnx.__version__, "onnxruntime": onnxruntime.__version__},
     }
     card_path = src.with_suffix(".json")
