@@ -7,7 +7,7 @@ import sys
 from typing import Any
 
 from cellctl.bench_options import BenchOptions
-from cellctl.planning.bench_rows import PROCESSES, median_worst, whole_row
+from cellctl.planning.bench_rows import PROCESSES, machine_info, median_worst, whole_row
 
 __all__ = ["FOREIGN", "bench_plan", "bench_whole_bin", "foreign_mesh"]
 
@@ -165,11 +165,9 @@ def bench_bins(opts: BenchOptions, only: list[str] | None) -> dict[str, Any]:
     import json
     import multiprocessing as mp
     import os
-    import platform
     from concurrent.futures import ProcessPoolExecutor
 
     from cellctl.geometry.catalog import load_catalog
-    from cellctl.planning.parallel import default_workers
 
     cfg = opts.load_config()
     cat = load_catalog(cfg.path(cfg.catalog))
@@ -187,13 +185,7 @@ def bench_bins(opts: BenchOptions, only: list[str] | None) -> dict[str, Any]:
         "seeds": seeds,
         "config": cfg.planner.whole.model_dump(mode="json"),
         "speed_fraction": cfg.robot.speed_fraction,
-        "machine": {
-            "cpus": os.cpu_count(),
-            "processes": PROCESSES,
-            "workers_per_plan": default_workers(),
-            "load_avg_start": list(os.getloadavg()),
-            "python": platform.python_version(),
-        },
+        "machine": machine_info(),
         "bins": {},
     }
     cfg_path = str(opts.config) if opts.config else None

@@ -6,11 +6,27 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["PROCESSES", "median_worst", "whole_row"]
+__all__ = ["PROCESSES", "machine_info", "median_worst", "whole_row"]
 
 PROCESSES = 1
 """Plans at a time: one, so that each plan's wall time is its own (a plan itself evaluates its
 candidate stations on every core: :attr:`cellctl.planning.whole.WholeParams.workers`)."""
+
+
+def machine_info() -> dict[str, Any]:
+    """What a bench's planning times were measured on: cores, plans at a time, workers per plan, the load."""
+    import os
+    import platform
+
+    from cellctl.planning.parallel import default_workers
+
+    return {
+        "cpus": os.cpu_count(),
+        "processes": PROCESSES,
+        "workers_per_plan": default_workers(),
+        "load_avg_start": list(os.getloadavg()),
+        "python": platform.python_version(),
+    }
 
 
 def whole_row(plan: Any, plan_load: float | None = None) -> dict[str, Any]:

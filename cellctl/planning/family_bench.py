@@ -167,12 +167,10 @@ def bench_family(opts: BenchOptions) -> dict[str, Any]:
     import json
     import multiprocessing as mp
     import os
-    import platform
     from concurrent.futures import ProcessPoolExecutor
 
     from cellctl.geometry.family import build_family_mesh, draw_params
-    from cellctl.planning.bench_rows import PROCESSES
-    from cellctl.planning.parallel import default_workers
+    from cellctl.planning.bench_rows import PROCESSES, machine_info
 
     family, mesh_seeds = parse_family(opts.family or "mixed")
     cfg = opts.load_config()
@@ -187,13 +185,7 @@ def bench_family(opts: BenchOptions) -> dict[str, Any]:
         "command": f"cellctl bench whole-bin --family {opts.family} --n {len(seeds)} --seed {opts.seed}",
         "seed_pct": cfg.planner.seed_pct,
         "config": cfg.planner.whole.model_dump(mode="json"),
-        "machine": {
-            "cpus": os.cpu_count(),
-            "processes": PROCESSES,
-            "workers_per_plan": default_workers(),
-            "load_avg_start": list(os.getloadavg()),
-            "python": platform.python_version(),
-        },
+        "machine": machine_info(),
         "table": [],
         "meshes": {},
     }
