@@ -11,6 +11,7 @@ import dataclasses
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -58,6 +59,9 @@ class Pool:
         )
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self._spawn("router", ["router", str(self.yaml)])
+        # a worker whose first connect finds no listener exits (as under systemd, which restarts it);
+        # the router process takes seconds to import on a loaded machine, so wait for its socket
+        self._wait_listening(timeout=60)
         for i in range(workers):
             self.start_worker(i)
         conf = zenoh.Config()
@@ -65,6 +69,16 @@ class Pool:
         conf.insert_json5("connect/endpoints", json.dumps([self.ep]))
         conf.insert_json5("scouting/multicast/enabled", "false")
         self.session = self._open(conf)
+
+    def _wait_listening(self, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=1).close()
+                return
+            except OSError:
+                time.sleep(0.2)
+        raise AssertionError(f"router not listening on {self.ep} within {timeout} s: {self.logs()}")
 
     def _open(self, conf: zenoh.Config) -> zenoh.Session:
         deadline = time.monotonic() + 30
