@@ -14,7 +14,8 @@ NODE_STAMP := $(NODE_DIR)/.installed-node-opcua-client-$(NODE_OPCUA)
 demo: $(STAMP)
 	$(VENV)/bin/cellctl demo
 
-test: $(STAMP) node-deps
+# CI runs `make test`: lint first (seconds), then the tests.
+test: $(STAMP) node-deps lint
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
 test-all: $(STAMP) node-deps

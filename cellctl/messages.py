@@ -34,6 +34,7 @@ __all__ = [
     "ClassifierModel",
     "ClassifierModels",
     "ClassifierModelsRequest",
+    "ClassifyReference",
     "ClassifyReply",
     "ClassifyRequest",
     "Command",
@@ -41,6 +42,7 @@ __all__ = [
     "CycleResult",
     "CommissionResult",
     "DecisionPath",
+    "ReferenceReason",
     "START_MODES",
     "StartMode",
     "EnrollReply",
@@ -550,6 +552,23 @@ class BinInfo(BaseModel):
     pose: PoseMsg | None = None
 
 
+ReferenceReason = Literal[
+    "aligned",
+    "no_reference",
+    "no_fusion",
+    "unreadable",
+    "out_of_tolerance",
+    "degenerate_prior",
+    "ecc_not_converged",
+    "low_correlation",
+    "far_from_prior",
+    "small_overlap",
+]
+"""Why a view was (``aligned``) or was not judged against its reference: the alignment's reject reasons
+(:data:`cellctl.classify.reference.REJECT_REASONS`), ``no_fusion`` (the worker has no fitted
+``<surface>.reference.json``), ``unreadable`` (the stored image is missing or not the manifest's)."""
+
+
 class ViewpointResult(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -570,6 +589,13 @@ class ViewpointResult(BaseModel):
     station: int | None = Field(default=None, description="whole-bin cycle: the station (plan rank) it was taken at")
     surface: Surface | None = Field(default=None, description="whole-bin cycle: the surface it inspects")
     wash_round: int | None = Field(default=None, description="wash_and_verify: the round this view re-inspects after")
+    decided_by: Literal["reference", "detector", "model"] | None = Field(
+        default=None, description="what decided this view (ClassifyReply.decided_by)"
+    )
+    reference_reason: ReferenceReason | None = Field(
+        default=None,
+        description="why the view was (aligned) or was not judged against its reference; None: its plan has no set",
+    )
 
 
 class StationResult(BaseModel):
@@ -1081,6 +1107,26 @@ class CaptureReply(WireMessage):
 # --- classifier -----------------------------------------------------------------------------
 
 
+class ClassifyReference(BaseModel):
+    """The stored reference a classify request asks the view to be compared with (issue 34).
+
+    Poses are in the bin frame (``frame_id 'bin'``): each camera relative to the bin pose measured
+    in its own cycle, so a bin parked elsewhere moves neither. The plane is the viewed wall in the
+    reference camera's frame (from the bin mesh; the set stores no depth).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    image: str = Field(max_length=4096, description="the reference image's path on the worker's host")
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$", description="as the set's manifest records it")
+    version: int = Field(ge=1, description="the reference set's version")
+    reference_pose: PoseMsg = Field(description="the reference camera in the bin frame")
+    view_pose: PoseMsg = Field(description="this view's camera in the bin frame")
+    intrinsics: Intrinsics = Field(description="of the reference image (the same camera takes the view)")
+    plane_normal: tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+    plane_distance: FiniteFloat = Field(description="m, in the reference camera's optical frame")
+
+
 class ClassifyRequest(WireMessage):
     """Metadata of a classify request; the encoded image is the query payload."""
 
@@ -1088,6 +1134,9 @@ class ClassifyRequest(WireMessage):
     v: Literal[1] = 1
     surface: Surface
     format: Literal["png", "jpeg"] = "png"
+    reference: ClassifyReference | None = Field(
+        default=None, description="compare with this commissioned reference (None: the detector alone)"
+    )
 
 
 class ClassifyReply(WireMessage):
@@ -1103,6 +1152,14 @@ class ClassifyReply(WireMessage):
         default=None, max_length=8192, description="per-patch p_dirty, base64 of uint8 p·255, row-major heat_grid²"
     )
     heat_grid: int | None = Field(default=None, ge=1, le=64)
+    decided_by: Literal["reference", "detector", "model"] | None = Field(
+        default=None,
+        description="reference: the detector fused with the change map against the stored reference; detector: "
+        "the detector alone; model: the whole-image model",
+    )
+    reference_reason: ReferenceReason | None = Field(
+        default=None, description="a request with a reference: aligned, or why the detector decided alone"
+    )
 
 
 class ClassifierModelsRequest(WireMessage):

@@ -99,7 +99,7 @@ def plan_warning(
     )
 
 
-def whole_plan_warning(plan: Any, minimum: Mapping[str, float]) -> str | None:  # noqa: ANN401
+def whole_plan_warning(plan: Any, minimum: Mapping[str, float]) -> str | None:
     """:func:`plan_warning` of a :class:`cellctl.planning.whole.WholePlan` (its ``surfaces``' seen area
     and arm-aware bound, ``reachable_m2``, over each surface's area); None when its cycles can be clean."""
     surfaces = plan.surfaces

@@ -16,7 +16,7 @@ def _sets(tmp_path: Path, port: int) -> list[str]:
     return [a for ov in cfg_overrides(tmp_path, port) for a in ("--set", ov)]
 
 
-def _one_error_line(capsys, rc: int) -> str:  # noqa: ANN001
+def _one_error_line(capsys, rc: int) -> str:
     err = capsys.readouterr().err
     assert rc == 2 and "Traceback" not in err, err
     return err.strip().splitlines()[-1]
@@ -26,7 +26,7 @@ def test_report_png_to_a_folder_and_to_an_unwritable_path_and_wait_bogus(
     cfg: CellConfig,
     tmp_path: Path,
     port: int,
-    capsys,  # noqa: ANN001
+    capsys,
 ) -> None:
     from cellctl.app import build_cell
     from cellctl.geometry.catalog import load_catalog
@@ -62,7 +62,7 @@ def test_report_png_to_a_folder_and_to_an_unwritable_path_and_wait_bogus(
     assert f"cannot write the dirt map to {str(blocker / 'map.png')!r}" in _one_error_line(capsys, rc)
 
 
-def test_hmi_user_add_checks_the_name_before_the_password(tmp_path: Path, monkeypatch, capsys) -> None:  # noqa: ANN001
+def test_hmi_user_add_checks_the_name_before_the_password(tmp_path: Path, monkeypatch, capsys) -> None:
     def never(*a: object) -> str:
         raise AssertionError("the password was asked for an invalid name")
 
@@ -73,7 +73,7 @@ def test_hmi_user_add_checks_the_name_before_the_password(tmp_path: Path, monkey
     assert not (tmp_path / "hmi.yaml").exists()
 
 
-def test_replay_of_a_ten_byte_file_fails_in_one_line(tmp_path: Path, port: int, capsys) -> None:  # noqa: ANN001
+def test_replay_of_a_ten_byte_file_fails_in_one_line(tmp_path: Path, port: int, capsys) -> None:
     """The MCAP magic and two bytes: refused before any session opens (no daemon needed to say so)."""
     f = tmp_path / "ten.mcap"
     f.write_bytes(b"\x89MCAP0\r\n\x00\x01")
@@ -82,6 +82,6 @@ def test_replay_of_a_ten_byte_file_fails_in_one_line(tmp_path: Path, port: int, 
     assert str(f) in line and "holds no readable message" in line
 
 
-def test_cycles_last_must_be_positive(tmp_path: Path, port: int, capsys) -> None:  # noqa: ANN001
+def test_cycles_last_must_be_positive(tmp_path: Path, port: int, capsys) -> None:
     rc = main(["cycles", "--last", "-1", *_sets(tmp_path, port)])
     assert "--last -1: expected a number of cycles >= 1" in _one_error_line(capsys, rc)

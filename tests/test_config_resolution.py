@@ -28,7 +28,7 @@ def _write(path: Path, cell: str, extra: str = "") -> Path:
     return path
 
 
-def test_flag_then_environment_then_working_directory(elsewhere: Path, monkeypatch, capsys) -> None:  # noqa: ANN001
+def test_flag_then_environment_then_working_directory(elsewhere: Path, monkeypatch, capsys) -> None:
     local = _write(elsewhere / "config" / "cell.yaml", "cellLocal")
     assert main(["validate"]) == 0
     out, err = capsys.readouterr()
@@ -53,7 +53,7 @@ def test_relative_paths_follow_the_config_not_the_working_directory(elsewhere: P
     assert main(["validate", str(cfg_file)]) == 0  # no states/ beside it: the shipped machines
 
 
-def test_nothing_is_written_into_the_install(elsewhere: Path, capsys) -> None:  # noqa: ANN001
+def test_nothing_is_written_into_the_install(elsewhere: Path, capsys) -> None:
     """No config anywhere: the packaged defaults, but the cycle index goes under ./logs."""
     assert main(["cycles", "--last", "1"]) == 0
     assert (elsewhere / "logs" / "cells.db").is_file()
@@ -61,7 +61,7 @@ def test_nothing_is_written_into_the_install(elsewhere: Path, capsys) -> None:  
     assert f"config {project_root() / 'config' / 'cell.yaml'} (packaged defaults; outputs under ./logs)" in err
 
 
-def test_hmi_users_go_beside_the_cell_config_not_into_the_install(elsewhere: Path, monkeypatch, capsys) -> None:  # noqa: ANN001
+def test_hmi_users_go_beside_the_cell_config_not_into_the_install(elsewhere: Path, monkeypatch, capsys) -> None:
     import io
 
     _write(elsewhere / "config" / "cell.yaml", "cellLocal")

@@ -51,7 +51,7 @@ def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
         p.wait(20)
 
 
-def _robot_state(session, cfg) -> RobotState:  # noqa: ANN001
+def _robot_state(session, cfg) -> RobotState:
     deadline = time.monotonic() + 90
     while True:
         try:

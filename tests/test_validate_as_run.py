@@ -16,7 +16,7 @@ from tests.conftest import cfg_overrides
 CELL = Path(__file__).resolve().parent.parent / "config" / "cell.yaml"
 
 
-def _validate(capsys, *args: str) -> str:  # noqa: ANN001
+def _validate(capsys, *args: str) -> str:
     rc = main(["validate", *args])
     err = capsys.readouterr().err
     assert rc == 2 and "Traceback" not in err, err
@@ -34,11 +34,11 @@ def _validate(capsys, *args: str) -> str:  # noqa: ANN001
         ("sim.bin_type=crate", "sim.bin_type 'crate' is not in the catalog"),
     ],
 )
-def test_validate_refuses_what_run_cannot_use(capsys, override: str, said: str) -> None:  # noqa: ANN001
+def test_validate_refuses_what_run_cannot_use(capsys, override: str, said: str) -> None:
     assert said in _validate(capsys, str(CELL), "--set", override)
 
 
-def test_duplicate_keys_and_binary_files_are_refused(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_duplicate_keys_and_binary_files_are_refused(tmp_path: Path, capsys) -> None:
     dup = tmp_path / "dup.yaml"
     dup.write_text("cell:\n  id: a\nsim:\n  seed: 1\n  seed: 2\n")
     assert "duplicate key 'seed' at line 5 (first at line 4)" in _validate(capsys, str(dup))

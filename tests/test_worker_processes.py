@@ -16,7 +16,7 @@ def _killed(procs: WorkerProcesses, role: str) -> int:
     return p.pid
 
 
-def test_a_dead_child_worker_is_restarted_with_back_off(cfg) -> None:  # noqa: ANN001
+def test_a_dead_child_worker_is_restarted_with_back_off(cfg) -> None:
     router = open_session(cfg, "router")  # so the children have something to connect to
     procs = WorkerProcesses(cfg, None, [f"bus.listen={cfg.bus.listen}", f"bus.connect={cfg.bus.connect}"], ["planner"])
     procs.start()

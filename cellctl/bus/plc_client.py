@@ -160,7 +160,7 @@ class PlcClient:
         self.wait_for(lambda s: s.state in ("Complete", "Aborted", "Stopped", "Held"), 30)
         return res
 
-    def wait_plan_job(self, job_id: str, timeout: float, on_progress: Callable[[PlanJobProgress], None] | None = None):  # noqa: ANN201
+    def wait_plan_job(self, job_id: str, timeout: float, on_progress: Callable[[PlanJobProgress], None] | None = None):
         """Wait for planning job ``job_id`` to end; returns its last progress (state done/failed) or None."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:

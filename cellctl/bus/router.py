@@ -165,7 +165,7 @@ def effective_config(conf: zenoh.Config) -> dict[str, Any]:
     for key in _LOGGED_KEYS:
         try:
             out[key] = json.loads(conf.get_json(key))
-        except Exception:  # noqa: BLE001 - zenoh raises its own error for an unset key
+        except Exception:  # zenoh raises its own error for an unset key
             out[key] = None
     return out
 

@@ -85,7 +85,7 @@ def resolve_config_args(args: argparse.Namespace) -> None:
     print(f"cellctl {args.verb}: config {path.resolve()} ({source})", file=sys.stderr)
 
 
-def config_from_args(args: argparse.Namespace):  # noqa: ANN201 - CellConfig, imported lazily
+def config_from_args(args: argparse.Namespace):  # CellConfig, imported lazily
     from cellctl.config import load_config
 
     return load_config(args.config, args.overrides)

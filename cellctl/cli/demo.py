@@ -203,7 +203,7 @@ def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool, was
     return [*stages, beyond]
 
 
-def run(args: argparse.Namespace) -> int:  # noqa: C901 - a story reads best top to bottom
+def run(args: argparse.Namespace) -> int:  # a story reads best top to bottom
     from cellctl.app import build_cell
     from cellctl.bus import keys
     from cellctl.bus.plc_client import PlcClient

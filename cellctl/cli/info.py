@@ -67,7 +67,7 @@ def run_validate(args: argparse.Namespace) -> int:
     return 0
 
 
-def load_run_config(path: str, overrides: list[str]):  # noqa: ANN201 - CellConfig, imported lazily
+def load_run_config(path: str, overrides: list[str]):  # CellConfig, imported lazily
     """The config, checked exactly as ``cellctl run`` checks it before starting (ConfigError otherwise)."""
     from cellctl.app import preflight
     from cellctl.config import load_config

@@ -148,7 +148,7 @@ def run_cmd(args: argparse.Namespace) -> int:
     return 0
 
 
-def query_status(session, cfg, timeout: float):  # noqa: ANN001, ANN201
+def query_status(session, cfg, timeout: float):
     from cellctl.bus import keys
     from cellctl.bus.codec import decode_as
     from cellctl.messages import Status

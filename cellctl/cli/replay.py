@@ -148,7 +148,7 @@ def run_replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def _refuse_live_cells(session, cells: list[str]) -> None:  # noqa: ANN001 - zenoh.Session, imported lazily
+def _refuse_live_cells(session, cells: list[str]) -> None:  # zenoh.Session, imported lazily
     """Raise if the supervisor of any of ``cells`` holds its liveliness token: its keys are live."""
     from cellctl.bus import keys
 
@@ -224,7 +224,7 @@ def _png_target(given: str, cycle_id: str) -> Path:
     return p if p.suffix.lower() == ".png" else p.with_name(p.name + ".png")
 
 
-def _report_interrupted(row, rec, png: str | None) -> int:  # noqa: ANN001 - CycleRow, RecordedCycle
+def _report_interrupted(row, rec, png: str | None) -> int:  # CycleRow, RecordedCycle
     """An interrupted cycle has no CycleResult: say what its recovered log holds, up to the cut."""
 
     statuses = [m.json() for m in rec.messages if m.schema == "cellctl/Status"]

@@ -166,7 +166,7 @@ class _Builder:
         self.S: list[NDArray[np.uint8]] = []
         self.n = 0
 
-    def grid(self, rows: NDArray[np.float64], tag: int, ref_fn) -> None:  # noqa: ANN001
+    def grid(self, rows: NDArray[np.float64], tag: int, ref_fn) -> None:
         """Add a closed-loop strip: ``rows`` (R, N, 3); quads between consecutive rows wrap around N."""
         R, N, _ = rows.shape
         idx = np.arange(R * N).reshape(R, N) + self.n
@@ -178,17 +178,17 @@ class _Builder:
             F.append(np.stack([a, b2, a2], 1))
         self._add(rows.reshape(-1, 3), np.concatenate(F), tag, ref_fn)
 
-    def fan(self, ring: NDArray[np.float64], centre: NDArray[np.float64], tag: int, ref_fn) -> None:  # noqa: ANN001
+    def fan(self, ring: NDArray[np.float64], centre: NDArray[np.float64], tag: int, ref_fn) -> None:
         N = len(ring)
         i = np.arange(N) + self.n
         c = self.n + N
         F = np.stack([i, np.roll(i, -1), np.full(N, c)], 1)
         self._add(np.vstack([ring, centre[None]]), F, tag, ref_fn)
 
-    def mesh(self, V: NDArray[np.float64], F: NDArray[np.int64], tag: int, ref_fn) -> None:  # noqa: ANN001
+    def mesh(self, V: NDArray[np.float64], F: NDArray[np.int64], tag: int, ref_fn) -> None:
         self._add(V, F + self.n, tag, ref_fn)
 
-    def _add(self, V: NDArray[np.float64], F: NDArray[np.int64], tag: int, ref_fn) -> None:  # noqa: ANN001
+    def _add(self, V: NDArray[np.float64], F: NDArray[np.int64], tag: int, ref_fn) -> None:
         allV = np.vstack(self.V + [V]) if self.V else V
         centroids = allV[F].mean(axis=1)
         F = _orient(allV, F, ref_fn(centroids))

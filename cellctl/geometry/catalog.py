@@ -228,7 +228,7 @@ class BinMesh:
             raise ConfigError(f"surface {surface!r} is unknown; expected one of {sorted(SURFACES)}")
         return np.asarray(self.surface == FACE_TAG[surface])
 
-    def to_trimesh(self):  # noqa: ANN201 - trimesh.Trimesh, imported lazily
+    def to_trimesh(self):  # trimesh.Trimesh, imported lazily
         import trimesh
 
         return trimesh.Trimesh(self.vertices, self.faces, process=False)

@@ -101,7 +101,7 @@ def bench_hmi(opts: BenchOptions) -> dict[str, Any]:
         cmd = [sys.executable, "-m", "cellctl", "hmi", "--hmi-config", str(hmi_yaml), *sets]
         if opts.config:
             cmd += ["--config", opts.config]
-        log = open(run.out / "hmi.log", "wb")  # noqa: SIM115 - closed below
+        log = open(run.out / "hmi.log", "wb")  # closed below
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log)
         try:
             _wait_up(port, proc, run.out / "hmi.log").close()

@@ -233,7 +233,7 @@ def _page(name: str, title: str) -> str:
     return base.replace("{{title}}", title).replace("{{page}}", name).replace("{{content}}", body)
 
 
-def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every route reads best
+def build_app(hmi: Hmi) -> FastAPI:  # one place that lists every route reads best
     """The FastAPI application of ``hmi`` (routes, security checks, error mapping)."""
     hc = hmi.hcfg
     app = FastAPI(
@@ -484,7 +484,7 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
     async def stream(request: Request) -> StreamingResponse:
         """Server-sent events: one ``update`` with status, live view, events and alarms per change."""
 
-        async def gen():  # noqa: ANN202
+        async def gen():
             hmi.streams += 1
             try:
                 async for chunk in updates():
@@ -492,7 +492,7 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
             finally:
                 hmi.streams -= 1
 
-        async def updates():  # noqa: ANN202
+        async def updates():
             last: tuple[int, int] | None = None
             quiet = 0.0
             while not await request.is_disconnected():
@@ -521,7 +521,7 @@ def build_app(hmi: Hmi) -> FastAPI:  # noqa: C901 - one place that lists every r
     def cycles(
         outcome: str | None = None,
         verdict: str | None = None,
-        bin: str | None = None,  # noqa: A002 - the MES's name for the filter
+        bin: str | None = None,  # the MES's name for the filter
         since: str | None = None,
         until: str | None = None,
         limit: int = 50,

@@ -39,7 +39,7 @@ def _serve(fn: Callable[[Any], Any], items: Sequence[Any], tasks: Any, out: Conn
             break
         try:
             out.send((i, True, fn(items[i])))
-        except BaseException:  # noqa: BLE001 - the parent re-raises it with the worker's traceback
+        except BaseException:  # the parent re-raises it with the worker's traceback
             out.send((i, False, traceback.format_exc()))
             break
     out.close()

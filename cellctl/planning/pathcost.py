@@ -51,7 +51,7 @@ class JointPlanner:
         self.queries = 0
         self.fallbacks = 0  # RRT* queries that RRTConnect had to decide
 
-    def _setup(self):  # noqa: ANN202 - ompl SimpleSetup
+    def _setup(self):  # ompl SimpleSetup
         from ompl import base as ob
         from ompl import geometric as og
 
@@ -59,11 +59,11 @@ class JointPlanner:
         ss = og.SimpleSetup(self.space)
         si = ss.getSpaceInformation()
 
-        def valid(s) -> bool:  # noqa: ANN001 - OMPL state
+        def valid(s) -> bool:  # OMPL state
             return bool(world.robot_free(np.array([s[i] for i in range(6)]))[0])
 
         class _Motion(ob.MotionValidator):
-            def checkMotion(self, s1, s2, *args) -> bool:  # noqa: ANN001, ANN002, N802 - OMPL API
+            def checkMotion(self, s1, s2, *args) -> bool:  # OMPL API
                 a = np.array([s1[i] for i in range(6)])
                 b = np.array([s2[i] for i in range(6)])
                 return bool(world.motion_free(a, b, step)[0])

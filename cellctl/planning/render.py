@@ -12,7 +12,7 @@ from cellctl.planning.plan import Plan
 __all__ = ["equal_axes", "render_plan"]
 
 
-def equal_axes(ax, points: np.ndarray) -> None:  # noqa: ANN001 - a matplotlib 3D axes
+def equal_axes(ax, points: np.ndarray) -> None:  # a matplotlib 3D axes
     """One scale on x, y, z around ``points`` (N, 3), metres labelled: shapes are not distorted."""
     lo, hi = points.min(axis=0), points.max(axis=0)
     c, r = (lo + hi) / 2, (hi - lo).max() / 2

@@ -26,7 +26,7 @@ class Viewpoints:
         seed_point: (M, 3) the seed point, m.
     """
 
-    def __init__(self, T, seed, rank, seed_face, seed_point) -> None:  # noqa: ANN001
+    def __init__(self, T, seed, rank, seed_face, seed_point) -> None:
         self.T = np.asarray(T, dtype=np.float64)
         self.seed = np.asarray(seed, dtype=np.int64)
         self.rank = np.asarray(rank, dtype=np.int64)

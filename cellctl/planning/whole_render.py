@@ -107,7 +107,7 @@ def _caption(plan: WholePlan, surf: str) -> str:
     )
 
 
-def _finish(fig, axes, cmap, vmax: int, png: Path) -> Path:  # noqa: ANN001 - matplotlib objects
+def _finish(fig, axes, cmap, vmax: int, png: Path) -> Path:  # matplotlib objects
     """The colour bar of view counts, then the PNG."""
     import matplotlib.pyplot as plt
 

@@ -43,7 +43,7 @@ class CycleLog:
         self._seq = 0
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file: IO[bytes] | None = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+            self._file: IO[bytes] | None = open(self.path, "wb")  # closed in close()
         except OSError as err:
             raise RecordingError(f"cannot create cycle log {str(self.path)!r}: {err}") from err
         self._writer = Writer(self._file, use_chunking=False, compression=CompressionType.NONE)

@@ -128,7 +128,7 @@ def _lex(data: bytes, start: int) -> Iterator[tuple[int, int, McapRecord | None]
             raise _Cut(pos, f"a {_name(opcode)} record of {length} bytes cut after {have} bytes")
         try:
             rec = _parse(opcode, data[pos + _RECORD_HEAD.size : end])
-        except Exception as err:  # noqa: BLE001 - any parse failure means garbage: stop here
+        except Exception as err:  # any parse failure means garbage: stop here
             raise _Cut(pos, f"an unreadable {_name(opcode)} record: {type(err).__name__}: {err}") from err
         yield pos, end, rec
         pos = end
@@ -160,7 +160,7 @@ def _cut_chunk_records(content: bytes) -> tuple[bytes, str]:
             import lz4.frame
 
             return lz4.frame.LZ4FrameDecompressor().decompress(body), compression
-    except Exception as err:  # noqa: BLE001 - an undecodable tail keeps nothing of this chunk
+    except Exception as err:  # an undecodable tail keeps nothing of this chunk
         log.info("cut %s chunk does not decode: %s", compression, err)
     return b"", compression
 
@@ -207,7 +207,7 @@ def _records(data: bytes) -> Iterator[tuple[int, McapRecord | None]]:
         if isinstance(rec, Chunk):
             try:
                 inner = breakup_chunk(rec, validate_crc=True)
-            except Exception as err:  # noqa: BLE001 - a chunk that fails its CRC is garbage
+            except Exception as err:  # a chunk that fails its CRC is garbage
                 raise _Cut(start, f"a chunk whose records do not decode: {type(err).__name__}: {err}") from err
             for r in inner:
                 yield end, r

@@ -313,7 +313,7 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     differences: list[str] = []
     lock = threading.Lock()
 
-    def answer(key: str):  # noqa: ANN202
+    def answer(key: str):
         def handler(req: Any, payload: bytes | None) -> Any:
             with lock:
                 if interrupted and not by_key[key]:

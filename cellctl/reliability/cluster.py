@@ -304,7 +304,7 @@ def plc_agent_main() -> None:
             req = json.loads(line)
             out = _agent_op(state, req.pop("op"), req)
             sys.stdout.write(json.dumps({"ok": out}) + "\n")
-        except Exception as err:  # noqa: BLE001 - every failure goes back to the driver, named
+        except Exception as err:  # every failure goes back to the driver, named
             sys.stdout.write(json.dumps({"error": f"{type(err).__name__}: {err}"}) + "\n")
         sys.stdout.flush()
     if state["plc"] is not None:

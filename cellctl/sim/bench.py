@@ -17,7 +17,7 @@ from cellctl.bench_options import BenchOptions
 __all__ = ["bench_sim"]
 
 
-def _median_time(fn, reps: int) -> float:  # noqa: ANN001
+def _median_time(fn, reps: int) -> float:
     ts = []
     for _ in range(reps):
         t = time.perf_counter()

@@ -91,7 +91,7 @@ def plan_path(
         return np.array([s[i] for i in range(6)])  # type: ignore[index]
 
     class _Motion(ob.MotionValidator):
-        def checkMotion(self, s1, s2, *rest):  # noqa: ANN001, ANN202, N802 - OMPL's name
+        def checkMotion(self, s1, s2, *rest):  # OMPL's name
             return _segment_free(world, to_np(s1), to_np(s2))
 
     validator = _Motion(si)

@@ -63,7 +63,7 @@ def gt_dirt_map(field: Any, mesh: Any) -> dict[str, Any]:
     return fm.as_json()
 
 
-def washable_only(field: Any, mesh: Any, reach: np.ndarray) -> Any:  # noqa: ANN401 - PowderField
+def washable_only(field: Any, mesh: Any, reach: np.ndarray) -> Any:  # PowderField
     """The same powder with only the clumps whose every dirty face lies in ``reach`` (F,) bool.
 
     A clump touches the faces with a centroid or corner within one radius of its centre on its
@@ -84,7 +84,7 @@ def washable_only(field: Any, mesh: Any, reach: np.ndarray) -> Any:  # noqa: ANN
         faces = faces[mesh.surface[faces] == tag]
         keep[j] = bool(reach[faces].all())
 
-    def sub() -> Any:  # noqa: ANN401
+    def sub() -> Any:
         return PowderField(field.centres[keep], field.radii[keep], field.surface[keep], field.normals[keep], field.seed)
 
     for _ in range(4):
@@ -178,9 +178,9 @@ def bench_wash(opts: BenchOptions) -> dict[str, Any]:
 
 
 def _run_bin(
-    mesh: Any,  # noqa: ANN401
+    mesh: Any,
     stations: list[Any],
-    field: Any,  # noqa: ANN401
+    field: Any,
     reach: np.ndarray,
     run: dict[str, Any],
     pics: Path | None,

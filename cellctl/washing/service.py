@@ -25,7 +25,7 @@ class MeshCache:
         self._meshes: dict[str, Any] = {}
         self._catalog: Any = None
 
-    def get(self, bin_type: str) -> Any:  # noqa: ANN401 - BinMesh
+    def get(self, bin_type: str) -> Any:  # BinMesh
         from cellctl.geometry.catalog import load_catalog
 
         if self._catalog is None:

@@ -42,13 +42,13 @@ def as_principal(cfg: CellConfig, principal: str | None, security_dir: Path) -> 
 
 
 @pytest.fixture
-def secured(cfg: CellConfig, deployment: Path):  # noqa: ANN201
+def secured(cfg: CellConfig, deployment: Path):
     """A function: principal name → config of a client of the secured cell."""
     return lambda principal: as_principal(cfg, principal, deployment)
 
 
 @pytest.fixture
-def cell(cfg: CellConfig, deployment: Path):  # noqa: ANN201
+def cell(cfg: CellConfig, deployment: Path):
     from cellctl.geometry.catalog import load_catalog
 
     router_cfg = as_principal(cfg, None, deployment)
@@ -109,7 +109,7 @@ def test_deployment_files_are_private_and_the_acl_follows_the_key_module(deploym
     assert cfg.bus.security_dir == deployment.resolve() and cfg.bus.principal == "operator"
 
 
-def _without_nulls(x):  # noqa: ANN001, ANN202 - zenoh reports unset optional fields as null
+def _without_nulls(x):  # zenoh reports unset optional fields as null
     if isinstance(x, dict):
         return {k: _without_nulls(v) for k, v in x.items() if v is not None}
     return [_without_nulls(v) for v in x] if isinstance(x, list) else x
@@ -126,14 +126,14 @@ def test_init_refuses_to_overwrite_secrets_without_force(deployment: Path) -> No
         init_deployment(deployment, "cell1")
 
 
-def test_client_without_principal_or_with_unknown_one_is_a_config_error(secured) -> None:  # noqa: ANN001
+def test_client_without_principal_or_with_unknown_one_is_a_config_error(secured) -> None:
     with pytest.raises(ConfigError, match="bus.principal is not set"):
         open_session(secured(None), "client")
     with pytest.raises(ConfigError, match=r"bus.principal 'intruder' has no credentials.*'plc'"):
         open_session(secured("intruder"), "client")
 
 
-def test_wrong_password_cannot_connect(cfg, deployment: Path, tmp_path: Path, cell) -> None:  # noqa: ANN001
+def test_wrong_password_cannot_connect(cfg, deployment: Path, tmp_path: Path, cell) -> None:
     stale = tmp_path / "stale"
     shutil.copytree(deployment, stale)
     rotate_password(stale, "plc")  # the copy's plc password is now one the router never saw
@@ -143,7 +143,7 @@ def test_wrong_password_cannot_connect(cfg, deployment: Path, tmp_path: Path, ce
         assert s.info.routers_zid()  # the same router takes the right password
 
 
-def test_only_the_plc_may_command(cell, secured) -> None:  # noqa: ANN001
+def test_only_the_plc_may_command(cell, secured) -> None:
     observer = Client(secured("operator"))
     intruders = [Client(secured(p)) for p in ("operator", "viewer", "robot", "engineer", "replay")]
     plc = Client(secured("plc"))
@@ -164,7 +164,7 @@ def test_only_the_plc_may_command(cell, secured) -> None:  # noqa: ANN001
             c.close()
 
 
-def test_status_is_readable_by_all_but_acks_only_by_observers(cell, secured) -> None:  # noqa: ANN001
+def test_status_is_readable_by_all_but_acks_only_by_observers(cell, secured) -> None:
     viewer, operator, plc = Client(secured("viewer")), Client(secured("operator")), Client(secured("plc"))
     try:
         for c in (viewer, operator):
@@ -185,7 +185,7 @@ def test_status_is_readable_by_all_but_acks_only_by_observers(cell, secured) -> 
             c.close()
 
 
-def test_a_worker_serves_only_its_own_keys(cell, secured) -> None:  # noqa: ANN001
+def test_a_worker_serves_only_its_own_keys(cell, secured) -> None:
     c = "cell1"
     with open_session(secured("camera"), "client") as cam:
         cam.declare_queryable(keys.robot_op(c, "move"), lambda q: q.reply(q.key_expr, b"forged move"))
@@ -203,7 +203,7 @@ def test_a_worker_serves_only_its_own_keys(cell, secured) -> None:  # noqa: ANN0
         assert list(cam.get(keys.robot_op(c, "stop"), timeout=2)) == []
 
 
-def test_a_workers_declared_publisher_reaches_observers(cell, secured) -> None:  # noqa: ANN001
+def test_a_workers_declared_publisher_reaches_observers(cell, secured) -> None:
     # a client that declared a publisher sends only to subscribers the router told it about,
     # so the ACL must let subscriber declarations out to the publishing worker
     with open_session(secured("robot"), "client") as rob, open_session(secured("operator"), "client") as op:
@@ -215,7 +215,7 @@ def test_a_workers_declared_publisher_reaches_observers(cell, secured) -> None: 
         assert got.get(timeout=5) == b"joints"
 
 
-def test_a_worker_sees_the_supervisor_come_and_go(cfg, deployment: Path, secured) -> None:  # noqa: ANN001
+def test_a_worker_sees_the_supervisor_come_and_go(cfg, deployment: Path, secured) -> None:
     # the robot worker stops its motion on the DELETE of this token (workers/robot)
     router = open_session(as_principal(cfg, None, deployment), "router")
     router_token = router.liveliness().declare_token(keys.alive("cell1", "supervisor"))
@@ -228,7 +228,7 @@ def test_a_worker_sees_the_supervisor_come_and_go(cfg, deployment: Path, secured
     router.close()
 
 
-def test_engineer_may_query_worker_ops_operator_may_not(cell, secured) -> None:  # noqa: ANN001
+def test_engineer_may_query_worker_ops_operator_may_not(cell, secured) -> None:
     c = "cell1"
     with open_session(secured("robot"), "client") as rob:
         rob.declare_queryable(keys.robot_op(c, "state"), lambda q: q.reply(q.key_expr, b"joints"))
@@ -240,7 +240,7 @@ def test_engineer_may_query_worker_ops_operator_may_not(cell, secured) -> None: 
             assert reply.ok.payload.to_bytes() == b"joints"
 
 
-def test_full_cycle_with_every_worker_under_its_own_principal(cell, secured) -> None:  # noqa: ANN001
+def test_full_cycle_with_every_worker_under_its_own_principal(cell, secured) -> None:
     fakes = [FakeCell(secured(role), roles=(role,)).start() for role in keys.ROLES]
     plc = Client(secured("plc"))
     results: queue.Queue[CycleResult] = queue.Queue()
@@ -264,7 +264,7 @@ def mtls_deployment(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def test_mtls_binds_the_password_to_the_certificate(cfg, mtls_deployment: Path, tmp_path: Path) -> None:  # noqa: ANN001
+def test_mtls_binds_the_password_to_the_certificate(cfg, mtls_deployment: Path, tmp_path: Path) -> None:
     ep = cfg.bus.listen[0].replace("tcp/", "tls/")
     tls_cfg = cfg.model_copy(update={"bus": cfg.bus.model_copy(update={"listen": [ep], "connect": [ep]})})
     with build_cell(as_principal(tls_cfg, None, mtls_deployment), identification=(fake_identify, None)):
@@ -293,7 +293,7 @@ def test_mtls_binds_the_password_to_the_certificate(cfg, mtls_deployment: Path, 
             plc.close()
 
 
-def test_cli_init_then_cmd_as_the_wrong_and_the_right_principal(cell, port: int, tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_cli_init_then_cmd_as_the_wrong_and_the_right_principal(cell, port: int, tmp_path: Path, capsys) -> None:
     from cellctl.cli import main
 
     assert main(["secure", "init", "--out", str(tmp_path / "dep")]) == 0

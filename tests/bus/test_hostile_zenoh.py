@@ -136,7 +136,7 @@ def _recorded_commands(log: Path, cell_id: str) -> list[bytes]:
     return recorded
 
 
-def _replay_in_stopped_and_idle(  # noqa: PLR0913
+def _replay_in_stopped_and_idle(
     cfg: CellConfig, cell: Cell, fake: FakeCell, hostile: Hostile, recorded: list[bytes], why: str, results: int
 ) -> None:
     """Put and query each recorded command three times in Stopped (where a Reset would act) and in Idle
@@ -160,7 +160,7 @@ def _replay_in_stopped_and_idle(  # noqa: PLR0913
     assert hit == set(recorded)  # each one refused for ``why`` where its state would have let it act
 
 
-def test_a_cycle_s_recorded_commands_replayed_raw_onto_its_daemon_move_nothing(cfg: CellConfig, live) -> None:  # noqa: ANN001
+def test_a_cycle_s_recorded_commands_replayed_raw_onto_its_daemon_move_nothing(cfg: CellConfig, live) -> None:
     """The commands of a cycle this daemon ran, put and queried byte for byte from its log by a client that
     bypasses `cellctl replay`: each id was acted on, each copy is refused."""
     cell, fake, hostile = live
@@ -172,7 +172,7 @@ def test_a_cycle_s_recorded_commands_replayed_raw_onto_its_daemon_move_nothing(c
 
 def test_a_recorded_log_replayed_onto_a_restarted_daemon_is_refused_as_stale(
     cfg: CellConfig, live, tmp_path: Path
-) -> None:  # noqa: ANN001
+) -> None:
     """A daemon that never saw the recorded ids (its window empty, as after a restart): the stamps are
     older than the freshness limit. A log worth replaying is minutes to days old; this one is seconds
     old, so this daemon's limit is set to 1.5 s and the log left to age 3 s (the shipped 60 s would make
@@ -186,7 +186,7 @@ def test_a_recorded_log_replayed_onto_a_restarted_daemon_is_refused_as_stale(
     _replay_in_stopped_and_idle(cfg, cell, fake, hostile, recorded, "s old", results=0)
 
 
-def test_forged_and_duplicated_request_ids_are_refused(cfg: CellConfig, live) -> None:  # noqa: ANN001
+def test_forged_and_duplicated_request_ids_are_refused(cfg: CellConfig, live) -> None:
     cell, fake, hostile = live
     reset_id, stop_id = _plc_ids(cfg)
     fake.calls.clear()
@@ -208,7 +208,7 @@ def test_forged_and_duplicated_request_ids_are_refused(cfg: CellConfig, live) ->
     assert ack.accepted, ack
 
 
-def test_stale_future_and_malformed_stamps_are_refused(live) -> None:  # noqa: ANN001
+def test_stale_future_and_malformed_stamps_are_refused(live) -> None:
     cell, fake, hostile = live
     cases = [
         (_stamp(-3600), "s old"),
@@ -235,7 +235,7 @@ def test_stale_future_and_malformed_stamps_are_refused(live) -> None:  # noqa: A
     assert ack.accepted, ack
 
 
-def test_malformed_oversized_and_wrong_version_payloads_are_refused(cfg: CellConfig, live) -> None:  # noqa: ANN001
+def test_malformed_oversized_and_wrong_version_payloads_are_refused(cfg: CellConfig, live) -> None:
     cell, fake, hostile = live
     limit = cfg.supervisor.max_command_bytes
 
@@ -284,7 +284,7 @@ def test_malformed_oversized_and_wrong_version_payloads_are_refused(cfg: CellCon
     _unmoved(cell, fake, hostile)
 
 
-def test_a_flood_of_commands_moves_nothing_and_evicts_no_acted_on_id(cfg: CellConfig, live) -> None:  # noqa: ANN001
+def test_a_flood_of_commands_moves_nothing_and_evicts_no_acted_on_id(cfg: CellConfig, live) -> None:
     """More refused commands than the id window holds, as fast as one client can put them: every one gets
     its Ack, nothing moves, the PLC's acted-on ids are still refused after it (a refused command is not
     remembered, so a flood cannot push real ids out of the window), and a real command is then served."""

@@ -14,7 +14,7 @@ from tests.bus.test_access_control import cell, deployment, secured  # noqa: F40
 C = "cell1"
 
 
-def test_only_people_may_call_the_robots_maintenance_op(cell, secured) -> None:  # noqa: ANN001, F811
+def test_only_people_may_call_the_robots_maintenance_op(cell, secured) -> None:  # noqa: F811
     with open_session(secured("robot"), "client") as rob:
         rob.declare_queryable(keys.robot_op(C, "maintenance"), lambda q: q.reply(q.key_expr, b"unlocked"))
         rob.declare_queryable(keys.robot_op(C, "move"), lambda q: q.reply(q.key_expr, b"moved"))
@@ -31,7 +31,7 @@ def test_only_people_may_call_the_robots_maintenance_op(cell, secured) -> None: 
                 assert list(s.get(keys.robot_op(C, "move"), timeout=1)) == [], who
 
 
-def test_a_robot_fault_report_reaches_the_supervisor_and_observers(cell, secured) -> None:  # noqa: ANN001, F811
+def test_a_robot_fault_report_reaches_the_supervisor_and_observers(cell, secured) -> None:  # noqa: F811
     seen: list[bytes] = []
     with open_session(secured("operator"), "client") as op, open_session(secured("robot"), "client") as rob:
         op.declare_subscriber(keys.worker_fault(C, "robot"), lambda s: seen.append(s.payload.to_bytes()))

@@ -18,7 +18,7 @@ POSE = PoseMsg(position=(0.0, 0.0, 1.0))
 
 
 @pytest.fixture
-def bus(cfg):  # noqa: ANN001, ANN201
+def bus(cfg):
     router = open_session(cfg, "router")
     worker = open_session(cfg, "client")
     client = open_session(cfg, "client")

@@ -24,7 +24,7 @@ def renderer() -> SimRenderer:
     return SimRenderer(load_catalog(project_root() / "config" / "bins.yaml"))
 
 
-def _markers(rgb: np.ndarray, bt) -> int:  # noqa: ANN001
+def _markers(rgb: np.ndarray, bt) -> int:
     import cv2
 
     from cellctl.geometry.boards import make_charuco_board
@@ -34,7 +34,7 @@ def _markers(rgb: np.ndarray, bt) -> int:  # noqa: ANN001
     return 0 if ids is None else len(ids)
 
 
-def _outline_in_frame(bt, T_bin_cam: np.ndarray) -> bool:  # noqa: ANN001
+def _outline_in_frame(bt, T_bin_cam: np.ndarray) -> bool:
     """Whether the board's outline (with its margin) lies in front of the camera and inside the
     frame: what the mask used to fill regardless of which side of the board the camera was on."""
     w, h = bt.board.size_m

@@ -533,7 +533,7 @@ def test_bench_inspect_scores_collected_cycles_against_the_truth() -> None:
     assert rep["any_view_rule"]["false_dirty_bins"] == 1 and rep["cycles"] == 4
 
 
-def test_label_check_scores_every_candidate_factor_from_the_cli(tmp_path) -> None:  # noqa: ANN001
+def test_label_check_scores_every_candidate_factor_from_the_cli(tmp_path) -> None:
     import json
 
     from cellctl.classify.label_check import CANDIDATES

@@ -48,13 +48,13 @@ def _done(r: ClassifyReply) -> Future:
 
 
 @pytest.fixture
-def cfg():  # noqa: ANN201
+def cfg():
     from cellctl.config import load_config
 
     return load_config()
 
 
-def _ctx(cfg, max_views: int):  # noqa: ANN001, ANN202
+def _ctx(cfg, max_views: int):
     cfg = cfg.model_copy(
         update={
             "classifier": cfg.classifier.model_copy(
@@ -71,7 +71,7 @@ def _ctx(cfg, max_views: int):  # noqa: ANN001, ANN202
     return ctx
 
 
-def test_an_uncertain_view_is_relooked_from_a_nearby_pose_and_heat_maps_are_recorded(cfg) -> None:  # noqa: ANN001
+def test_an_uncertain_view_is_relooked_from_a_nearby_pose_and_heat_maps_are_recorded(cfg) -> None:
     ctx = _ctx(cfg, 4)
     script = {
         ("robot", "move"): lambda req: (MoveReply(joints=[0.0] * 6, camera_pose=req.camera_pose), None),
@@ -91,7 +91,7 @@ def test_an_uncertain_view_is_relooked_from_a_nearby_pose_and_heat_maps_are_reco
     assert ctx.verdict == "dirty" and any("1 re-looks" in text for _, text in run.events)
 
 
-def test_relook_off_asks_the_robot_nothing(cfg) -> None:  # noqa: ANN001
+def test_relook_off_asks_the_robot_nothing(cfg) -> None:
     ctx = _ctx(cfg, 0)
     run = ScriptedRun(ctx, {})
     assert Classifying()(run) == "succeeded"

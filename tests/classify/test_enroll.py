@@ -117,7 +117,7 @@ def test_the_enrolled_file_loads_through_the_one_loader(enrolled: tuple[Detector
         Detector.load(out, surface="internal")
 
 
-def test_classify_cli_uses_an_enrolled_file(enrolled: tuple[Detector, Path, Path], capsys) -> None:  # noqa: ANN001
+def test_classify_cli_uses_an_enrolled_file(enrolled: tuple[Detector, Path, Path], capsys) -> None:
     from cellctl.cli import main
 
     det, out, root = enrolled
@@ -134,7 +134,7 @@ def test_classify_cli_uses_an_enrolled_file(enrolled: tuple[Detector, Path, Path
     assert {"image", "label", "p_dirty", "uncertain", "model_id", "p_supervised", "anomaly_z", "heat_max"} == set(line)
 
 
-def _cli(capsys, *args: str) -> tuple[int, str]:  # noqa: ANN001
+def _cli(capsys, *args: str) -> tuple[int, str]:
     from cellctl.cli import main
 
     rc = main(["detector", "enroll", *args])
@@ -142,7 +142,7 @@ def _cli(capsys, *args: str) -> tuple[int, str]:  # noqa: ANN001
     return rc, err[-1] if err else ""
 
 
-def test_enroll_cli_writes_one_file_with_its_card(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_enroll_cli_writes_one_file_with_its_card(tmp_path: Path, capsys) -> None:
     """Any size, JPEG and PNG, nested folders; progress lines on stderr; the card on stdout."""
     from cellctl.cli import main
 
@@ -178,8 +178,8 @@ def test_enroll_cli_writes_one_file_with_its_card(tmp_path: Path, capsys) -> Non
 )
 def test_bad_folders_are_refused_in_one_line_and_nothing_is_written(
     tmp_path: Path,
-    capsys,  # noqa: ANN001
-    make,  # noqa: ANN001
+    capsys,
+    make,
     surface: str,
     expect: str,
 ) -> None:
@@ -190,7 +190,7 @@ def test_bad_folders_are_refused_in_one_line_and_nothing_is_written(
     assert not out.exists() and not list(tmp_path.glob("*.tmp"))
 
 
-def test_a_base_of_the_other_surface_or_a_foreign_file_is_refused(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_a_base_of_the_other_surface_or_a_foreign_file_is_refused(tmp_path: Path, capsys) -> None:
     _write(_swirl_steel(12, 0, 64), tmp_path / "in")
     out = tmp_path / "e.pt"
     base = str(SHIPPED / "internal.detect.pt")

@@ -44,7 +44,7 @@ def test_the_bomb_is_a_real_png() -> None:
     ],
     ids=["png", "jpeg", "progressive-jpeg"],
 )
-def test_size_is_read_from_the_header(encode) -> None:  # noqa: ANN001
+def test_size_is_read_from_the_header(encode) -> None:
     assert image_size(encode(np.zeros((37, 53, 3), np.uint8))) == (53, 37)
 
 

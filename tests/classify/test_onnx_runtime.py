@@ -137,7 +137,7 @@ def test_shipped_exports_fit_their_detectors(surface: str) -> None:
     assert card["onnx"]["sha256"] == det.engine.sha256 == file_sha256(rt.onnx_path(pt))
 
 
-def test_classify_cli_runs_either_runtime_with_the_same_answer(exported: Path, tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_classify_cli_runs_either_runtime_with_the_same_answer(exported: Path, tmp_path: Path, capsys) -> None:
     """``classifier.runtime`` reaches ``cellctl classify``; a missing detector to export fails in one line."""
     import cv2
 

@@ -109,7 +109,6 @@ def test_train_refuses_bad_arguments(tiny_data: Path, tmp_path: Path) -> None:
 
 def test_twin_source_renders_labelled_views(tmp_path: Path) -> None:
     """The twin's camera renders views of the requested surface; labels follow the mask rule."""
-    pytest.importorskip("embreex")
     import cv2
 
     for surface in ("external", "internal"):

@@ -74,7 +74,7 @@ def test_worker_serves_refuses_and_keeps_serving(cfg: CellConfig, router, tiny_m
             server.close()
 
 
-def _wait_served(session, key: str) -> None:  # noqa: ANN001
+def _wait_served(session, key: str) -> None:
     """Until the server's queryable has reached the client through the router (any reply will do)."""
     deadline = time.monotonic() + 10
     while not list(session.get(key, timeout=1.0)):

@@ -44,14 +44,14 @@ TIGHT_DAEMON = {
 
 
 @pytest.fixture
-def cell(cfg):  # noqa: ANN001, ANN201
+def cell(cfg):
     c = build_cell(cfg, identification=(None, None))
     yield c
     c.close()
 
 
 @pytest.fixture
-def tight_cell(cfg, tmp_path: Path):  # noqa: ANN001, ANN201
+def tight_cell(cfg, tmp_path: Path):
     path = tmp_path / "tight.json5"
     path.write_text(json.dumps(TIGHT_DAEMON))
     cfg.bus.zenoh_config = path
@@ -60,13 +60,13 @@ def tight_cell(cfg, tmp_path: Path):  # noqa: ANN001, ANN201
     c.close()
 
 
-def _burst(cfg, cell, n: int, monkeypatch, *, busy: bool, ack_delay_s: float = 0.0, client: dict | None = None):  # noqa: ANN001, ANN202
+def _burst(cfg, cell, n: int, monkeypatch, *, busy: bool, ack_delay_s: float = 0.0, client: dict | None = None):
     """Send ``n`` hostile puts (a 50 ms pause every 200); return the sender's report and what the daemon received."""
     sup = cell.supervisor
     received = Counter[str]()
     real = sup.apply_command
 
-    def counting(payload: bytes):  # noqa: ANN202
+    def counting(payload: bytes):
         received["all"] += 1
         return real(payload)
 
@@ -85,7 +85,7 @@ def _burst(cfg, cell, n: int, monkeypatch, *, busy: bool, ack_delay_s: float = 0
     return json.loads(out.stdout), received["all"]
 
 
-def _assert_every_put_acked(report: dict, received: int, n: int, cell) -> None:  # noqa: ANN001
+def _assert_every_put_acked(report: dict, received: int, n: int, cell) -> None:
     ids = Counter(report["ids"])
     assert received == n, f"the daemon received {received} of {n} puts"
     assert report["acks"] == n, f"{report['acks']} Acks for {n} puts ({received} received)"
@@ -94,12 +94,12 @@ def _assert_every_put_acked(report: dict, received: int, n: int, cell) -> None: 
     assert cell.supervisor.state == "Stopped"  # all of them refused
 
 
-def test_a_burst_of_hostile_puts_under_cpu_load_gets_every_ack(cfg, cell, monkeypatch) -> None:  # noqa: ANN001
+def test_a_burst_of_hostile_puts_under_cpu_load_gets_every_ack(cfg, cell, monkeypatch) -> None:
     report, received = _burst(cfg, cell, 600, monkeypatch, busy=True)
     _assert_every_put_acked(report, received, 600, cell)
 
 
-def test_a_slow_consumer_behind_small_buffers_still_gets_every_ack(cfg, tight_cell, monkeypatch) -> None:  # noqa: ANN001
+def test_a_slow_consumer_behind_small_buffers_still_gets_every_ack(cfg, tight_cell, monkeypatch) -> None:
     report, received = _burst(
         cfg, tight_cell, 1000, monkeypatch, busy=False, ack_delay_s=0.001, client={"transport/link/tcp/so_rcvbuf": 4096}
     )
@@ -107,6 +107,6 @@ def test_a_slow_consumer_behind_small_buffers_still_gets_every_ack(cfg, tight_ce
 
 
 @pytest.mark.slow
-def test_three_thousand_hostile_puts_under_cpu_load_get_every_ack(cfg, cell, monkeypatch) -> None:  # noqa: ANN001
+def test_three_thousand_hostile_puts_under_cpu_load_get_every_ack(cfg, cell, monkeypatch) -> None:
     report, received = _burst(cfg, cell, 3000, monkeypatch, busy=True)
     _assert_every_put_acked(report, received, 3000, cell)

@@ -55,7 +55,7 @@ class FakeIdentification:
     T_base_bin: Any
 
 
-def fake_identify(image, intrinsics, T_base_cam, catalog):  # noqa: ANN001, ANN201
+def fake_identify(image, intrinsics, T_base_cam, catalog):
     """Identifies every image as a 'case_study' bin 1 m in front of the base."""
     return FakeIdentification("case_study", transform_from_xyz_rpy((1.0, 0.0, 0.0), (0, 0, 0)))
 

@@ -30,7 +30,7 @@ SEED = 20240601
 
 
 @pytest.fixture
-def cell(tmp_path, port):  # noqa: ANN001, ANN201
+def cell(tmp_path, port):
     cfg = load_config(None, [*cfg_overrides(tmp_path, port), *FUZZ_OVERRIDES])
     with build_cell(cfg, identification=(None, None)) as c, slow_sim_robot(cfg):
         yield c
@@ -44,7 +44,7 @@ def test_the_fuzzer_is_seeded_and_covers_every_category() -> None:
     assert seen == set(CATEGORIES)
 
 
-def test_two_thousand_seeded_cases_keep_the_contract(cell) -> None:  # noqa: ANN001
+def test_two_thousand_seeded_cases_keep_the_contract(cell) -> None:
     out = run_fuzz(cell, 2000, SEED)
     assert out["violations"] == 0, out["violation_examples"]
     assert out["acks"] == out["cases"] == 2000
@@ -59,12 +59,12 @@ def test_two_thousand_seeded_cases_keep_the_contract(cell) -> None:  # noqa: ANN
     assert cell.supervisor.status.state in {"Stopped", "Idle", "Execute", "Held", "Suspended", "Complete", "Aborted"}
 
 
-def test_the_checks_catch_a_supervisor_that_breaks_the_contract(cell, monkeypatch) -> None:  # noqa: ANN001
+def test_the_checks_catch_a_supervisor_that_breaks_the_contract(cell, monkeypatch) -> None:
     """The oracle is not vacuous: a supervisor accepting a wrong command, or dying on one, is reported."""
     sup = cell.supervisor
     real = sup.apply_command
 
-    def sloppy(payload: bytes):  # noqa: ANN202
+    def sloppy(payload: bytes):
         if payload.startswith(b"\xef\xbb\xbf"):  # a BOM'd Reset is taken as a Reset
             payload = payload[3:]
         if payload == b"boom":
@@ -108,7 +108,7 @@ _HYP = settings(
 )
 
 
-def test_arbitrary_bytes_and_json_objects_keep_the_contract(cell) -> None:  # noqa: ANN001
+def test_arbitrary_bytes_and_json_objects_keep_the_contract(cell) -> None:
     target = FuzzTarget(cell, seed=SEED)
 
     @_HYP
@@ -140,7 +140,7 @@ _mode_like = st.fixed_dictionaries({}, optional=_mode_fields)
 _STATES = ["Stopped", "Idle", "Aborted", "Execute", "Held", "Suspended", "Complete", "Clearing", "Resetting"]
 
 
-def test_unit_mode_fields_keep_the_rules(cfg) -> None:  # noqa: ANN001
+def test_unit_mode_fields_keep_the_rules(cfg) -> None:
     """Any mix of command and mode fields: a mode changes only in Stopped/Idle/Aborted and never the state;
     a rejected payload changes nothing; a readable request_id always comes back."""
     from cellctl.messages import UnitMode

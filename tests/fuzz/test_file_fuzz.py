@@ -38,7 +38,7 @@ GOOD_PLAN = Path()
 
 
 @pytest.fixture(scope="session", autouse=True)
-def good_plan_file(tmp_path_factory) -> Path:  # noqa: ANN001
+def good_plan_file(tmp_path_factory) -> Path:
     """Plan the case-study bin (fast mode, seeded) like ``cellctl plan`` does, once."""
     global GOOD_PLAN
     from cellctl.config import load_config
@@ -61,7 +61,7 @@ def _good_plan() -> dict:
     return read_document(GOOD_PLAN)
 
 
-def _variant(**changes) -> dict:  # noqa: ANN003
+def _variant(**changes) -> dict:
     plan = json.loads(json.dumps(_good_plan()))
     plan.update(changes)
     return plan
@@ -153,7 +153,7 @@ def test_every_bad_plan_file_is_skipped_with_its_path_and_the_good_plan_still_fo
 
 
 @pytest.fixture(scope="module")
-def planner(tmp_path_factory):  # noqa: ANN001, ANN201
+def planner(tmp_path_factory):
     from cellctl.config import load_config
     from cellctl.workers.planner import PlannerService
 
@@ -164,7 +164,7 @@ def planner(tmp_path_factory):  # noqa: ANN001, ANN201
     service.close()
 
 
-def test_the_planner_lookup_is_a_clean_miss_naming_the_bad_file(planner) -> None:  # noqa: ANN001
+def test_the_planner_lookup_is_a_clean_miss_naming_the_bad_file(planner) -> None:
     service, plans = planner
     good = _good_plan()
     folder = plan_path(plans, read_plan(GOOD_PLAN)).parent
@@ -192,7 +192,7 @@ def test_the_planner_lookup_is_a_clean_miss_naming_the_bad_file(planner) -> None
 # --- classifier model files -------------------------------------------------------------------
 
 
-def _torch_save(obj, path: Path) -> Path:  # noqa: ANN001
+def _torch_save(obj, path: Path) -> Path:
     import torch
 
     torch.save(obj, path)
@@ -200,7 +200,7 @@ def _torch_save(obj, path: Path) -> Path:  # noqa: ANN001
 
 
 class _Evil:
-    def __reduce__(self):  # noqa: ANN204
+    def __reduce__(self):
         return (os.system, (f"touch {self.marker}",))
 
 
@@ -215,7 +215,7 @@ def _bad_model_files(folder: Path, rng: random.Random) -> dict[str, Path]:
         out[kind] = folder / f"{kind}.pt"
         out[kind].write_bytes(data)
 
-    def blob(kind: str, **changes) -> None:  # noqa: ANN003
+    def blob(kind: str, **changes) -> None:
         out[kind] = _torch_save({**good, **changes}, folder / f"{kind}.pt")
 
     put("empty", b"")

@@ -83,7 +83,7 @@ class RawWorkers:
     """All four roles as raw queryables with liveliness; ``bad[op] = (skip, handler)`` replaces an op's
     reply from its ``skip``-th call on."""
 
-    def __init__(self, cfg) -> None:  # noqa: ANN001
+    def __init__(self, cfg) -> None:
         c = cfg.cell_id
         self.session = open_session(cfg, "client")
         self.bad: dict[str, tuple[int, Handler]] = {}
@@ -107,7 +107,7 @@ class RawWorkers:
                 q.reply(q.key_expr, q.payload.to_bytes())
             else:
                 _reply(q, MISS if op == "lookup" and self.miss else GOOD[op], op)
-        except Exception as err:  # noqa: BLE001 - e.g. zenoh refusing a reply on another key: no reply then
+        except Exception as err:  # e.g. zenoh refusing a reply on another key: no reply then
             logging.getLogger(__name__).info("raw %s reply failed: %s", op, err)
         finally:
             q.drop()
@@ -229,7 +229,7 @@ def mutation(op: str, kind: str, rng: random.Random) -> Handler | None:
 
 
 class Harness:
-    def __init__(self, cfg) -> None:  # noqa: ANN001
+    def __init__(self, cfg) -> None:
         self.cfg = cfg
         self.cell = build_cell(cfg, identification=(fake_identify, load_catalog(cfg.path(cfg.catalog))))
         self.sup = self.cell.supervisor
@@ -279,7 +279,7 @@ class Harness:
 
 
 @pytest.fixture
-def harness(cfg, caplog):  # noqa: ANN001, ANN201
+def harness(cfg, caplog):
     caplog.set_level(logging.WARNING, logger="cellctl")
     cfg.supervisor.timeouts.default = 2.0
     h = Harness(cfg)
@@ -314,7 +314,7 @@ def _recovered(h: Harness) -> None:
     assert h.status().state == "Stopped"
 
 
-def test_every_kind_of_broken_reply_on_every_op_fails_the_cycle_cleanly(harness) -> None:  # noqa: ANN001
+def test_every_kind_of_broken_reply_on_every_op_fails_the_cycle_cleanly(harness) -> None:
     rng = random.Random(SEED)
     ran = 0
     for op, skip in TARGETS:
@@ -328,7 +328,7 @@ def test_every_kind_of_broken_reply_on_every_op_fails_the_cycle_cleanly(harness)
     _recovered(harness)
 
 
-def test_a_broken_stop_reply_still_reaches_aborted(harness) -> None:  # noqa: ANN001
+def test_a_broken_stop_reply_still_reaches_aborted(harness) -> None:
     rng = random.Random(SEED)
     harness.workers.bad["approach"] = (0, lambda q: q.reply_err(b"base cannot park"))
     for kind in ("garbage", "wrong_version", "error_garbage", "two_replies", "other_key", "huge"):
@@ -341,7 +341,7 @@ def test_a_broken_stop_reply_still_reaches_aborted(harness) -> None:  # noqa: AN
 
 
 @pytest.mark.slow
-def test_three_hundred_random_broken_replies(harness) -> None:  # noqa: ANN001
+def test_three_hundred_random_broken_replies(harness) -> None:
     rng = random.Random(SEED + 1)
     ran = 0
     while ran < 300:

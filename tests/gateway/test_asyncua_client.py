@@ -18,7 +18,7 @@ S = ua.StatusCodes
 I32, BOOL = ua.VariantType.Int32, ua.VariantType.Boolean
 
 
-def run(coro):  # noqa: ANN001, ANN201
+def run(coro):
     return asyncio.run(coro)
 
 
@@ -49,7 +49,7 @@ def test_browse_paths_namespaces_and_initial_values(gateway: OpcuaGateway, url: 
     run(body())
 
 
-def test_methods_return_the_ack_and_rejects_change_nothing(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+def test_methods_return_the_ack_and_rejects_change_nothing(gateway: OpcuaGateway, spy, url: str) -> None:
     async def body() -> None:
         async with Ua(url, USER, PASSWORD) as c:
             st, reason = await c.call("Reset")
@@ -80,7 +80,7 @@ def test_methods_return_the_ack_and_rejects_change_nothing(gateway: OpcuaGateway
     assert gateway.commands_sent == 3
 
 
-def test_handshake_and_bad_writes(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+def test_handshake_and_bad_writes(gateway: OpcuaGateway, spy, url: str) -> None:
     async def body() -> None:
         async with Ua(url, USER, PASSWORD) as c:
             for bad in (0, 11, -1, 2**31 - 1, -(2**31)):
@@ -126,7 +126,7 @@ def test_handshake_and_bad_writes(gateway: OpcuaGateway, spy, url: str) -> None:
     assert [json.loads(p).get("cntrl_cmd") or json.loads(p).get("unit_mode_code") for p in spy.payloads] == [1, 9, 2, 1]
 
 
-def test_commands_carry_the_gateways_stamp_and_the_supervisor_checks_it(gateway, spy, url, monkeypatch) -> None:  # noqa: ANN001
+def test_commands_carry_the_gateways_stamp_and_the_supervisor_checks_it(gateway, spy, url, monkeypatch) -> None:
     hour_ago = (dt.datetime.now(dt.UTC) - dt.timedelta(hours=1)).isoformat()
 
     async def body() -> None:
@@ -146,7 +146,7 @@ def test_commands_carry_the_gateways_stamp_and_the_supervisor_checks_it(gateway,
     assert stale == hour_ago
 
 
-def test_start_params_travel_with_start(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+def test_start_params_travel_with_start(gateway: OpcuaGateway, spy, url: str) -> None:
     async def body() -> None:
         async with Ua(url, USER, PASSWORD) as c:
             assert (await c.call("Reset"))[0].is_good()
@@ -161,7 +161,7 @@ def test_start_params_travel_with_start(gateway: OpcuaGateway, spy, url: str) ->
     assert json.loads(spy.payloads[-1])["params"] == {"mode": "collect"}
 
 
-def test_anonymous_may_read_but_not_write_or_call(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+def test_anonymous_may_read_but_not_write_or_call(gateway: OpcuaGateway, spy, url: str) -> None:
     async def body() -> None:
         async with Ua(url) as c:
             assert await c.read("Status/StateCurrent") == PackMLState.Stopped
@@ -185,7 +185,7 @@ def test_subscription_sees_the_acting_states(gateway: OpcuaGateway, url: str) ->
         seen: list[int] = []
 
         class Handler:
-            def datachange_notification(self, node, val, data) -> None:  # noqa: ANN001
+            def datachange_notification(self, node, val, data) -> None:
                 seen.append(val)
 
         async with Ua(url, USER, PASSWORD) as c:
@@ -207,7 +207,7 @@ def test_subscription_sees_the_acting_states(gateway: OpcuaGateway, url: str) ->
 
 
 @pytest.mark.parametrize("how", ["handshake", "methods"])
-def test_sim_cycle_counts_in_admin(cfg, gateway: OpcuaGateway, url: str, how: str) -> None:  # noqa: ANN001
+def test_sim_cycle_counts_in_admin(cfg, gateway: OpcuaGateway, url: str, how: str) -> None:
     async def command(c: Ua, name: str) -> None:
         code = {"Reset": 1, "Start": 2}[name]
         st = await c.handshake(code) if how == "handshake" else (await c.call(name))[0]
@@ -233,7 +233,7 @@ def test_sim_cycle_counts_in_admin(cfg, gateway: OpcuaGateway, url: str, how: st
         run(body())
 
 
-def test_daemon_down_then_back(own_cfgs) -> None:  # noqa: ANN001
+def test_daemon_down_then_back(own_cfgs) -> None:
     cfg, gw_cfg = own_cfgs
     url = gw_cfg.endpoint
     cell = make_daemon(cfg)
@@ -266,7 +266,7 @@ def test_daemon_down_then_back(own_cfgs) -> None:  # noqa: ANN001
         cell.close()
 
 
-def test_gateway_waits_for_a_daemon_that_is_not_there_yet(own_cfgs) -> None:  # noqa: ANN001
+def test_gateway_waits_for_a_daemon_that_is_not_there_yet(own_cfgs) -> None:
     cfg, gw_cfg = own_cfgs
     url = gw_cfg.endpoint
     gw = OpcuaGateway(cfg, gw_cfg).start_thread()
@@ -287,7 +287,7 @@ def test_gateway_waits_for_a_daemon_that_is_not_there_yet(own_cfgs) -> None:  # 
             cell.close()
 
 
-def test_write_burst_gives_one_command_per_forwarded_request(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+def test_write_burst_gives_one_command_per_forwarded_request(gateway: OpcuaGateway, spy, url: str) -> None:
     async def one(i: int) -> list[ua.StatusCode]:
         async with Ua(url, USER, PASSWORD) as c:
             out = []
@@ -314,7 +314,7 @@ def test_write_burst_gives_one_command_per_forwarded_request(gateway: OpcuaGatew
     assert spy.count == len(forwarded) == gateway.commands_sent
 
 
-def test_client_that_disconnects_mid_call(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+def test_client_that_disconnects_mid_call(gateway: OpcuaGateway, spy, url: str) -> None:
     async def body() -> None:
         c = Ua(url, USER, PASSWORD)
         await c.__aenter__()
@@ -336,7 +336,7 @@ def test_client_that_disconnects_mid_call(gateway: OpcuaGateway, spy, url: str) 
     run(body())
 
 
-def test_one_object_per_cell(cfg, daemon, tmp_path) -> None:  # noqa: ANN001
+def test_one_object_per_cell(cfg, daemon, tmp_path) -> None:
     from tests.gateway.conftest import make_gw_cfg
 
     gw_cfg = make_gw_cfg(tmp_path, "cells=[cell1, cell2]")

@@ -32,7 +32,7 @@ def run(coro: Any) -> Any:
     return asyncio.run(coro)
 
 
-def test_a_plc_confirms_the_park_by_method_and_the_cycle_goes_on(cfg, daemon, gateway, spy, url) -> None:  # noqa: ANN001
+def test_a_plc_confirms_the_park_by_method_and_the_cycle_goes_on(cfg, daemon, gateway, spy, url) -> None:
     base = daemon.supervisor.cycles.base
     with FakeCell(cfg) as fake, PlcClient(cfg, "gw-base-test") as plc:
 
@@ -72,7 +72,7 @@ def test_a_plc_confirms_the_park_by_method_and_the_cycle_goes_on(cfg, daemon, ga
     assert all(p["user"] == f"opcua:{USER}" for p in sent if p.get("base_parked") is not None)
 
 
-def test_a_reader_cannot_confirm_a_park(gateway, spy, url) -> None:  # noqa: ANN001
+def test_a_reader_cannot_confirm_a_park(gateway, spy, url) -> None:
     async def body() -> None:
         async with Ua(url) as c:  # anonymous: reads only
             with pytest.raises(ua.UaStatusCodeError) as err:

@@ -141,7 +141,7 @@ async def one_case(rng: random.Random, c: Ua, anon: Ua) -> tuple[str, list[int]]
         return f"service refused {kind}", [err.code]
 
 
-def fuzz(gateway: OpcuaGateway, spy, cfg, url: str, n: int, seed: int) -> dict:  # noqa: ANN001
+def fuzz(gateway: OpcuaGateway, spy, cfg, url: str, n: int, seed: int) -> dict:
     rng = random.Random(seed)
     stats = {"cases": 0, "forwarded": 0, "refused_locally": 0, "accepted": 0, "refused_by_daemon": 0}
 
@@ -184,7 +184,7 @@ def _no_hook_failures(caplog: pytest.LogCaptureFixture) -> None:
     assert not failures, failures[0].getMessage()
 
 
-def test_fuzz_2000_hostile_writes_and_calls(gateway, spy, cfg, url, caplog) -> None:  # noqa: ANN001
+def test_fuzz_2000_hostile_writes_and_calls(gateway, spy, cfg, url, caplog) -> None:
     """~10 s on two shared cores, so the whole 2000 cases run in the default suite."""
     caplog.set_level(logging.ERROR, logger="cellctl.gateway")
     stats = fuzz(gateway, spy, cfg, url, 2000, seed=2026)

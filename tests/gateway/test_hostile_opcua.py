@@ -27,7 +27,7 @@ V = ua.VariantType
 S = ua.StatusCodes
 
 
-def _unmoved(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+def _unmoved(gateway: OpcuaGateway, spy, url: str) -> None:
     async def check() -> None:
         async with Ua(url) as anon:
             assert await anon.read("Status/StateCurrent") == PackMLState.Stopped
@@ -36,7 +36,7 @@ def _unmoved(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
     assert spy.count == 0
 
 
-def test_types_and_ranges(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+def test_types_and_ranges(gateway: OpcuaGateway, spy, url: str) -> None:
     async def body() -> None:
         async with Ua(url, USER, PASSWORD) as c:
             for value, vtype in [("1", V.String), (1.0, V.Double), (True, V.Boolean), (1, V.Int64), ([1], V.Int32),
@@ -58,7 +58,7 @@ def test_types_and_ranges(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa
     _unmoved(gateway, spy, url)
 
 
-def test_sessions_and_raw_connections(gateway: OpcuaGateway, spy, url: str) -> None:  # noqa: ANN001
+def test_sessions_and_raw_connections(gateway: OpcuaGateway, spy, url: str) -> None:
     host, port = gateway.cfg.host, gateway.cfg.port
     junk = [b"", b"HEL", b"HELF\xff\xff\xff\x7f" + b"\0" * 24, b"GET / HTTP/1.1\r\n\r\n", b"\x00" * 4096]
     socks = []

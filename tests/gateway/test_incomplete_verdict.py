@@ -13,21 +13,21 @@ from cellctl.gateway.opcua import OpcuaGateway
 from cellctl.supervisor.definition import PackMLState
 from tests.fakes.workers import FakeCell
 from tests.gateway.conftest import PASSWORD, USER, Ua
-from tests.supervisor.test_station_loop import faces as faces  # noqa: F401 - the case-study faces per surface
+from tests.supervisor.test_station_loop import faces as faces  # the case-study faces per surface
 from tests.supervisor.test_whole_default import WideWholeFakeCell
 
 SHIPPED = {"external": 0.6, "internal": 0.6}
 
 
 @pytest.fixture
-def shipped_minimum(cfg):  # noqa: ANN001, ANN201 - the module's daemon gates on the shipped minimum for one test
+def shipped_minimum(cfg):  # the module's daemon gates on the shipped minimum for one test
     cfg.classifier.verdict.min_seen_fraction = dict(SHIPPED)
     yield cfg
     cfg.classifier.verdict.min_seen_fraction = {}
 
 
 @pytest.fixture
-def shipped(shipped_minimum):  # noqa: ANN001, ANN201 - and the shipped whole-bin cycle (the conftest pins one station)
+def shipped(shipped_minimum):  # and the shipped whole-bin cycle (the conftest pins one station)
     shipped_minimum.planner.whole.enabled = True
     yield shipped_minimum
     shipped_minimum.planner.whole.enabled = False
@@ -51,7 +51,7 @@ async def _cycle(url: str) -> dict:
         return {p: await c.read(f"Admin/LastCycle/{p}") for p in paths}
 
 
-def test_the_shipped_whole_bin_cycle_is_clean_only_when_each_surface_is_seen(shipped, gateway, url, faces) -> None:  # noqa: ANN001
+def test_the_shipped_whole_bin_cycle_is_clean_only_when_each_surface_is_seen(shipped, gateway, url, faces) -> None:
     with WideWholeFakeCell(shipped, faces):  # three stations, every face of both surfaces seen
         seen_all = asyncio.run(_cycle(url))
 
@@ -66,7 +66,7 @@ def test_the_shipped_whole_bin_cycle_is_clean_only_when_each_surface_is_seen(shi
     assert partial["Verdict"] == "incomplete" and 0 < partial["Seen/internal"] < partial["MinSeen/internal"] == 0.6
 
 
-def test_a_one_surface_cycle_is_incomplete_on_the_plc_side(shipped_minimum, gateway: OpcuaGateway, url: str) -> None:  # noqa: ANN001
+def test_a_one_surface_cycle_is_incomplete_on_the_plc_side(shipped_minimum, gateway: OpcuaGateway, url: str) -> None:
     with FakeCell(shipped_minimum):  # single-station doubles (the conftest's pin): six external faces seen
         got = asyncio.run(_cycle(url))
     assert got["Outcome"] == "completed" and got["Verdict"] == "incomplete"

@@ -42,7 +42,7 @@ async def login(url: str, source: str, password: str) -> bool:
 
 
 @pytest.fixture
-def throttled_gateway(cfg: CellConfig, tmp_path: Path):  # noqa: ANN201
+def throttled_gateway(cfg: CellConfig, tmp_path: Path):
     clock = FrozenClock()
     gw_cfg = make_gw_cfg(tmp_path, "login.pair_free=3", "login.address_free=10")
     gw = OpcuaGateway(cfg, gw_cfg, clock=clock).start_thread()
@@ -54,7 +54,7 @@ def throttled_gateway(cfg: CellConfig, tmp_path: Path):  # noqa: ANN201
 
 def test_guesses_back_off_per_address_and_the_plc_elsewhere_connects_at_once(
     throttled_gateway,
-    caplog: pytest.LogCaptureFixture,  # noqa: ANN001
+    caplog: pytest.LogCaptureFixture,
 ) -> None:
     gw, clock = throttled_gateway
     url = gw.cfg.endpoint

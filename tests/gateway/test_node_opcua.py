@@ -50,7 +50,7 @@ def node_plc(url: str, scenarios: str, *login: str, timeout: float = 120) -> dic
 
 
 @pytest.fixture(scope="module")
-def node_run(shared_cfg, shared_cell, shared_gw_cfg) -> dict[str, Any]:  # noqa: ANN001
+def node_run(shared_cfg, shared_cell, shared_gw_cfg) -> dict[str, Any]:
     """Every scenario against the module's daemon (worker doubles: one dirty view per cycle)."""
     _, gw = shared_cell
     spy = CommandSpy(shared_cfg)

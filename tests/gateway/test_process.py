@@ -15,7 +15,7 @@ from cellctl.gateway.opcua import CELLCTL_NS
 from tests.conftest import free_port
 
 
-def test_cli_process_serves_and_stops_on_sigterm(cfg, daemon) -> None:  # noqa: ANN001
+def test_cli_process_serves_and_stops_on_sigterm(cfg, daemon) -> None:
     url = f"opc.tcp://127.0.0.1:{free_port()}"
     sets = [a for ep in cfg.bus.connect for a in ("--set", f'bus.connect=["{ep}"]')]
     proc = subprocess.Popen(

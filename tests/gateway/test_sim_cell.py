@@ -19,7 +19,7 @@ pytestmark = [
 QUICK = ["planner.seed_pct=2"]
 
 
-def test_node_opcua_runs_a_sim_cycle(tmp_path) -> None:  # noqa: ANN001
+def test_node_opcua_runs_a_sim_cycle(tmp_path) -> None:
     from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
 
     opts = BenchOptions(overrides=(*private_bus_overrides(), *QUICK))

@@ -123,7 +123,7 @@ def clock() -> FakeClock:
 
 
 @pytest.fixture
-def hmi(cfg, clock) -> Iterator[Hmi]:  # noqa: ANN001
+def hmi(cfg, clock) -> Iterator[Hmi]:
     h = Hmi(cfg, hmi_config(), clock)
     server = HmiServer(h).start()
     h.server = server  # type: ignore[attr-defined]
@@ -133,7 +133,7 @@ def hmi(cfg, clock) -> Iterator[Hmi]:  # noqa: ANN001
 
 
 @pytest.fixture
-def client(hmi) -> Client:  # noqa: ANN001
+def client(hmi) -> Client:
     return Client(hmi.hcfg.host, hmi.hcfg.port)
 
 

@@ -237,7 +237,7 @@ def test_pages_load_only_local_assets(hmi, client: Client, path: str) -> None:
     assert b"http://" not in r.body and b"https://" not in r.body
 
 
-def test_live_foxglove_view_advertises_the_log_channels_and_the_scene(cfg, cell, clock) -> None:  # noqa: ANN001
+def test_live_foxglove_view_advertises_the_log_channels_and_the_scene(cfg, cell, clock) -> None:
     import json as _json
 
     import websocket
@@ -313,7 +313,7 @@ def test_odd_tokens_and_bodies_are_refused_cleanly(cell, hmi, client: Client) ->
     assert cell.supervisor.top_state == "Stopped"
 
 
-def test_hmi_commands_carry_the_hmis_stamp_and_the_supervisor_checks_it(cell, hmi, client: Client, monkeypatch) -> None:  # noqa: ANN001
+def test_hmi_commands_carry_the_hmis_stamp_and_the_supervisor_checks_it(cell, hmi, client: Client, monkeypatch) -> None:
     wait_reachable(client)
     assert client.login("alice").status == 200
     seen: list[dict] = []  # what reached the daemon, as it arrived

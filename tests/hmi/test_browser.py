@@ -11,13 +11,13 @@ from tests.hmi.conftest import PASSWORDS, wait_reachable
 
 
 @pytest.fixture
-def driver():  # noqa: ANN201
+def driver():
     d = make_driver()
     yield d
     d.quit()
 
 
-def test_login_command_and_forged_post_in_the_browser(cfg, cell, hmi, client, driver) -> None:  # noqa: ANN001
+def test_login_command_and_forged_post_in_the_browser(cfg, cell, hmi, client, driver) -> None:
     url = hmi.server.url
     wait_reachable(client)
     # logged out: the diagram shows the state, and there is no command button at all
@@ -53,7 +53,7 @@ def test_login_command_and_forged_post_in_the_browser(cfg, cell, hmi, client, dr
 
 
 @pytest.mark.slow  # the real sim workers (pybullet, torch) start in minutes and the first cycle plans offline
-def test_a_real_sim_cycle_in_the_browser(tmp_path, driver) -> None:  # noqa: ANN001
+def test_a_real_sim_cycle_in_the_browser(tmp_path, driver) -> None:
     from argparse import Namespace
 
     from cellctl.bus.session import private_bus_overrides

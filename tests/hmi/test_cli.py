@@ -19,7 +19,7 @@ from tests.conftest import free_port
 REPO = Path(__file__).resolve().parents[2]
 
 
-def test_user_add_stores_only_a_hash_in_a_private_file(tmp_path, monkeypatch, capsys) -> None:  # noqa: ANN001
+def test_user_add_stores_only_a_hash_in_a_private_file(tmp_path, monkeypatch, capsys) -> None:
     path = tmp_path / "hmi.yaml"
     monkeypatch.setattr(sys, "stdin", io.StringIO("s3cret-password\n"))
     assert (
@@ -37,7 +37,7 @@ def test_user_add_stores_only_a_hash_in_a_private_file(tmp_path, monkeypatch, ca
     assert load_hmi_config(path).users == []
 
 
-def test_cellctl_hmi_serves_and_says_the_cell_is_unreachable(tmp_path, port) -> None:  # noqa: ANN001
+def test_cellctl_hmi_serves_and_says_the_cell_is_unreachable(tmp_path, port) -> None:
     http_port = free_port()
     (tmp_path / "hmi.yaml").write_text(f"port: {http_port}\n")
     ep = f'["tcp/127.0.0.1:{port}"]'

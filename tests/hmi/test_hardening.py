@@ -18,7 +18,7 @@ from tests.hmi.conftest import Client, hmi_config
 
 
 @pytest.fixture
-def edge(cfg, clock) -> Iterator[Hmi]:  # noqa: ANN001
+def edge(cfg, clock) -> Iterator[Hmi]:
     h = Hmi(cfg, hmi_config(header_timeout_s=1.0, keepalive_s=1), clock)
     server = HmiServer(h).start()
     yield h
@@ -39,7 +39,7 @@ def _login_from(h: Hmi, source: str, user: str, password: str, headers: dict[str
     return status
 
 
-def test_a_guesser_slows_only_its_own_pair_and_loosely_its_address(edge: Hmi, clock) -> None:  # noqa: ANN001
+def test_a_guesser_slows_only_its_own_pair_and_loosely_its_address(edge: Hmi, clock) -> None:
     c = _client(edge)
     for _ in range(edge.hcfg.login.pair_free):
         assert c.login("alice", "guess-guess").status == 401
@@ -80,7 +80,7 @@ def test_cntrl_cmd_takes_integers_only(edge: Hmi, value: object) -> None:
     assert r.status == 422 and "cntrl_cmd" in r.json()["error"], r.body
 
 
-def test_query_and_path_parameters_are_bounded_and_errors_have_one_shape(edge: Hmi, cfg) -> None:  # noqa: ANN001
+def test_query_and_path_parameters_are_bounded_and_errors_have_one_shape(edge: Hmi, cfg) -> None:
     c = _client(edge)
     for path in ("/api/cycles?before=99999999999999999999999", "/api/cycles?before=-1", "/api/cycles?before=x",
                  "/api/cycles/x/images/99999999999999999999", "/api/events?limit=99999999999999999999"):  # fmt: skip

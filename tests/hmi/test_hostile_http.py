@@ -23,7 +23,7 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture
-def hostile(cfg, cell, clock) -> Iterator[tuple[Hmi, Client]]:  # noqa: ANN001
+def hostile(cfg, cell, clock) -> Iterator[tuple[Hmi, Client]]:
     h = Hmi(cfg, hmi_config(header_timeout_s=2.0, keepalive_s=1), clock)
     server = HmiServer(h).start()
     c = Client(h.hcfg.host, h.hcfg.port)
@@ -33,7 +33,7 @@ def hostile(cfg, cell, clock) -> Iterator[tuple[Hmi, Client]]:  # noqa: ANN001
     h.close()
 
 
-def _unmoved(cell, c: Client) -> None:  # noqa: ANN001
+def _unmoved(cell, c: Client) -> None:
     assert cell.supervisor.top_state == "Stopped"
     assert c.get("/api/status").status == 200
 
@@ -49,7 +49,7 @@ def _raw(h: Hmi, data: bytes, source: str = "127.0.0.1") -> bytes:
         return out
 
 
-def test_csrf_and_origins(cell, hostile) -> None:  # noqa: ANN001
+def test_csrf_and_origins(cell, hostile) -> None:
     h, c = hostile
     assert c.login("alice").status == 200
     other = Client(c.host, c.port)
@@ -71,7 +71,7 @@ def test_csrf_and_origins(cell, hostile) -> None:  # noqa: ANN001
     _unmoved(cell, c)
 
 
-def test_sizes(cell, hostile) -> None:  # noqa: ANN001
+def test_sizes(cell, hostile) -> None:
     h, c = hostile
     assert c.get("/api/cycles?outcome=" + "a" * 4000).status == 414
     head = b"POST /api/login HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
@@ -85,7 +85,7 @@ def test_sizes(cell, hostile) -> None:  # noqa: ANN001
     _unmoved(cell, c)
 
 
-def test_traversal(cell, cfg, hostile) -> None:  # noqa: ANN001
+def test_traversal(cell, cfg, hostile) -> None:
     h, c = hostile
     root = str(cfg.path(cfg.recording.dir).parent)
     for path in (
@@ -103,7 +103,7 @@ def test_traversal(cell, cfg, hostile) -> None:  # noqa: ANN001
     _unmoved(cell, c)
 
 
-def test_slow_clients(cell, hostile) -> None:  # noqa: ANN001
+def test_slow_clients(cell, hostile) -> None:
     h, c = hostile
     socks = [socket.create_connection((h.hcfg.host, h.hcfg.port)) for _ in range(20)]
     stop = threading.Event()
@@ -135,7 +135,7 @@ def test_slow_clients(cell, hostile) -> None:  # noqa: ANN001
     _unmoved(cell, c)
 
 
-def test_brute_force(cell, hostile, caplog: pytest.LogCaptureFixture) -> None:  # noqa: ANN001
+def test_brute_force(cell, hostile, caplog: pytest.LogCaptureFixture) -> None:
     h, c = hostile
     codes: dict[int, int] = {}
     t0 = time.monotonic()

@@ -6,7 +6,7 @@ from tests.fakes.workers import FakeCell
 from tests.hmi.conftest import Client, wait_reachable
 
 
-def test_an_incomplete_cycle_is_listed_filtered_and_shown_with_its_fractions(cfg, cell, hmi, client: Client) -> None:  # noqa: ANN001
+def test_an_incomplete_cycle_is_listed_filtered_and_shown_with_its_fractions(cfg, cell, hmi, client: Client) -> None:
     # the conftest's single-station doubles see six faces of one surface: the shipped minimum makes it partial
     cfg.classifier.verdict.min_seen_fraction = {"external": 0.6, "internal": 0.6}
     wait_reachable(client)

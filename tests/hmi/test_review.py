@@ -16,7 +16,7 @@ from tests.hmi.conftest import PASSWORDS, Client, wait_reachable
 from tests.hmi.test_heatmap import _HeatCell
 
 
-def run_review_cycle(cfg, client: Client, doubles: type[_HeatCell] = _HeatCell) -> str:  # noqa: ANN001
+def run_review_cycle(cfg, client: Client, doubles: type[_HeatCell] = _HeatCell) -> str:
     """One completed cycle with a dirty view (view 0) and an uncertain one (view 2); its id."""
     wait_reachable(client)
     op = Client(client.host, client.port)
@@ -35,7 +35,7 @@ def _as(client: Client, user: str) -> Client:
     return c
 
 
-def test_review_roles_ledger_bank_and_release(cfg, cell, hmi, client: Client, capsys) -> None:  # noqa: ANN001
+def test_review_roles_ledger_bank_and_release(cfg, cell, hmi, client: Client, capsys) -> None:
     cid = run_review_cycle(cfg, client)
     items = client.get("/api/review/queue").json()["items"]
     rec = client.get(f"/api/cycles/{cid}/record").json()
@@ -122,7 +122,7 @@ def test_review_roles_ledger_bank_and_release(cfg, cell, hmi, client: Client, ca
     assert '"kind":"review"' in journal and '"kind":"release"' in journal
 
 
-def test_without_gating_a_verdict_stands_released(cfg, cell, hmi, client: Client) -> None:  # noqa: ANN001
+def test_without_gating_a_verdict_stands_released(cfg, cell, hmi, client: Client) -> None:
     hmi.cfg.review.require_for_uncertain = False
     cid = run_review_cycle(cfg, client)
     st = client.get(f"/api/cycles/{cid}/release").json()

@@ -53,13 +53,13 @@ class _SteelCell(_HeatCell):
 
 
 @pytest.fixture
-def driver():  # noqa: ANN201
+def driver():
     d = make_driver()
     yield d
     d.quit()
 
 
-def _open_item(d, url: str, item: str) -> None:  # noqa: ANN001
+def _open_item(d, url: str, item: str) -> None:
     d.get(f"{url}/review")
 
     def click() -> bool:  # the queue re-renders when the stream brings news: a row found may go stale
@@ -70,7 +70,7 @@ def _open_item(d, url: str, item: str) -> None:  # noqa: ANN001
     wait_until(lambda: text(d, "rv-id") == item, 30, f"item {item} opened")
 
 
-def test_an_operator_reviews_and_releases_a_viewer_cannot(cfg, cell, hmi, client, driver) -> None:  # noqa: ANN001
+def test_an_operator_reviews_and_releases_a_viewer_cannot(cfg, cell, hmi, client, driver) -> None:
     url = hmi.server.url
     cid = run_review_cycle(cfg, client, _SteelCell)
     items = client.get("/api/review/queue").json()["items"]

@@ -31,7 +31,7 @@ def test_the_hmi_principal_may_command_and_read_but_serves_no_worker_key() -> No
         assert not serving, (role, serving)
 
 
-def test_the_hmi_commands_a_secured_cell_as_principal_hmi(cfg, tmp_path, clock) -> None:  # noqa: ANN001
+def test_the_hmi_commands_a_secured_cell_as_principal_hmi(cfg, tmp_path, clock) -> None:
     from cellctl.geometry.catalog import load_catalog
 
     sec = tmp_path / "secure"
@@ -55,7 +55,7 @@ def test_the_hmi_commands_a_secured_cell_as_principal_hmi(cfg, tmp_path, clock) 
 
 
 @pytest.mark.parametrize("principal", ["viewer"])
-def test_a_principal_without_the_command_grant_gets_no_ack(cfg, tmp_path, clock, principal: str) -> None:  # noqa: ANN001
+def test_a_principal_without_the_command_grant_gets_no_ack(cfg, tmp_path, clock, principal: str) -> None:
     from cellctl.geometry.catalog import load_catalog
 
     sec = tmp_path / "secure"

@@ -49,7 +49,7 @@ def test_sessions_expire_when_idle_or_old_and_nonces_are_single_use() -> None:
     assert store.get(s2.token) == (None, "expired")
 
 
-def test_hmi_config_rejects_unknown_keys_and_plain_passwords(tmp_path) -> None:  # noqa: ANN001
+def test_hmi_config_rejects_unknown_keys_and_plain_passwords(tmp_path) -> None:
     p = tmp_path / "hmi.yaml"
     p.write_text("port: 8081\nusers:\n  - {name: alice, role: operator, password_hash: hunter2}\n")
     with pytest.raises(ConfigError, match="password_hash"):
@@ -65,7 +65,7 @@ def test_hmi_config_rejects_unknown_keys_and_plain_passwords(tmp_path) -> None: 
         load_hmi_config(p, ["port"])
 
 
-def test_the_tail_reads_a_log_as_it_grows_and_stops_at_a_partial_record(tmp_path) -> None:  # noqa: ANN001
+def test_the_tail_reads_a_log_as_it_grows_and_stops_at_a_partial_record(tmp_path) -> None:
     path = tmp_path / "c.mcap"
     log = CycleLog(path, "c1")
     seen = []
@@ -95,7 +95,7 @@ def test_the_tail_reads_a_log_as_it_grows_and_stops_at_a_partial_record(tmp_path
     assert json.loads(seen[0].data)["state"] == "Execute"
 
 
-def test_the_live_scene_is_a_valid_foxglove_scene_update(cfg) -> None:  # noqa: ANN001
+def test_the_live_scene_is_a_valid_foxglove_scene_update(cfg) -> None:
     import jsonschema
     import numpy as np
 

@@ -68,7 +68,7 @@ def test_speed_fraction_slows_the_motion_and_zero_length_moves_take_no_time() ->
         (np.zeros((2, 6)), {"accel_fraction": 1.5}, r"accel_fraction is 1.5"),
     ],
 )
-def test_bad_input_is_refused_naming_the_value(path, kw, match) -> None:  # noqa: ANN001
+def test_bad_input_is_refused_naming_the_value(path, kw, match) -> None:
     with pytest.raises(RobotError, match=match):
         time_parametrize(path, **kw)
 

@@ -102,7 +102,7 @@ def test_a_plan_file_written_before_the_typed_model_reads_and_still_hits(box, ro
     assert hit.hit and hit.plan_id == plan.plan_id and len(hit.viewpoints) == 8, hit.reason
 
 
-def _bad(body: dict, **changes) -> dict:  # noqa: ANN003
+def _bad(body: dict, **changes) -> dict:
     out = json.loads(json.dumps(body))
     for path, value in changes.items():
         *head, last = path.split("__")

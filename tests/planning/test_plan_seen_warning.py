@@ -11,7 +11,7 @@ from cellctl.planning.shapes import open_box_bin
 pytestmark = pytest.mark.slow  # a whole-bin plan (~10 s CPU); tests/test_seen.py covers the rule itself
 
 
-def test_plan_whole_warns_with_the_fractions_when_its_cycles_cannot_be_clean(tmp_path, capsys) -> None:  # noqa: ANN001
+def test_plan_whole_warns_with_the_fractions_when_its_cycles_cannot_be_clean(tmp_path, capsys) -> None:
     from cellctl.cli import main
 
     mesh_file = tmp_path / "box.stl"

@@ -61,7 +61,7 @@ def box_catalog(tmp_path_factory) -> Path:
     return d / "bins.yaml"
 
 
-def _cfg(tmp_path: Path, catalog: Path, port: int):  # noqa: ANN202
+def _cfg(tmp_path: Path, catalog: Path, port: int):
     ep = f'["tcp/127.0.0.1:{port}"]'
     return load_config(
         None,

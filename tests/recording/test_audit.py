@@ -51,7 +51,7 @@ class Cell:
                 db.execute(s)
         db.close()
 
-    def verify(self, head: str | None = None):  # noqa: ANN201
+    def verify(self, head: str | None = None):
         return verify_audit(self.db, self.logs, head)
 
 
@@ -62,7 +62,7 @@ def cell(tmp_path: Path) -> Cell:
     c.index.close()
 
 
-def kinds(report) -> dict[FindingKind, list[str | None]]:  # noqa: ANN001
+def kinds(report) -> dict[FindingKind, list[str | None]]:
     out: dict[FindingKind, list[str | None]] = {}
     for f in report.tampering:
         out.setdefault(f.kind, []).append(f.cycle_id)

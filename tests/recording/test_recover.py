@@ -105,7 +105,7 @@ def _record_starts(data: bytes, opcode: int) -> list[int]:
     return out
 
 
-def _read_indexed(path: Path):  # noqa: ANN202
+def _read_indexed(path: Path):
     """What the standard indexed entry point reads: (summary, messages, metadata by name)."""
     with open(path, "rb") as f:
         reader = make_reader(f)
@@ -318,7 +318,7 @@ def test_a_file_that_is_not_mcap_is_refused_and_left_alone(tmp_path: Path) -> No
         recover_mcap(tmp_path / "x.mcap", tmp_path / "x.mcap")
 
 
-def test_cli_recover_writes_the_copy_and_prints_what_it_found(full_log: Path, tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_cli_recover_writes_the_copy_and_prints_what_it_found(full_log: Path, tmp_path: Path, capsys) -> None:
     src = tmp_path / "elsewhere.mcap"
     src.write_bytes(full_log.read_bytes()[:-100])
     assert main(["recover", str(src), "--out", str(tmp_path / "fixed.mcap")]) == 0
@@ -480,7 +480,7 @@ def test_an_index_written_before_row_format_2_still_verifies_and_grows(tmp_path:
         index.close()
 
 
-def test_report_reads_the_recovered_log_of_an_interrupted_cycle(logs: Logs, capsys) -> None:  # noqa: ANN001
+def test_report_reads_the_recovered_log_of_an_interrupted_cycle(logs: Logs, capsys) -> None:
     logs.index.mark_interrupted()
     sets = ["--set", f"recording.index={logs.db}", "--set", f"recording.dir={logs.root}"]
     assert main(["report", "c1", *sets]) == 0
@@ -492,7 +492,7 @@ def test_report_reads_the_recovered_log_of_an_interrupted_cycle(logs: Logs, caps
     assert "refusing to read cycle c1" in capsys.readouterr().err
 
 
-def test_replay_refuses_an_interrupted_cycle_whose_recovered_log_changed(logs: Logs, capsys) -> None:  # noqa: ANN001
+def test_replay_refuses_an_interrupted_cycle_whose_recovered_log_changed(logs: Logs, capsys) -> None:
     (row,) = logs.index.mark_interrupted()
     rec = Path(row.recovered_path)
     rec.write_bytes(rec.read_bytes() + b"x")

@@ -88,7 +88,7 @@ def test_check_set_files_names_an_edited_and_a_missing_image(tmp_path: Path) -> 
     assert len(bad) == 2 and "edited or replaced" in bad[0] and "missing" in bad[1]
 
 
-def test_the_cli_lists_sets_and_shows_a_viewpoints_reference(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_the_cli_lists_sets_and_shows_a_viewpoints_reference(tmp_path: Path, capsys) -> None:
     import json
 
     from cellctl.cli import main

@@ -26,14 +26,14 @@ def _bank_of_site_views(tmp_path: Path, n_clean: int, n_dirty: int) -> list[str]
     return sets
 
 
-def test_too_few_confirmed_clean_views_are_refused_in_one_line(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_too_few_confirmed_clean_views_are_refused_in_one_line(tmp_path: Path, capsys) -> None:
     sets = _bank_of_site_views(tmp_path, 3, 0)
     assert main(["detector", "update", "--surface", "external", *sets]) == 2
     err = capsys.readouterr().err
     assert "holds 3 confirmed-clean external view(s)" in err and "at least 10" in err
 
 
-def test_update_reenrolls_from_the_bank_and_reports_how_the_decision_moved(tmp_path: Path, capsys) -> None:  # noqa: ANN001
+def test_update_reenrolls_from_the_bank_and_reports_how_the_decision_moved(tmp_path: Path, capsys) -> None:
     sets = _bank_of_site_views(tmp_path, 12, 2)
     out = tmp_path / "ext.enrolled.pt"
     rc = main(["detector", "update", "--surface", "external", "--out", str(out), "--held-out", "4", *sets])
@@ -52,6 +52,6 @@ def test_update_reenrolls_from_the_bank_and_reports_how_the_decision_moved(tmp_p
 
 
 @pytest.mark.parametrize("bad", ["--held-out=0", "--held-out=1001"])
-def test_a_held_out_size_out_of_range_is_refused(bad: str, capsys) -> None:  # noqa: ANN001
+def test_a_held_out_size_out_of_range_is_refused(bad: str, capsys) -> None:
     assert main(["detector", "update", "--surface", "external", bad]) == 2
     assert "--held-out" in capsys.readouterr().err

@@ -10,15 +10,14 @@ import socket
 import struct
 import time
 
+import dashboard_client
 import numpy as np
 import pytest
+import rtde_control
+import rtde_receive
 
 from cellctl.sim import scene
 from cellctl.sim.ur_controller import EmulatorProcess, free_loopback_host
-
-rtde_control = pytest.importorskip("rtde_control")
-rtde_receive = pytest.importorskip("rtde_receive")
-dashboard_client = pytest.importorskip("dashboard_client")
 
 
 @pytest.fixture(scope="module")

@@ -30,7 +30,7 @@ from cellctl.recording.audit import FindingKind, verify_audit
 from cellctl.recording.references import MANIFEST, lookup_reference, read_manifest, reference_root, set_versions
 from tests.fakes.workers import CAM_POSE, INTRINSICS, FakeCell
 from tests.supervisor.test_cycle_over_zenoh import cell, plc  # noqa: F401 - the daemon and PLC fixtures
-from tests.supervisor.test_station_loop import faces as faces  # noqa: F401 - the case-study faces per surface
+from tests.supervisor.test_station_loop import faces as faces  # the case-study faces per surface
 
 USER = "hmi:alice"
 
@@ -38,7 +38,7 @@ USER = "hmi:alice"
 class CommissionCell(FakeCell):
     """Doubles with a classifier that enrolls (a stand-in file) and a planner whose plan id can change."""
 
-    def __init__(self, cfg, **kw) -> None:  # noqa: ANN001, ANN003
+    def __init__(self, cfg, **kw) -> None:
         super().__init__(cfg, **kw)
         self.plan_id = "plan-1"
         self.enrolled: dict[str, str] = {}
@@ -74,12 +74,12 @@ class CommissionCell(FakeCell):
         return r.model_copy(update={"plan_id": self.plan_id}) if r.hit else r
 
 
-def _start(plc, mode: str | None = None, user: str | None = USER):  # noqa: ANN001, ANN202, F811
+def _start(plc, mode: str | None = None, user: str | None = USER):  # noqa: F811
     params = {"mode": mode} if mode else {}
     return plc.send(Command(command="start", user=user, params=params, request_id=plc._next_id(), stamp=now_iso()))
 
 
-def _cycle(plc, mode: str | None = None, user: str | None = USER, timeout: float = 30):  # noqa: ANN001, ANN202, F811
+def _cycle(plc, mode: str | None = None, user: str | None = USER, timeout: float = 30):  # noqa: F811
     plc.drain()
     plc.cmd("reset")
     plc.wait_state("Idle")
@@ -89,14 +89,14 @@ def _cycle(plc, mode: str | None = None, user: str | None = USER, timeout: float
     return plc.results.get(timeout=10)
 
 
-def _to_maintenance(plc) -> None:  # noqa: ANN001, F811
+def _to_maintenance(plc) -> None:  # noqa: F811
     if plc.cmd("reset").accepted:  # from Complete (a unit mode changes only at rest)
         plc.wait_state("Idle")
     ack = plc.unit_mode("maintenance", user=USER)
     assert ack.accepted, ack.reason
 
 
-def test_commission_is_refused_in_production_and_without_a_user(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_commission_is_refused_in_production_and_without_a_user(cfg, cell, plc) -> None:  # noqa: F811
     with CommissionCell(cfg) as fake:
         plc.cmd("reset")
         plc.wait_state("Idle")
@@ -111,7 +111,7 @@ def test_commission_is_refused_in_production_and_without_a_user(cfg, cell, plc) 
     assert not reference_root(cfg).exists()
 
 
-def test_commissioning_writes_a_reference_set_chained_into_the_audit(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_commissioning_writes_a_reference_set_chained_into_the_audit(cfg, cell, plc) -> None:  # noqa: F811
     root = reference_root(cfg)
     with CommissionCell(cfg) as fake:
         shipped = _cycle(plc)  # production: an ordinary cycle, nothing commissioned yet
@@ -165,7 +165,7 @@ def test_commissioning_writes_a_reference_set_chained_into_the_audit(cfg, cell, 
     assert kinds.count(FindingKind.reference_mismatch) == 2, kinds
 
 
-def test_a_replanned_bin_falls_back_until_commissioned_again(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_a_replanned_bin_falls_back_until_commissioned_again(cfg, cell, plc) -> None:  # noqa: F811
     root = reference_root(cfg)
     with CommissionCell(cfg) as fake:
         _to_maintenance(plc)
@@ -184,7 +184,7 @@ def test_a_replanned_bin_falls_back_until_commissioned_again(cfg, cell, plc) -> 
     assert lookup_reference(root, "case_study", "plan-2", 1).version == 2
 
 
-def test_a_surface_that_cannot_be_enrolled_keeps_its_references_and_says_why(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_a_surface_that_cannot_be_enrolled_keeps_its_references_and_says_why(cfg, cell, plc) -> None:  # noqa: F811
     with CommissionCell(cfg, fail={"enroll": "3 images; enrollment needs at least 10 clean images"}):
         _to_maintenance(plc)
         res = _cycle(plc, "commission")
@@ -200,14 +200,14 @@ class TestWholeBin:
     """The shipped default: a whole-bin cycle, three stations, both surfaces (the doubles of test_station_loop)."""
 
     @pytest.fixture
-    def cfg(self, tmp_path, port):  # noqa: ANN001, ANN201 - the shipped config on a private port and folders
+    def cfg(self, tmp_path, port):  # the shipped config on a private port and folders
         from cellctl.config import load_config
         from tests.conftest import cfg_overrides
         from tests.supervisor.test_whole_default import PINS
 
         return load_config(None, [o for o in cfg_overrides(tmp_path, port) if not o.startswith(PINS)])
 
-    def test_a_whole_bin_commissioning_references_every_station_plan(self, cfg, cell, plc, faces) -> None:  # noqa: ANN001, F811
+    def test_a_whole_bin_commissioning_references_every_station_plan(self, cfg, cell, plc, faces) -> None:  # noqa: F811
         from tests.supervisor.test_whole_default import WideWholeFakeCell
 
         class WholeCommissionCell(CommissionCell, WideWholeFakeCell):
@@ -231,7 +231,7 @@ class TestWholeBin:
         assert after.verdict == "clean" and after.reference_version == 1
 
 
-def test_replay_verify_of_commissioning_adds_no_set(cfg, cell, plc, tmp_path) -> None:  # noqa: ANN001, F811
+def test_replay_verify_of_commissioning_adds_no_set(cfg, cell, plc, tmp_path) -> None:  # noqa: F811
     from cellctl.geometry.catalog import load_catalog
     from cellctl.recording.replay import verify
     from tests.fakes.workers import fake_identify

@@ -38,7 +38,7 @@ class Daemon:
 
     def __init__(self, overrides: list[str], stderr: Path) -> None:
         args = [a for ov in overrides for a in ("--set", ov)]
-        self._err = open(stderr, "ab")  # noqa: SIM115 - closed in stop()
+        self._err = open(stderr, "ab")  # closed in stop()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "tests.fakes.daemon", "run", *args],
             cwd=REPO,
@@ -48,7 +48,7 @@ class Daemon:
             env={**os.environ, "PYTHONPATH": str(REPO)},
         )
 
-    def connect(self, cfg, timeout: float = 30.0) -> Plc:  # noqa: ANN001
+    def connect(self, cfg, timeout: float = 30.0) -> Plc:
         """A PLC client, once the supervisor publishes Status (its router listens a bit earlier)."""
         deadline = time.monotonic() + timeout
         while True:
@@ -102,7 +102,7 @@ def _stream(path: Path) -> list[tuple[str, str, dict]]:
                 elif isinstance(rec, Message):
                     topic, sid = channels[rec.channel_id]
                     out.append((topic, schemas[sid], json.loads(rec.data)))
-        except Exception:  # noqa: BLE001 - a killed writer leaves no footer; the stream ends there
+        except Exception:  # a killed writer leaves no footer; the stream ends there
             pass
     return out
 
@@ -233,7 +233,7 @@ def test_sigkill_mid_cycle_then_restart_comes_up_stopped_with_the_cycle_interrup
 
 
 @pytest.fixture(autouse=True)
-def _daemon_log_in_the_report(tmp_path: Path):  # noqa: ANN202
+def _daemon_log_in_the_report(tmp_path: Path):
     # pytest shows captured teardown output only for a failed test: the daemon's side of it.
     yield
     log = tmp_path / "daemon.log"

@@ -20,13 +20,13 @@ from tests.fakes.workers import FakeCell, fake_identify
 class Plc(PlcClient):
     """The shipped PLC client with the short names these tests read best with."""
 
-    def __init__(self, cfg) -> None:  # noqa: ANN001
+    def __init__(self, cfg) -> None:
         super().__init__(cfg, "t")
         self.s = self.session
         self.status = self.statuses
         time.sleep(0.2)
 
-    def cmd(self, command: str, **params) -> Ack:  # noqa: ANN003
+    def cmd(self, command: str, **params) -> Ack:
         return self.command(command, timeout=5, **params)
 
     def wait_state(self, state: str, timeout: float = 10.0) -> Status:
@@ -37,7 +37,7 @@ class Plc(PlcClient):
 
 
 @pytest.fixture
-def cell(cfg):  # noqa: ANN001, ANN201
+def cell(cfg):
     from cellctl.geometry.catalog import load_catalog
 
     c = build_cell(cfg, identification=(fake_identify, load_catalog(cfg.path(cfg.catalog))))
@@ -46,7 +46,7 @@ def cell(cfg):  # noqa: ANN001, ANN201
 
 
 @pytest.fixture
-def plc(cfg, cell):  # noqa: ANN001, ANN201
+def plc(cfg, cell):
     p = Plc(cfg)
     yield p
     p.close()
@@ -225,7 +225,7 @@ def test_start_params_are_validated(cfg, cell, plc) -> None:
     assert cell.supervisor.state == "Idle"
 
 
-def _verify_config(out, settle_s: float):  # noqa: ANN001, ANN202
+def _verify_config(out, settle_s: float):
     """A replay supervisor's config: its own private bus and index under ``out``."""
     from cellctl.config import load_config
     from tests.conftest import free_port
@@ -304,7 +304,7 @@ def test_hold_with_a_classification_in_flight_resumes_and_completes(cfg, cell, p
 class _UncertainCell(FakeCell):
     """Every classification uncertain: a cycle with re-looks on would image each viewpoint again."""
 
-    def _classify(self, req, image):  # noqa: ANN001, ANN202
+    def _classify(self, req, image):
         return super()._classify(req, image).model_copy(update={"uncertain": True})
 
 

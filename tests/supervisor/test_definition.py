@@ -88,7 +88,7 @@ def test_step_rejects_undeclared_outcome() -> None:
         NAME = "bad"
         OUTCOMES = ("succeeded",)
 
-        def execute(self, run):  # noqa: ANN001, ANN201
+        def execute(self, run):
             return "exploded"
 
     with pytest.raises(ValueError, match="outcome 'exploded' does not belong"):

@@ -64,7 +64,7 @@ COMMANDS = ["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", 
 
 
 @pytest.fixture
-def sup(cfg):  # noqa: ANN001, ANN201
+def sup(cfg):
     idx = CycleIndex(cfg.path(cfg.recording.index))
     s = Supervisor(cfg, None, idx)  # never started: no bus, the table alone
     yield s

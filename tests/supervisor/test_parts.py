@@ -148,7 +148,7 @@ def test_roster_counts_tokens_per_role_and_trusts_the_router() -> None:
 # --- runner ---------------------------------------------------------------------------------
 
 
-def test_runner_reports_outcomes_failures_and_ignores_a_cancelled_run(cfg) -> None:  # noqa: ANN001
+def test_runner_reports_outcomes_failures_and_ignores_a_cancelled_run(cfg) -> None:
     done: queue.Queue[StepDone] = queue.Queue()
     runner = Runner(done.put)
     ctx = context(cfg)
@@ -157,7 +157,7 @@ def test_runner_reports_outcomes_failures_and_ignores_a_cancelled_run(cfg) -> No
     ev = done.get(timeout=5)
     assert ev == StepDone(runner.token, "succeeded") and runner.finished(ev)
 
-    def refuse(run):  # noqa: ANN001, ANN202
+    def refuse(run):
         raise WorkerUnavailable("no robot")
 
     runner.cancel()
@@ -169,7 +169,7 @@ def test_runner_reports_outcomes_failures_and_ignores_a_cancelled_run(cfg) -> No
 
     gate = threading.Event()
 
-    def slow(run):  # noqa: ANN001, ANN202
+    def slow(run):
         gate.wait(5)
         return "late"
 
@@ -181,7 +181,7 @@ def test_runner_reports_outcomes_failures_and_ignores_a_cancelled_run(cfg) -> No
     ev = done.get(timeout=5)
     assert ev.token == stale and not runner.finished(ev)
 
-    def checkpointed(run):  # noqa: ANN001, ANN202
+    def checkpointed(run):
         run.cancelled.wait(5)
         run.checkpoint()
 
@@ -197,7 +197,7 @@ def test_runner_reports_outcomes_failures_and_ignores_a_cancelled_run(cfg) -> No
 # --- recorder, cycle keeper, admin ----------------------------------------------------------
 
 
-def test_cycle_recorder_writes_the_row_first_and_a_readable_mcap(cfg, tmp_path: Path) -> None:  # noqa: ANN001
+def test_cycle_recorder_writes_the_row_first_and_a_readable_mcap(cfg, tmp_path: Path) -> None:
     import datetime as dt
 
     idx = index(tmp_path)
@@ -218,19 +218,19 @@ def test_cycle_recorder_writes_the_row_first_and_a_readable_mcap(cfg, tmp_path: 
     idx.close()
 
 
-def test_the_verdict_is_kept_only_for_a_completed_cycle(cfg) -> None:  # noqa: ANN001
+def test_the_verdict_is_kept_only_for_a_completed_cycle(cfg) -> None:
     ctx = context(cfg, verdict="dirty")
     assert assemble_result(ctx, CycleOutcome.aborted).verdict is None
 
 
-def test_null_recorder_keeps_nothing(cfg) -> None:  # noqa: ANN001
+def test_null_recorder_keeps_nothing(cfg) -> None:
     rec = NullRecorder()
     rec.write_json("/x", "s", {"a": 1})
     rec.close(CycleResult(cycle_id="x", outcome=CycleOutcome.aborted))
     assert rec.path is None and rec.rel is None
 
 
-def test_admin_counts_from_the_index_and_from_finished_cycles(cfg, tmp_path: Path) -> None:  # noqa: ANN001
+def test_admin_counts_from_the_index_and_from_finished_cycles(cfg, tmp_path: Path) -> None:
     idx = index(tmp_path)
     for cid, outcome, verdict in [("a", "completed", "clean"), ("b", "completed", "dirty"), ("c", "aborted", None)]:
         idx.begin(cid, "cell1", f"/tmp/{cid}.mcap")
@@ -302,7 +302,7 @@ def test_behaviours_table_is_the_registry() -> None:
 
 
 class _Host:
-    def __init__(self, cfg, tmp_path: Path, missing: list[str]) -> None:  # noqa: ANN001
+    def __init__(self, cfg, tmp_path: Path, missing: list[str]) -> None:
         self.cycles = CycleKeeper(cfg, None, index(tmp_path), Outbox(None, "cell1"), AdminBook(), lambda: False)
         self._missing = missing
         self.resets = 0
@@ -314,7 +314,7 @@ class _Host:
         self.resets += 1
 
 
-def test_open_cycle_refuses_without_required_workers(cfg, tmp_path: Path) -> None:  # noqa: ANN001
+def test_open_cycle_refuses_without_required_workers(cfg, tmp_path: Path) -> None:
     host = _Host(cfg, tmp_path, ["robot", "camera"])
     with pytest.raises(WorkerUnavailable, match="no robot, camera worker alive"):
         OpenCycle().execute(None, host)  # type: ignore[arg-type]
@@ -322,7 +322,7 @@ def test_open_cycle_refuses_without_required_workers(cfg, tmp_path: Path) -> Non
     OpenCycle().execute(None, host)  # type: ignore[arg-type]
 
 
-def test_finish_cycle_early_closes_the_cycle_as_aborted(cfg, tmp_path: Path) -> None:  # noqa: ANN001
+def test_finish_cycle_early_closes_the_cycle_as_aborted(cfg, tmp_path: Path) -> None:
     host = _Host(cfg, tmp_path, [])
     ctx = host.cycles.open()
     FinishCycle().execute(None, host)  # type: ignore[arg-type]

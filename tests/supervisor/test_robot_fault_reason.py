@@ -14,7 +14,7 @@ from tests.fakes.workers import FakeCell
 from tests.supervisor.test_cycle_over_zenoh import cell, plc  # noqa: F401 - the daemon and a PLC
 
 
-def _wait(pred, timeout_s: float = 10.0) -> None:  # noqa: ANN001
+def _wait(pred, timeout_s: float = 10.0) -> None:
     deadline = time.monotonic() + timeout_s
     while not pred():
         assert time.monotonic() < deadline, "condition not reached"
@@ -22,7 +22,7 @@ def _wait(pred, timeout_s: float = 10.0) -> None:  # noqa: ANN001
 
 
 @pytest.mark.parametrize("report_first", [True, False], ids=["report-then-loss", "loss-then-report"])
-def test_the_cycle_result_names_the_robot_fault(cfg, cell, plc, report_first) -> None:  # noqa: ANN001, F811
+def test_the_cycle_result_names_the_robot_fault(cfg, cell, plc, report_first) -> None:  # noqa: F811
     with FakeCell(cfg, n_viewpoints=20, move_delay_s=0.2) as fake:
         plc.cmd("reset")
         assert plc.wait_for(lambda s: s.state == "Idle", 10)
@@ -51,7 +51,7 @@ def test_the_cycle_result_names_the_robot_fault(cfg, cell, plc, report_first) ->
     assert cell.supervisor.admin.stop_reason == cell.supervisor.status.last_error
 
 
-def test_a_report_from_long_ago_is_not_the_reason_of_a_later_loss(cfg, cell, plc, monkeypatch) -> None:  # noqa: ANN001, F811
+def test_a_report_from_long_ago_is_not_the_reason_of_a_later_loss(cfg, cell, plc, monkeypatch) -> None:  # noqa: F811
     import cellctl.supervisor.supervisor as sup
 
     monkeypatch.setattr(sup, "FAULT_WINDOW_S", 0.2)

@@ -27,14 +27,14 @@ REPORT = FaultReport(
 REASON = "robot fault: protective stop (robot worker unavailable in Execute.scanning)"
 
 
-def _wait(pred, timeout_s: float = 10.0) -> None:  # noqa: ANN001
+def _wait(pred, timeout_s: float = 10.0) -> None:
     deadline = time.monotonic() + timeout_s
     while not pred():
         assert time.monotonic() < deadline, "condition not reached"
         time.sleep(0.01)
 
 
-def _fault_in_a_scan(cfg, cell, plc, fake, report_first: bool, lag_s: float = 0.0, send: bool = True):  # noqa: ANN001, ANN202, F811
+def _fault_in_a_scan(cfg, cell, plc, fake, report_first: bool, lag_s: float = 0.0, send: bool = True):  # noqa: F811
     """Start a cycle, lose the robot in a scan (its report before or ``lag_s`` after the loss, or none)."""
     pub = fake.session.declare_publisher(keys.worker_fault(cfg.cell_id, "robot"))
     plc.cmd("reset")
@@ -54,7 +54,7 @@ def _fault_in_a_scan(cfg, cell, plc, fake, report_first: bool, lag_s: float = 0.
     return res, pub
 
 
-def test_a_typed_report_names_the_fault_and_is_in_the_cycle_log(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_a_typed_report_names_the_fault_and_is_in_the_cycle_log(cfg, cell, plc) -> None:  # noqa: F811
     with FakeCell(cfg, n_viewpoints=20, move_delay_s=0.2) as fake:
         res, pub = _fault_in_a_scan(cfg, cell, plc, fake, report_first=True)
         pub.undeclare()
@@ -65,7 +65,7 @@ def test_a_typed_report_names_the_fault_and_is_in_the_cycle_log(cfg, cell, plc) 
     assert logged == [REPORT]
 
 
-def test_a_report_just_behind_the_loss_still_names_the_fault_in_the_sealed_result(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_a_report_just_behind_the_loss_still_names_the_fault_in_the_sealed_result(cfg, cell, plc) -> None:  # noqa: F811
     with FakeCell(cfg, n_viewpoints=20, move_delay_s=0.2) as fake:
         res, pub = _fault_in_a_scan(cfg, cell, plc, fake, report_first=False, lag_s=0.05)
         pub.undeclare()
@@ -74,7 +74,7 @@ def test_a_report_just_behind_the_loss_still_names_the_fault_in_the_sealed_resul
     assert cell.supervisor.index.get(res.cycle_id).reason == REASON
 
 
-def test_a_report_after_the_close_corrects_what_is_not_sealed(cfg, cell, plc, monkeypatch) -> None:  # noqa: ANN001, F811
+def test_a_report_after_the_close_corrects_what_is_not_sealed(cfg, cell, plc, monkeypatch) -> None:  # noqa: F811
     import cellctl.supervisor.cycles as cycles
 
     monkeypatch.setattr(cycles, "REASON_GRACE_S", 0.0)
@@ -90,7 +90,7 @@ def test_a_report_after_the_close_corrects_what_is_not_sealed(cfg, cell, plc, mo
     assert cell.supervisor.admin.stop_reason == REASON
 
 
-def test_a_cleared_report_is_no_reason_for_a_later_loss(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_a_cleared_report_is_no_reason_for_a_later_loss(cfg, cell, plc) -> None:  # noqa: F811
     with FakeCell(cfg, n_viewpoints=20, move_delay_s=0.2) as fake:
         pub = fake.session.declare_publisher(keys.worker_fault(cfg.cell_id, "robot"))
         time.sleep(0.1)

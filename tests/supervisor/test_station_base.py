@@ -13,17 +13,17 @@ from tests.supervisor.test_cycle_over_zenoh import cell, plc  # noqa: F401 - the
 
 
 @pytest.fixture
-def cfg(cfg):  # noqa: ANN001, ANN201 - the conftest's cfg with a manual base
+def cfg(cfg):  # the conftest's cfg with a manual base
     cfg.base.backend = "manual"
     cfg.base.confirm_timeout_s = 20.0
     return cfg
 
 
-def _confirm(client, station: int):  # noqa: ANN001, ANN202
+def _confirm(client, station: int):
     return client.send(Command(base_parked=station, request_id=f"base-{station}", user="plc"), 5)
 
 
-def _waiting(plc, cell, timeout: float = 10.0) -> None:  # noqa: ANN001, F811
+def _waiting(plc, cell, timeout: float = 10.0) -> None:  # noqa: F811
     deadline = time.monotonic() + timeout
     while cell.supervisor.cycles.base.waiting is None and time.monotonic() < deadline:
         time.sleep(0.02)

@@ -19,7 +19,7 @@ def _done(label: str, p: float, uncertain: bool = False) -> Future:
     return f
 
 
-def _ctx(cfg, whole: bool):  # noqa: ANN001, ANN202
+def _ctx(cfg, whole: bool):
     cfg.planner.whole.enabled = whole
     where = {"station": 0, "surface": "external"} if whole else {}
     ctx = context(
@@ -35,7 +35,7 @@ def _ctx(cfg, whole: bool):  # noqa: ANN001, ANN202
     return ctx
 
 
-def _run(ctx, relook: ClassifyReply) -> ScriptedRun:  # noqa: ANN001
+def _run(ctx, relook: ClassifyReply) -> ScriptedRun:
     script = {
         ("robot", "move"): lambda req: (MoveReply(joints=[0.0] * 6, camera_pose=req.camera_pose), None),
         ("camera", "capture"): (CaptureReply(format="png", intrinsics=INTRINSICS, camera_pose=CAM_POSE), _png()),
@@ -52,7 +52,7 @@ def _run(ctx, relook: ClassifyReply) -> ScriptedRun:  # noqa: ANN001
         (ClassifyReply(label="dirty", p_dirty=0.9, model_id="m"), "dirty"),
     ],
 )
-def test_a_whole_bin_cycle_re_looks_once_at_a_certain_dirty_view(cfg, relook, verdict) -> None:  # noqa: ANN001
+def test_a_whole_bin_cycle_re_looks_once_at_a_certain_dirty_view(cfg, relook, verdict) -> None:
     ctx = _ctx(cfg, whole=True)
     run = _run(ctx, relook)
     assert Classifying()(run) == "succeeded"
@@ -61,7 +61,7 @@ def test_a_whole_bin_cycle_re_looks_once_at_a_certain_dirty_view(cfg, relook, ve
     assert ctx.verdict == verdict
 
 
-def test_a_single_station_cycle_keeps_a_certain_dirty_view_without_a_re_look(cfg) -> None:  # noqa: ANN001
+def test_a_single_station_cycle_keeps_a_certain_dirty_view_without_a_re_look(cfg) -> None:
     ctx = _ctx(cfg, whole=False)
     run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.08, model_id="m"))
     assert Classifying()(run) == "succeeded"
@@ -73,7 +73,7 @@ def test_a_single_station_cycle_keeps_a_certain_dirty_view_without_a_re_look(cfg
     assert ctx.verdict == "clean" and len(ctx.viewpoints) == 4
 
 
-def test_once_a_dirty_view_is_confirmed_no_further_one_is_re_looked(cfg) -> None:  # noqa: ANN001
+def test_once_a_dirty_view_is_confirmed_no_further_one_is_re_looked(cfg) -> None:
     ctx = _ctx(cfg, whole=True)
     ctx.classifications = {0: _done("dirty", 0.9), 1: _done("dirty", 0.8), 2: _done("dirty", 0.85)}
     run = _run(ctx, ClassifyReply(label="dirty", p_dirty=0.9, model_id="m"))
@@ -82,7 +82,7 @@ def test_once_a_dirty_view_is_confirmed_no_further_one_is_re_looked(cfg) -> None
     assert ctx.verdict == "dirty"
 
 
-def _scan_run(ctx, move) -> ScriptedRun:  # noqa: ANN001
+def _scan_run(ctx, move) -> ScriptedRun:
     """A scripted scan: the robot's moves by ``move``, every capture a clean view."""
     script = {
         ("robot", "move"): move,
@@ -92,7 +92,7 @@ def _scan_run(ctx, move) -> ScriptedRun:  # noqa: ANN001
     return ScriptedRun(ctx, script)
 
 
-def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None:  # noqa: ANN001
+def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None:
     from cellctl.errors import WorkerFailed
     from cellctl.messages import PlanLookupReply, PlannedViewpoint
     from cellctl.supervisor.steps.scanning import Scanning
@@ -106,7 +106,7 @@ def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None
     vps = [PlannedViewpoint(index=i, camera_pose=CAM_POSE, joints=[0.1 * i] * 6, faces=[i]) for i in range(2)]
     ctx.plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=10)
 
-    def move(req):  # noqa: ANN001, ANN202
+    def move(req):
         if req.joints == [0.1] * 6:
             raise WorkerFailed("target joints are in collision: wrist_2 vs bin", role="robot")
         return MoveReply(joints=[0.0] * 6, camera_pose=CAM_POSE), None
@@ -119,7 +119,7 @@ def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None
     assert any("reached by its camera pose" in t for _, t in run.events)
 
 
-def test_in_a_whole_bin_cycle_an_uncertain_view_and_its_re_look_are_fused_by_their_mean(cfg) -> None:  # noqa: ANN001
+def test_in_a_whole_bin_cycle_an_uncertain_view_and_its_re_look_are_fused_by_their_mean(cfg) -> None:
     ctx = _ctx(cfg, whole=True)
     # the demo's case: uncertain dirty at p 0.78, a certain-clean re-look at p 0.002 (nearest-the-mean: a tie)
     ctx.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.78, uncertain=True), 2: _done("clean", 0.1)}
@@ -134,7 +134,7 @@ def test_in_a_whole_bin_cycle_an_uncertain_view_and_its_re_look_are_fused_by_the
 
 
 @pytest.mark.parametrize("first", ["dirty", "uncertain"])
-def test_a_refused_re_look_pose_is_followed_by_the_next_one(cfg, first) -> None:  # noqa: ANN001
+def test_a_refused_re_look_pose_is_followed_by_the_next_one(cfg, first) -> None:
     """Near a rim the first swing can touch the bin: the next re-look pose is tried, at no budget cost."""
     from cellctl.errors import WorkerFailed
 
@@ -144,7 +144,7 @@ def test_a_refused_re_look_pose_is_followed_by_the_next_one(cfg, first) -> None:
     cfg.classifier.relook.max_views = 1
     refused = 0
 
-    def move(req):  # noqa: ANN001, ANN202
+    def move(req):
         nonlocal refused
         if refused < 2:
             refused += 1
@@ -161,12 +161,12 @@ def test_a_refused_re_look_pose_is_followed_by_the_next_one(cfg, first) -> None:
     assert ctx.verdict == "clean"  # the third pose's certain-clean view overrules (or outweighs) the first
 
 
-def test_a_view_whose_every_re_look_pose_is_refused_keeps_its_label(cfg) -> None:  # noqa: ANN001
+def test_a_view_whose_every_re_look_pose_is_refused_keeps_its_label(cfg) -> None:
     from cellctl.errors import WorkerFailed
 
     ctx = _ctx(cfg, whole=True)
 
-    def move(req):  # noqa: ANN001, ANN202
+    def move(req):
         raise WorkerFailed("camera pose is unreachable without collision", role="robot")
 
     run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.02, model_id="m"))
@@ -176,7 +176,7 @@ def test_a_view_whose_every_re_look_pose_is_refused_keeps_its_label(cfg) -> None
     assert ctx.verdict == "dirty"
 
 
-def test_a_whole_bin_scan_tries_nearby_views_when_the_camera_pose_is_refused_too(cfg) -> None:  # noqa: ANN001
+def test_a_whole_bin_scan_tries_nearby_views_when_the_camera_pose_is_refused_too(cfg) -> None:
     """Joints and camera pose refused (the rim on every IK solution after a tolerated pose error):
     the view backed off / rolled is tried, and the first one the arm reaches is the view."""
     from cellctl.errors import WorkerFailed
@@ -194,7 +194,7 @@ def test_a_whole_bin_scan_tries_nearby_views_when_the_camera_pose_is_refused_too
     ctx.plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=10)
     reachable = nearby_views(CAM_POSE.matrix())[1]  # 20 mm further back
 
-    def move(req):  # noqa: ANN001, ANN202
+    def move(req):
         if req.joints is not None or not np.allclose(req.camera_pose.matrix(), reachable, atol=1e-6):
             raise WorkerFailed("target joints are in collision: wrist_3 vs bin", role="robot")
         return MoveReply(joints=[0.0] * 6, camera_pose=req.camera_pose), None

@@ -62,23 +62,23 @@ def _write(svc: PlannerService, rec: dict, with_plans: bool = True) -> None:
 
 
 @pytest.fixture
-def svc(cfg):  # noqa: ANN001, ANN201
+def svc(cfg):
     s = PlannerService(cfg, "t1")
     yield s
     s.close()
 
 
-def _lookup(svc: PlannerService, T_base_bin: np.ndarray):  # noqa: ANN202
+def _lookup(svc: PlannerService, T_base_bin: np.ndarray):
     req = PlanLookupRequest(bin_type="case_study", bin_pose=PoseMsg.from_matrix(T_base_bin), whole=True)
     return svc.on_lookup(req, None)
 
 
-def test_without_a_whole_record_the_lookup_misses_saying_so(svc) -> None:  # noqa: ANN001
+def test_without_a_whole_record_the_lookup_misses_saying_so(svc) -> None:
     r = _lookup(svc, invert(BASES[0]))
     assert not r.hit and r.reason == "no whole-bin plan for bin type 'case_study'" and r.stations == []
 
 
-def test_the_newest_usable_record_answers_its_stations_and_the_nearest_one(svc) -> None:  # noqa: ANN001
+def test_the_newest_usable_record_answers_its_stations_and_the_nearest_one(svc) -> None:
     _write(svc, _record(svc, "w-old", "2026-01-01T00:00:00"))
     _write(svc, _record(svc, "w-new", "2026-02-01T00:00:00"))
     _write(svc, _record(svc, "w-newer-no-plans", "2026-03-01T00:00:00"), with_plans=False)
@@ -94,13 +94,13 @@ def test_the_newest_usable_record_answers_its_stations_and_the_nearest_one(svc) 
     assert _lookup(svc, invert(BASES[0])).station == 0
 
 
-def test_a_record_whose_station_plans_are_gone_is_not_used(svc) -> None:  # noqa: ANN001
+def test_a_record_whose_station_plans_are_gone_is_not_used(svc) -> None:
     _write(svc, _record(svc, "w-gone", "2026-03-01T00:00:00"), with_plans=False)
     r = _lookup(svc, invert(BASES[0]))
     assert r.stations == [] and "misses station plan(s) ['w-gone-0e'" in r.reason
 
 
-def test_a_whole_plan_without_stations_fails_the_cycle_with_its_reason(svc, cfg) -> None:  # noqa: ANN001
+def test_a_whole_plan_without_stations_fails_the_cycle_with_its_reason(svc, cfg) -> None:
     from cellctl.errors import PlanningError
     from cellctl.supervisor.steps.checking_cache import CheckingCache
     from tests.supervisor._scripted import ScriptedRun, context

@@ -53,7 +53,7 @@ def _stations() -> list[StationInfo]:
 class WholeFakeCell(FakeCell):
     """Doubles whose planner answers a whole-bin plan; the robot remembers the station it parked at."""
 
-    def __init__(self, cfg, faces: dict[str, np.ndarray], **kw) -> None:  # noqa: ANN001, ANN003
+    def __init__(self, cfg, faces: dict[str, np.ndarray], **kw) -> None:
         super().__init__(cfg, **kw)
         self.faces = faces
         self.approaches: list[ApproachRequest] = []
@@ -91,7 +91,7 @@ class WholeFakeCell(FakeCell):
 
 
 @pytest.fixture
-def faces(cfg) -> dict[str, np.ndarray]:  # noqa: ANN001
+def faces(cfg) -> dict[str, np.ndarray]:
     mesh = load_catalog(cfg.path(cfg.catalog)).load_mesh("case_study")
     out = {s: np.flatnonzero(mesh.surface == FACE_TAG[s]) for s in ("external", "internal")}
     out["n"] = np.array([mesh.n_faces])
@@ -99,12 +99,12 @@ def faces(cfg) -> dict[str, np.ndarray]:  # noqa: ANN001
 
 
 @pytest.fixture
-def cfg(cfg):  # noqa: ANN001, ANN201 - the conftest's cfg with the whole-bin cycle on
+def cfg(cfg):  # the conftest's cfg with the whole-bin cycle on
     cfg.planner.whole.enabled = True
     return cfg
 
 
-def _run(p) -> object:  # noqa: ANN001
+def _run(p) -> object:
     p.cmd("reset")
     p.wait_state("Idle")
     assert p.cmd("start").accepted
@@ -178,7 +178,7 @@ def test_hold_at_a_station_resumes_there(cfg, cell, plc, faces) -> None:  # noqa
 
 def test_a_first_park_at_no_station_drives_to_the_first_station(cfg, cell, plc, faces) -> None:  # noqa: F811
     class Elsewhere(WholeFakeCell):
-        def _lookup(self, req, p):  # noqa: ANN001, ANN202
+        def _lookup(self, req, p):
             r = super()._lookup(req, p)
             if self.at is None or (self.at == 0 and sum(a.park for a in self.approaches) == 1):
                 return r.model_copy(update={"hit": False, "viewpoints": [], "reason": "beyond tolerance"})

@@ -20,11 +20,11 @@ from tests.supervisor._scripted import ScriptedRun, context
 from tests.workers.test_station_park import robot  # noqa: F401 - the sim arm (fast drive)
 
 
-def _station(bt, mesh, deg: float) -> np.ndarray:  # noqa: ANN001
+def _station(bt, mesh, deg: float) -> np.ndarray:
     return transform_from_xyz_rpy((0, 0, 0), (0, 0, np.radians(deg))) @ scene.nominal_T_bin_base(bt, mesh)
 
 
-def test_the_twin_base_reports_its_park_within_its_localisation_error(robot) -> None:  # noqa: ANN001, F811
+def test_the_twin_base_reports_its_park_within_its_localisation_error(robot) -> None:  # noqa: F811
     bt = robot.catalog.get("case_study")
     mesh = robot.catalog.load_mesh("case_study")
     b = robot.cfg.base
@@ -44,13 +44,13 @@ def test_the_twin_base_reports_its_park_within_its_localisation_error(robot) -> 
     assert max(errs) > 0  # an error is drawn, not the truth handed over
 
 
-def test_a_manual_base_reports_no_pose(robot) -> None:  # noqa: ANN001, F811
+def test_a_manual_base_reports_no_pose(robot) -> None:  # noqa: F811
     robot.cfg.base.backend = "manual"
     reply = robot.approach(ApproachRequest(park=True, observe=False))
     assert reply.base_pose is None
 
 
-def test_odometry_carries_the_measured_pose_to_the_next_park_within_twice_the_localisation_error(robot) -> None:  # noqa: ANN001, F811
+def test_odometry_carries_the_measured_pose_to_the_next_park_within_twice_the_localisation_error(robot) -> None:  # noqa: F811
     """The sim's truth end to end: measured at one park, carried to a park on the other side."""
     bt = robot.catalog.get("case_study")
     mesh = robot.catalog.load_mesh("case_study")
@@ -94,7 +94,7 @@ def _blind_station() -> StationInfo:
     )
 
 
-def test_identifying_carries_the_bin_through_the_reported_base_motion(cfg) -> None:  # noqa: ANN001
+def test_identifying_carries_the_bin_through_the_reported_base_motion(cfg) -> None:
     ctx = context(cfg)
     st = _blind_station()
     ctx.stations, ctx.station_order, ctx.bin_type = [st], [1], "case_study"
@@ -111,7 +111,7 @@ def test_identifying_carries_the_bin_through_the_reported_base_motion(cfg) -> No
     assert any("carried from the last measured station" in t for _, t in run.events)
 
 
-def test_without_a_base_report_the_planned_station_pose_is_used(cfg) -> None:  # noqa: ANN001
+def test_without_a_base_report_the_planned_station_pose_is_used(cfg) -> None:
     ctx = context(cfg)
     st = _blind_station()
     ctx.stations, ctx.station_order, ctx.bin_type = [st], [1], "case_study"
@@ -125,7 +125,7 @@ def test_without_a_base_report_the_planned_station_pose_is_used(cfg) -> None:  #
     assert np.allclose(ctx.T_base_bin, invert(st.base_pose.matrix()))
 
 
-def test_a_measured_station_keeps_the_bin_in_the_map_frame(cfg, monkeypatch) -> None:  # noqa: ANN001
+def test_a_measured_station_keeps_the_bin_in_the_map_frame(cfg, monkeypatch) -> None:
     T_map_base = transform_from_xyz_rpy((0.2, -0.3, 0.0), (0, 0, 0.3))
     T_base_bin = transform_from_xyz_rpy((1.0, 0.05, 0.2), (0, 0, 0.01))
 
@@ -145,7 +145,7 @@ def test_a_measured_station_keeps_the_bin_in_the_map_frame(cfg, monkeypatch) -> 
 
 
 @pytest.mark.slow  # two whole-bin plans of a box: ~20 CPU s
-def test_the_planner_keeps_more_clearance_where_the_board_is_not_visible(cfg) -> None:  # noqa: ANN001
+def test_the_planner_keeps_more_clearance_where_the_board_is_not_visible(cfg) -> None:
     """A station without the board (here: a mesh without a catalog board, so every station) keeps
     ``odometry_m`` more clearance in every planned configuration; the plan keeps its own margin."""
     from cellctl.planning.collision import PlanningWorld

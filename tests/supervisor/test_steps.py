@@ -59,7 +59,7 @@ def test_every_step_declares_fields_of_the_context() -> None:
         assert set(step.WRITES) <= fields, name
 
 
-def test_approaching_parks_first_then_only_moves_the_arm(cfg) -> None:  # noqa: ANN001
+def test_approaching_parks_first_then_only_moves_the_arm(cfg) -> None:
     ctx = context(cfg)
     run = ScriptedRun(ctx, {("robot", "approach"): (APPROACH, None)})
     assert Approaching()(run) == "succeeded"
@@ -69,7 +69,7 @@ def test_approaching_parks_first_then_only_moves_the_arm(cfg) -> None:  # noqa: 
     assert run.calls[1][2].park is False and run.calls[1][2].observation_index == 1
 
 
-def test_identifying_sets_the_bin_and_records_the_image(cfg) -> None:  # noqa: ANN001
+def test_identifying_sets_the_bin_and_records_the_image(cfg) -> None:
     rec = ListRecorder()
     ctx = context(cfg, log=rec, approach=APPROACH, identify=fake_identify)
     run = ScriptedRun(ctx, {("camera", "capture"): CAPTURE})
@@ -79,8 +79,8 @@ def test_identifying_sets_the_bin_and_records_the_image(cfg) -> None:  # noqa: A
     assert ("/bin/pose", "foxglove.PoseInFrame") in rec.records
 
 
-def test_identifying_retries_from_the_next_pose_then_fails(cfg) -> None:  # noqa: ANN001
-    def blind(*a):  # noqa: ANN002, ANN202
+def test_identifying_retries_from_the_next_pose_then_fails(cfg) -> None:
+    def blind(*a):
         raise IdentificationError("no board in view")
 
     cfg.supervisor.identify_attempts = 2
@@ -92,7 +92,7 @@ def test_identifying_retries_from_the_next_pose_then_fails(cfg) -> None:  # noqa
         Identifying()(run)
 
 
-def test_checking_cache_hit_miss_and_a_hit_without_viewpoints(cfg) -> None:  # noqa: ANN001
+def test_checking_cache_hit_miss_and_a_hit_without_viewpoints(cfg) -> None:
     ctx = context(cfg, params=StartParams(surface="internal"), bin_type="case_study", T_base_bin=T_BIN)
     run = ScriptedRun(ctx, {("planner", "lookup"): (_plan(), None)})
     assert CheckingCache()(run) == "hit"
@@ -106,7 +106,7 @@ def test_checking_cache_hit_miss_and_a_hit_without_viewpoints(cfg) -> None:  # n
         CheckingCache()(run)
 
 
-def test_replanning_submits_and_ends_with_replan_required(cfg) -> None:  # noqa: ANN001
+def test_replanning_submits_and_ends_with_replan_required(cfg) -> None:
     ctx = context(cfg, bin_type="case_study", T_base_bin=T_BIN, approach=APPROACH)
     run = ScriptedRun(ctx, {("planner", "jobs"): (PlanJobReply(job_id="job-7"), None)})
     assert Replanning()(run) == "submitted"
@@ -114,8 +114,8 @@ def test_replanning_submits_and_ends_with_replan_required(cfg) -> None:  # noqa:
     assert run.calls[0][2].q_start == [0.0] * 6  # the tour starts where the arm is
 
 
-def test_scanning_visits_every_viewpoint_and_a_refused_one_costs_only_coverage(cfg) -> None:  # noqa: ANN001
-    def move(req):  # noqa: ANN001, ANN202
+def test_scanning_visits_every_viewpoint_and_a_refused_one_costs_only_coverage(cfg) -> None:
+    def move(req):
         if req.joints == [0.1] * 6:
             raise WorkerFailed("viewpoint in collision", role="robot")
         return MoveReply(joints=req.joints, camera_pose=CAM_POSE), None
@@ -139,7 +139,7 @@ def test_scanning_visits_every_viewpoint_and_a_refused_one_costs_only_coverage(c
         ctx.shutdown()
 
 
-def test_a_classification_outlives_a_hold_of_scanning_but_not_the_cycle(cfg) -> None:  # noqa: ANN001
+def test_a_classification_outlives_a_hold_of_scanning_but_not_the_cycle(cfg) -> None:
     ctx = context(cfg)
     run = ScriptedRun(ctx, {})
     background = run.detached("classify_background")
@@ -152,8 +152,8 @@ def test_a_classification_outlives_a_hold_of_scanning_but_not_the_cycle(cfg) -> 
         background.checkpoint()
 
 
-def test_scanning_fails_when_no_viewpoint_was_reached(cfg) -> None:  # noqa: ANN001
-    def refuse(req):  # noqa: ANN001, ANN202
+def test_scanning_fails_when_no_viewpoint_was_reached(cfg) -> None:
+    def refuse(req):
         raise WorkerFailed("unreachable", role="robot")
 
     ctx = context(cfg, plan=_plan(2))
@@ -161,7 +161,7 @@ def test_scanning_fails_when_no_viewpoint_was_reached(cfg) -> None:  # noqa: ANN
         Scanning()(ScriptedRun(ctx, {("robot", "move"): refuse}))
 
 
-def test_classifying_decides_dirty_if_any_viewpoint_is_dirty(cfg) -> None:  # noqa: ANN001
+def test_classifying_decides_dirty_if_any_viewpoint_is_dirty(cfg) -> None:
     ctx = context(cfg, viewpoints=[ViewpointResult(index=0), ViewpointResult(index=1)])
     ctx.classifications = {
         0: _done(ClassifyReply(label="clean", p_dirty=0.1, model_id="m")),
@@ -172,13 +172,13 @@ def test_classifying_decides_dirty_if_any_viewpoint_is_dirty(cfg) -> None:  # no
     assert ctx.classifications == {}
 
 
-def test_classifying_without_any_label_fails(cfg) -> None:  # noqa: ANN001
+def test_classifying_without_any_label_fails(cfg) -> None:
     ctx = context(cfg, viewpoints=[ViewpointResult(index=0, error="unreachable")])
     with pytest.raises(ClassifierError, match="no viewpoint was classified"):
         Classifying()(ScriptedRun(ctx, {}))
 
 
-def test_reporting_maps_dirt_and_coverage_and_completes(cfg) -> None:  # noqa: ANN001
+def test_reporting_maps_dirt_and_coverage_and_completes(cfg) -> None:
     vps = [
         ViewpointResult(index=0, label="clean"),
         ViewpointResult(index=1, label="dirty"),
@@ -191,7 +191,7 @@ def test_reporting_maps_dirt_and_coverage_and_completes(cfg) -> None:  # noqa: A
     assert ctx.outcome == CycleOutcome.completed
 
 
-def test_the_cabin_past_the_bin_is_filled_for_the_classifier_and_the_bin_is_not(cfg) -> None:  # noqa: ANN001
+def test_the_cabin_past_the_bin_is_filled_for_the_classifier_and_the_bin_is_not(cfg) -> None:
     """An internal view that also sees the lit cabin past the rim: the off-bin pixels get the bin's median colour."""
     import cv2
 
@@ -226,7 +226,7 @@ def test_the_cabin_past_the_bin_is_filled_for_the_classifier_and_the_bin_is_not(
     assert mask_cabin(png, mesh, T_base_bin, inside, intr) is png
 
 
-def test_only_the_configured_surfaces_get_the_cabin_mask(cfg) -> None:  # noqa: ANN001
+def test_only_the_configured_surfaces_get_the_cabin_mask(cfg) -> None:
     import cv2
 
     from cellctl.geometry.catalog import load_catalog
@@ -245,7 +245,7 @@ def test_only_the_configured_surfaces_get_the_cabin_mask(cfg) -> None:  # noqa: 
         assert (image != board) == masked and fmt == "png", surface
 
 
-def test_the_masks_decode_under_the_cells_pixel_budget(cfg) -> None:  # noqa: ANN001
+def test_the_masks_decode_under_the_cells_pixel_budget(cfg) -> None:
     """The board and cabin masks decode what the classifier will, under ``camera.max_image_pixels``: a
     budget below the image leaves it undecoded (the classifier refuses it), one that holds it masks it.
     (They used the default budget: a camera above 16.8 Mpx with a raised budget went unmasked.)"""

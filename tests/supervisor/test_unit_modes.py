@@ -23,7 +23,7 @@ CHANGE_IN = {"Stopped", "Idle", "Aborted"}  # written here independently of unit
 
 
 @pytest.fixture
-def sup(cfg):  # noqa: ANN001, ANN201
+def sup(cfg):
     idx = CycleIndex(cfg.path(cfg.recording.index))
     s = Supervisor(cfg, None, idx)  # never started: the rules alone
     yield s
@@ -39,7 +39,7 @@ def _set(sup: Supervisor, state: str) -> str:
 @pytest.mark.parametrize("state", STATES)
 @pytest.mark.parametrize("mode", list(UnitMode))
 @pytest.mark.parametrize("by_code", [False, True])
-def test_mode_change_rules_in_every_state(sup, state: str, mode: UnitMode, by_code: bool) -> None:  # noqa: ANN001
+def test_mode_change_rules_in_every_state(sup, state: str, mode: UnitMode, by_code: bool) -> None:
     target = _set(sup, state)
     before = sup.unit_mode = UnitMode.maintenance if mode == UnitMode.production else UnitMode.production
     cmd = Command(unit_mode_code=mode.value) if by_code else Command(unit_mode=mode.name)
@@ -60,7 +60,7 @@ def test_mode_change_rules_in_every_state(sup, state: str, mode: UnitMode, by_co
 
 
 @pytest.mark.parametrize("state", STATES)
-def test_manual_mode_offers_every_command_of_the_state_but_start(sup, state: str) -> None:  # noqa: ANN001
+def test_manual_mode_offers_every_command_of_the_state_but_start(sup, state: str) -> None:
     _set(sup, state)
     table = sup.packml.allowed_commands(state)
     sup.unit_mode = UnitMode.manual
@@ -69,7 +69,7 @@ def test_manual_mode_offers_every_command_of_the_state_but_start(sup, state: str
     assert sup._make_status().available_commands == table
 
 
-def test_start_is_refused_in_manual_and_accepted_in_maintenance(sup) -> None:  # noqa: ANN001
+def test_start_is_refused_in_manual_and_accepted_in_maintenance(sup) -> None:
     _set(sup, "Idle")
     sup.unit_mode = UnitMode.manual
     ack = sup.apply_command(encode(Command(command="start", request_id="s")))
@@ -92,14 +92,14 @@ def test_start_is_refused_in_manual_and_accepted_in_maintenance(sup) -> None:  #
         ({"unit_mode": "manual", "params": {"x": 1}}, "a unit mode change takes no params, got ['x']"),
     ],
 )
-def test_bad_mode_requests_are_refused_naming_what_was_sent(sup, obj: dict, reason: str) -> None:  # noqa: ANN001
+def test_bad_mode_requests_are_refused_naming_what_was_sent(sup, obj: dict, reason: str) -> None:
     _set(sup, "Stopped")
     ack = sup.apply_command(json.dumps({"type": "cellctl/Command", "v": 1, "request_id": "r", **obj}).encode())
     assert not ack.accepted and reason in ack.reason and ack.request_id == "r"
     assert sup.unit_mode == UnitMode.production and sup.state == "Stopped"
 
 
-def test_modes_and_admin_over_zenoh_and_across_a_restart(cfg) -> None:  # noqa: ANN001
+def test_modes_and_admin_over_zenoh_and_across_a_restart(cfg) -> None:
     catalog = load_catalog(cfg.path(cfg.catalog))
     cell = build_cell(cfg, identification=(fake_identify, catalog))
     try:
@@ -140,7 +140,7 @@ def test_modes_and_admin_over_zenoh_and_across_a_restart(cfg) -> None:  # noqa: 
         cell.close()
 
 
-def test_cellctl_cmd_requests_a_unit_mode(cfg, capsys) -> None:  # noqa: ANN001
+def test_cellctl_cmd_requests_a_unit_mode(cfg, capsys) -> None:
     from cellctl.cli import main
 
     cell = build_cell(cfg, identification=(None, None))

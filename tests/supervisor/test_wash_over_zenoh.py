@@ -16,13 +16,13 @@ WASHABLE, FAR = 16, 1
 
 
 @pytest.fixture
-def cfg(cfg):  # noqa: ANN001, ANN201
+def cfg(cfg):
     """FakeCell's views see two faces each: the coverage bound of a clean verdict is tested on its own
     (test_wash_steps), not here."""
     return cfg.model_copy(update={"wash": cfg.wash.model_copy(update={"min_seen_fraction": 0.0})})
 
 
-def _cycle(client, **params) -> object:  # noqa: ANN001, ANN003
+def _cycle(client, **params) -> object:
     assert client.cmd("reset").accepted
     client.wait_state("Idle")
     assert client.cmd("start", **params).accepted
@@ -30,7 +30,7 @@ def _cycle(client, **params) -> object:  # noqa: ANN001, ANN003
     return client.results.get(timeout=5)
 
 
-def test_a_washable_dirty_view_is_washed_re_inspected_and_the_bin_ends_clean(cfg, cell, plc, tmp_path) -> None:  # noqa: ANN001, F811
+def test_a_washable_dirty_view_is_washed_re_inspected_and_the_bin_ends_clean(cfg, cell, plc, tmp_path) -> None:  # noqa: F811
     with FakeCell(cfg, n_viewpoints=WASHABLE + 1, dirty_viewpoints={WASHABLE}) as fake:
         res = _cycle(plc, mode="wash_and_verify")
     assert res.outcome == "completed" and res.verdict == "clean"
@@ -56,7 +56,7 @@ def test_a_washable_dirty_view_is_washed_re_inspected_and_the_bin_ends_clean(cfg
     assert "Execute.washing" in report.states_replayed and "Execute.verifying" in report.states_replayed
 
 
-def test_dirt_out_of_reach_ends_dirty_unwashable_with_no_wash_motion(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_dirt_out_of_reach_ends_dirty_unwashable_with_no_wash_motion(cfg, cell, plc) -> None:  # noqa: F811
     with FakeCell(cfg, n_viewpoints=3, dirty_viewpoints={FAR}) as fake:
         res = _cycle(plc, mode="wash_and_verify")
     assert res.outcome == "completed" and res.verdict == "dirty"
@@ -65,7 +65,7 @@ def test_dirt_out_of_reach_ends_dirty_unwashable_with_no_wash_motion(cfg, cell, 
     assert "wash" not in fake.calls and fake.calls.count("move") == 3
 
 
-def test_an_evaluate_cycle_does_not_wash(cfg, cell, plc) -> None:  # noqa: ANN001, F811
+def test_an_evaluate_cycle_does_not_wash(cfg, cell, plc) -> None:  # noqa: F811
     with FakeCell(cfg, n_viewpoints=WASHABLE + 1, dirty_viewpoints={WASHABLE}) as fake:
         res = _cycle(plc)
     assert res.outcome == "completed" and res.verdict == "dirty" and res.wash is None

@@ -42,20 +42,20 @@ class DiskRecorder(ListRecorder):
         self.path = path
 
 
-def _dirty(mesh, centre, normal) -> np.ndarray:  # noqa: ANN001
+def _dirty(mesh, centre, normal) -> np.ndarray:
     f = PowderField(np.array([centre], float), np.array([0.04]), np.array([EXTERNAL], np.uint8), np.array([normal]), 7)
     return f.dirty_faces(mesh)
 
 
 @pytest.fixture
-def case(cfg):  # noqa: ANN001, ANN201
+def case(cfg):
     cat = load_catalog(cfg.path(cfg.catalog), cfg.root)
     mesh = cat.load_mesh("case_study")
     T_base_bin = invert(nominal_T_bin_base(cat.get("case_study"), mesh))
     return cat, mesh, T_base_bin
 
 
-def _ctx(cfg, case, dirty: np.ndarray | None, min_seen: float = 0.0, **kw):  # noqa: ANN001, ANN202
+def _ctx(cfg, case, dirty: np.ndarray | None, min_seen: float = 0.0, **kw):
     """A scripted cycle's blackboard; its views see a few faces, so ``wash.min_seen_fraction`` is
     ``min_seen`` (0: the coverage bound is tested on its own)."""
     cat, mesh, T = case
@@ -72,11 +72,11 @@ def _ctx(cfg, case, dirty: np.ndarray | None, min_seen: float = 0.0, **kw):  # n
     return context(cfg, params=WASH, catalog=cat, bin_type="case_study", T_base_bin=T, dirt_map=dm, plan=plan, **kw)
 
 
-def _script(cfg, refuse_second: bool = False, label: str = "clean") -> dict:  # noqa: ANN001
+def _script(cfg, refuse_second: bool = False, label: str = "clean") -> dict:
     calls = {"n": 0}
     meshes = MeshCache(cfg)
 
-    def wash(req):  # noqa: ANN001, ANN202
+    def wash(req):
         calls["n"] += 1
         if refuse_second and calls["n"] == 2:
             raise WorkerFailed("wash sweep 0 (of 1, round 1) is in collision", role="robot")
@@ -95,14 +95,14 @@ def _script(cfg, refuse_second: bool = False, label: str = "clean") -> dict:  # 
     }
 
 
-def test_other_modes_pass_wash_check_untouched(cfg, case) -> None:  # noqa: ANN001
+def test_other_modes_pass_wash_check_untouched(cfg, case) -> None:
     ctx = _ctx(cfg, case, _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0)))
     ctx.mode = "evaluate"
     run = ScriptedRun(ctx, {})
     assert WashCheck()(run) == "done" and run.calls == [] and ctx.wash is None
 
 
-def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(cfg, case, tmp_path) -> None:  # noqa: ANN001
+def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(cfg, case, tmp_path) -> None:
     _, mesh, _ = case
     dirty = _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0))
     log = DiskRecorder(tmp_path / "c-1.mcap")
@@ -135,7 +135,7 @@ def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(
     assert ctx.wash.remaining_faces == []
 
 
-def test_dirt_no_nozzle_pose_reaches_ends_dirty_as_unwashable_without_motion(cfg, case) -> None:  # noqa: ANN001
+def test_dirt_no_nozzle_pose_reaches_ends_dirty_as_unwashable_without_motion(cfg, case) -> None:
     dirty = _dirty(case[1], (0.0, 0.37, -0.5), (0, 1.0, 0))  # far outside wall, seen from the board side
     ctx = _ctx(cfg, case, dirty)
     run = ScriptedRun(ctx, _script(cfg))
@@ -146,14 +146,14 @@ def test_dirt_no_nozzle_pose_reaches_ends_dirty_as_unwashable_without_motion(cfg
     assert ctx.wash.unwashable and ctx.wash.remaining_faces == np.flatnonzero(dirty).tolist()
 
 
-def test_no_dirt_map_is_a_reason_and_no_motion(cfg, case) -> None:  # noqa: ANN001
+def test_no_dirt_map_is_a_reason_and_no_motion(cfg, case) -> None:
     ctx = _ctx(cfg, case, None)
     run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done" and run.calls == []
     assert ctx.wash.verdict is None and "no dirt map" in ctx.wash.reason
 
 
-def test_dirt_left_after_the_last_round_ends_dirty(cfg, case) -> None:  # noqa: ANN001
+def test_dirt_left_after_the_last_round_ends_dirty(cfg, case) -> None:
     dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
     ctx = _ctx(cfg, case, dirty)
     ctx.wash_rounds = [
@@ -174,7 +174,7 @@ def test_dirt_left_after_the_last_round_ends_dirty(cfg, case) -> None:  # noqa: 
     assert ctx.verdict == "dirty" and "after 3 wash round(s)" in ctx.wash.reason and len(ctx.wash.rounds) == 3
 
 
-def test_a_hold_during_a_sweep_is_not_a_refusal_and_resumes_there(cfg, case) -> None:  # noqa: ANN001
+def test_a_hold_during_a_sweep_is_not_a_refusal_and_resumes_there(cfg, case) -> None:
     from cellctl.supervisor.context import Cancelled
 
     dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
@@ -183,7 +183,7 @@ def test_a_hold_during_a_sweep_is_not_a_refusal_and_resumes_there(cfg, case) -> 
     run = ScriptedRun(ctx, script)
     assert WashCheck()(run) == "wash"
 
-    def held(req):  # noqa: ANN001, ANN202
+    def held(req):
         run.cancelled.set()  # the supervisor cancels the step, then stops the robot: the sweep fails
         raise WorkerFailed(str(RobotError("motion stopped (hold)")), role="robot")
 
@@ -196,7 +196,7 @@ def test_a_hold_during_a_sweep_is_not_a_refusal_and_resumes_there(cfg, case) -> 
     assert ctx.wash_run["sweeps_run"] == len(ctx.wash_plan.sweeps)
 
 
-def test_merging_keeps_unseen_faces_and_replaces_seen_ones(case) -> None:  # noqa: ANN001
+def test_merging_keeps_unseen_faces_and_replaces_seen_ones(case) -> None:
     _, mesh, _ = case
     old = {"seen_dirty": [1, 2, 3], "seen_clean": [4]}
     new = {"seen_dirty": [3], "seen_clean": [1, 5]}
@@ -208,7 +208,7 @@ def test_merging_keeps_unseen_faces_and_replaces_seen_ones(case) -> None:  # noq
     assert sorted(merged["seen_clean"]) == [1, 4, 5]
 
 
-def _whole_ctx(cfg, case, dirty_a, dirty_b):  # noqa: ANN001, ANN202
+def _whole_ctx(cfg, case, dirty_a, dirty_b):
     """A whole-bin cycle at its end: station 0 (the nominal park) and station 1 (the far side, the
     bin turned half round), the base standing at station 1; each station's external plan has one
     viewpoint that sees its own dirty spot."""
@@ -243,7 +243,7 @@ def _whole_ctx(cfg, case, dirty_a, dirty_b):  # noqa: ANN001, ANN202
     )  # fmt: skip
 
 
-def test_a_whole_bin_round_washes_and_re_inspects_station_by_station_parking_again_where_needed(cfg, case) -> None:  # noqa: ANN001
+def test_a_whole_bin_round_washes_and_re_inspects_station_by_station_parking_again_where_needed(cfg, case) -> None:
     from cellctl.geometry.transforms import transform_from_xyz_rpy
 
     _, mesh, T_a = case
@@ -286,7 +286,7 @@ def test_a_whole_bin_round_washes_and_re_inspects_station_by_station_parking_aga
     assert WashCheck()(run) == "done" and ctx.wash.verdict == "clean"
 
 
-def test_a_later_round_plans_the_station_the_base_stands_at_at_the_pose_measured_at_this_park(cfg, case) -> None:  # noqa: ANN001
+def test_a_later_round_plans_the_station_the_base_stands_at_at_the_pose_measured_at_this_park(cfg, case) -> None:
     """Round 2 starts where round 1's re-inspection parked the base: a park again since the scan.
     Its sweeps from there are planned at the bin pose measured at this park (no re-park, no replan
     follows); the other stations keep the scan's pose (they are replanned when the base parks)."""
@@ -313,7 +313,7 @@ def test_a_later_round_plans_the_station_the_base_stands_at_at_the_pose_measured
     assert [o for _, o, _ in run.calls].count("wash_plan") == 1  # its sweeps were planned at this park
 
 
-def test_a_re_inspection_view_whose_carried_pose_is_refused_is_taken_from_its_planned_joints(cfg, case) -> None:  # noqa: ANN001
+def test_a_re_inspection_view_whose_carried_pose_is_refused_is_taken_from_its_planned_joints(cfg, case) -> None:
     """Parked again since the scan, a view goes to its camera pose carried into the new park; when the
     arm refuses that pose (unreachable there), the planned joints take the view (nearly the same faces),
     so its faces are re-inspected this round and not left as they were."""
@@ -325,7 +325,7 @@ def test_a_re_inspection_view_whose_carried_pose_is_refused_is_taken_from_its_pl
     ctx.bin_poses[0] = transform_from_xyz_rpy((0.02, 0.0, 0.0), (0, 0, np.radians(1.0))) @ T_a  # parked again
     script = _script(cfg)
 
-    def move(req):  # noqa: ANN001, ANN202
+    def move(req):
         if req.camera_pose is not None:
             raise WorkerFailed("robot refused move: camera pose at [1.18, -0.10, 0.27] (base frame) is unreachable")
         return MoveReply(joints=list(req.joints), camera_pose=CAM_POSE), None
@@ -346,7 +346,7 @@ def test_a_re_inspection_view_whose_carried_pose_is_refused_is_taken_from_its_pl
     assert v.error == "in collision" and v.label is None
 
 
-def test_a_dirty_view_is_laid_on_what_the_round_did_not_wash(cfg, case) -> None:  # noqa: ANN001
+def test_a_dirty_view_is_laid_on_what_the_round_did_not_wash(cfg, case) -> None:
     """Coarse map: a re-inspection view that is still dirty marks the faces it sees that were dirty and
     got no sweep, not the washed ones; a view that sees only washed faces marks them dirty again."""
     _, mesh, _ = case
@@ -378,7 +378,7 @@ def test_a_dirty_view_is_laid_on_what_the_round_did_not_wash(cfg, case) -> None:
     assert dm["seen_dirty"] == [1, 4]
 
 
-def _look_at(eye, target) -> np.ndarray:  # noqa: ANN001
+def _look_at(eye, target) -> np.ndarray:
     """Camera optical frame (z ahead, y down) at ``eye`` looking at ``target`` (bin frame)."""
     z = np.asarray(target, float) - np.asarray(eye, float)
     z /= np.linalg.norm(z)
@@ -389,7 +389,7 @@ def _look_at(eye, target) -> np.ndarray:  # noqa: ANN001
     return T
 
 
-def test_a_dirty_view_whose_planned_faces_were_all_washed_marks_the_faces_its_image_shows(cfg, case) -> None:  # noqa: ANN001
+def test_a_dirty_view_whose_planned_faces_were_all_washed_marks_the_faces_its_image_shows(cfg, case) -> None:
     """The twin's seed-18 wash demo: powder left on two large leg faces (145 cm² each) that no plan
     lists kept a re-inspection view dirty after its planned faces were washed. The view marks the
     unwashed faces its image shows (a ray grid across the frame), so the next round washes them;
@@ -429,7 +429,7 @@ def test_a_dirty_view_whose_planned_faces_were_all_washed_marks_the_faces_its_im
     assert dm["seen_dirty"] == [] and dm["seen_clean"] == listed
 
 
-def test_the_re_inspection_map_fuses_heat_maps_with_the_scans_projection(cfg, case) -> None:  # noqa: ANN001
+def test_the_re_inspection_map_fuses_heat_maps_with_the_scans_projection(cfg, case) -> None:
     """A re-inspection view with a heat map is fused as the scan's map is (``classifier.verdict``:
     projection, face cells, the ID board as occluder), so washing and inspection judge a face alike."""
     from cellctl.classify.heatmap import encode_heat, fuse_config
@@ -472,7 +472,7 @@ def test_the_re_inspection_map_fuses_heat_maps_with_the_scans_projection(cfg, ca
     assert maps["samples"] != maps["patches"]
 
 
-def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) -> None:  # noqa: ANN001
+def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) -> None:
     dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
     ctx = _ctx(cfg, case, dirty)
     script = _script(cfg)
@@ -480,7 +480,7 @@ def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) ->
     assert WashCheck()(run) == "wash"
     firsts = {tuple(sw.joints[0]) for sw in ctx.wash_plan.sweeps if len(sw.joints) > 1}
 
-    def one_way(req):  # noqa: ANN001, ANN202
+    def one_way(req):
         sw = req.sweeps[0]
         if tuple(sw.joints[0]) in firsts:
             raise WorkerFailed("no collision-free path from home to the sweep's start within 3 s", role="robot")
@@ -493,7 +493,7 @@ def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) ->
     assert sum(1 for _, o, _ in run.calls if o == "wash") == n + len(firsts)
 
 
-def _relook_run(cfg, case, second: ClassifyReply):  # noqa: ANN001, ANN202
+def _relook_run(cfg, case, second: ClassifyReply):
     """A washed spot whose one re-inspection view comes back certain dirty, its re-look ``second``
     (re-looks confirm dirty views: ``classifier.relook.confirm_dirty: on``)."""
     from cellctl.config import load_config
@@ -512,7 +512,7 @@ def _relook_run(cfg, case, second: ClassifyReply):  # noqa: ANN001, ANN202
     return ctx, run, dirty
 
 
-def _overrides(cfg) -> list[str]:  # noqa: ANN001
+def _overrides(cfg) -> list[str]:
     """The fixture config's overrides again (its port and folders), to load a variant of it."""
     ep = cfg.bus.listen[0]
     return [
@@ -526,7 +526,7 @@ def _overrides(cfg) -> list[str]:  # noqa: ANN001
     ]
 
 
-def test_a_dirty_re_inspection_view_a_certain_clean_re_look_overrules_ends_clean(cfg, case) -> None:  # noqa: ANN001
+def test_a_dirty_re_inspection_view_a_certain_clean_re_look_overrules_ends_clean(cfg, case) -> None:
     """The scan's confirm-dirty rule in the re-inspection: a view still called dirty after the wash is
     imaged again from a nearby pose (a camera pose, not the planned joints); certain clean there, its
     faces are clean and the round ends the bin clean."""
@@ -540,7 +540,7 @@ def test_a_dirty_re_inspection_view_a_certain_clean_re_look_overrules_ends_clean
     assert WashCheck()(run) == "done" and ctx.wash.verdict == "clean"
 
 
-def test_a_dirty_re_inspection_view_its_re_look_confirms_keeps_the_leftover_dirty(cfg, case) -> None:  # noqa: ANN001
+def test_a_dirty_re_inspection_view_its_re_look_confirms_keeps_the_leftover_dirty(cfg, case) -> None:
     """Real dirt left after the wash is seen from the re-look pose too: the faces stay dirty and the
     loop washes again, and once the rounds are spent the bin ends ``dirty``, never clean."""
     ctx, run, dirty = _relook_run(cfg, case, ClassifyReply(label="dirty", p_dirty=0.85, model_id="m"))
@@ -556,7 +556,7 @@ def test_a_dirty_re_inspection_view_its_re_look_confirms_keeps_the_leftover_dirt
     assert ctx.wash.remaining_faces and "after 3 wash round(s)" in ctx.wash.reason
 
 
-def test_an_uncertain_re_inspection_view_is_re_looked_even_without_confirming(cfg, case) -> None:  # noqa: ANN001
+def test_an_uncertain_re_inspection_view_is_re_looked_even_without_confirming(cfg, case) -> None:
     """Without confirm-dirty (a single-station cycle's default) only uncertain views are re-looked,
     and the two are decided as the scan decides them."""
     _, mesh, _ = case
@@ -585,7 +585,7 @@ def test_an_uncertain_re_inspection_view_is_re_looked_even_without_confirming(cf
     assert [v.relook_of for v in ctx2.wash_views] == [None] and ctx2.wash_rounds[0].dirty_faces_after > 0
 
 
-def test_clean_needs_the_configured_share_of_the_bin_seen(cfg, case) -> None:  # noqa: ANN001
+def test_clean_needs_the_configured_share_of_the_bin_seen(cfg, case) -> None:
     """No dirt seen on a map that saw too little of the bin is not a clean bin: ``incomplete``, reason
     "unverified", the seen share reported; the same map seeing enough of the bin ends clean, unless a
     surface is below ``classifier.verdict.min_seen_fraction`` (``incomplete`` with the fractions)."""

@@ -23,7 +23,7 @@ WASHABLE = (32, 33)
 
 
 @pytest.fixture
-def faces(_faces):  # noqa: ANN001, ANN201, F811
+def faces(_faces):  # noqa: F811
     rest = [int(f) for f in _faces["external"] if int(f) not in WASHABLE]
     ext = [WASHABLE[0], rest[0], WASHABLE[1], *rest[1:]]  # station 0: view 0 sees face 32, view 1 face 33
     out = dict(_faces)
@@ -32,18 +32,18 @@ def faces(_faces):  # noqa: ANN001, ANN201, F811
 
 
 @pytest.fixture
-def cfg(_whole_cfg):  # noqa: ANN001, ANN201, F811
+def cfg(_whole_cfg):  # noqa: F811
     # the doubles' views see a few faces: the coverage bound of a clean verdict is tested in test_wash_steps
     return _whole_cfg.model_copy(update={"wash": _whole_cfg.wash.model_copy(update={"min_seen_fraction": 0.0})})
 
 
-def _start(p) -> None:  # noqa: ANN001
+def _start(p) -> None:
     p.cmd("reset")
     p.wait_state("Idle")
     assert p.cmd("start", mode="wash_and_verify").accepted
 
 
-def test_a_whole_bin_cycle_washes_re_inspects_from_the_station_seeing_it_and_ends_clean(cfg, cell, plc, faces) -> None:  # noqa: ANN001, F811
+def test_a_whole_bin_cycle_washes_re_inspects_from_the_station_seeing_it_and_ends_clean(cfg, cell, plc, faces) -> None:  # noqa: F811
     # classification 0: station 0's external view 0 (face 32) dirty, and its confirming re-look (1)
     with WholeFakeCell(cfg, faces, dirty_viewpoints={0, 1}) as fake:
         _start(plc)
@@ -65,7 +65,7 @@ def test_a_whole_bin_cycle_washes_re_inspects_from_the_station_seeing_it_and_end
     assert names.count(topics.WASH_ROUND) == 1 and names.count(topics.WASH_PLAN) >= 1
 
 
-def test_a_hold_during_a_whole_bin_wash_resumes_at_the_station_and_sweep(cfg, cell, plc, faces) -> None:  # noqa: ANN001, F811
+def test_a_hold_during_a_whole_bin_wash_resumes_at_the_station_and_sweep(cfg, cell, plc, faces) -> None:  # noqa: F811
     with WholeFakeCell(cfg, faces, dirty_viewpoints={0, 1}, delays={"wash": 0.4}) as fake:
         _start(plc)
         deadline = time.monotonic() + 90

@@ -19,13 +19,13 @@ from tests.conftest import cfg_overrides
 from tests.fakes.workers import FakeCell
 from tests.supervisor.test_cycle_over_zenoh import cell, plc  # noqa: F401 - the daemon and PLC fixtures
 from tests.supervisor.test_station_loop import SURFACES_AT, WholeFakeCell
-from tests.supervisor.test_station_loop import faces as faces  # noqa: F401 - the case-study faces per surface
+from tests.supervisor.test_station_loop import faces as faces  # the case-study faces per surface
 
 PINS = ("planner.whole.enabled=", "classifier.verdict.min_seen_fraction=")
 
 
 @pytest.fixture
-def cfg(tmp_path, port):  # noqa: ANN001, ANN201 - the shipped config on a private port and folders
+def cfg(tmp_path, port):  # the shipped config on a private port and folders
     return load_config(None, [o for o in cfg_overrides(tmp_path, port) if not o.startswith(PINS)])
 
 
@@ -49,7 +49,7 @@ class WideWholeFakeCell(WholeFakeCell):
         return r.model_copy(update={"viewpoints": vps})
 
 
-def _cycle(plc, timeout: float = 30):  # noqa: ANN001, ANN202, F811
+def _cycle(plc, timeout: float = 30):  # noqa: F811
     plc.cmd("reset")
     plc.wait_state("Idle")
     assert plc.cmd("start").accepted
@@ -71,7 +71,7 @@ def test_a_fresh_default_config_runs_a_whole_bin_cycle_and_calls_a_seen_bin_clea
     assert last.admin.last_cycle.verdict == "clean"
 
 
-def test_a_partly_seen_whole_bin_cycle_is_incomplete_on_status_log_replay(cfg, cell, plc, faces, tmp_path) -> None:  # noqa: ANN001, F811
+def test_a_partly_seen_whole_bin_cycle_is_incomplete_on_status_log_replay(cfg, cell, plc, faces, tmp_path) -> None:  # noqa: F811
     class Partial(WideWholeFakeCell):
         internal_share = 0.3
 
@@ -102,7 +102,7 @@ def test_a_partly_seen_whole_bin_cycle_is_incomplete_on_status_log_replay(cfg, c
     assert report.ok, report.differences
 
 
-def test_one_station_one_surface_by_config_is_incomplete_and_dirt_seen_stays_dirty(tmp_path, port) -> None:  # noqa: ANN001
+def test_one_station_one_surface_by_config_is_incomplete_and_dirt_seen_stays_dirty(tmp_path, port) -> None:
     from cellctl.app import build_cell
     from cellctl.geometry.catalog import load_catalog
     from tests.fakes.workers import fake_identify

@@ -60,7 +60,7 @@ class DoubleWorkers:
 
 
 @pytest.fixture(scope="module")
-def rig(tmp_path_factory):  # noqa: ANN001, ANN201
+def rig(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("faults")
     # a 1 s lease keeps the frozen cases short; the bound scales with it
     overrides = [*cfg_overrides(tmp, free_port()), "bus.lease_ms=1000"]
@@ -81,7 +81,7 @@ def rig(tmp_path_factory):  # noqa: ANN001, ANN201
         cell.close()
 
 
-def _check(rig, case: FaultCase):  # noqa: ANN001, ANN202
+def _check(rig, case: FaultCase):
     cfg, cell, workers, inj = rig
     if workers.set_planner_miss(case.step == "replanning"):
         inj.plc.wait_for(lambda s: not s.workers.get("planner"), 5)
@@ -115,7 +115,7 @@ def _check(rig, case: FaultCase):  # noqa: ANN001, ANN202
     ],
     ids=lambda c: c.name.replace(" ", "-"),
 )
-def test_worker_fault_is_detected_made_safe_recorded_and_recovered(rig, case: FaultCase) -> None:  # noqa: ANN001
+def test_worker_fault_is_detected_made_safe_recorded_and_recovered(rig, case: FaultCase) -> None:
     rep = _check(rig, case)
     if case.fault == "kill":
         assert rep.detection_s < 1.0  # the token goes with the process
@@ -127,5 +127,5 @@ def test_worker_fault_is_detected_made_safe_recorded_and_recovered(rig, case: Fa
 @pytest.mark.parametrize("step", STEPS)
 @pytest.mark.parametrize("fault", list(FAULTS))
 @pytest.mark.parametrize("role", ROLES)
-def test_every_worker_fault_at_every_step(rig, role: str, fault: str, step: str) -> None:  # noqa: ANN001
+def test_every_worker_fault_at_every_step(rig, role: str, fault: str, step: str) -> None:
     _check(rig, FaultCase(role, fault, step))

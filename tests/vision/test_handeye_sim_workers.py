@@ -21,7 +21,7 @@ from ..conftest import free_port
 
 @pytest.mark.slow
 def test_hand_eye_recovers_the_twin_camera_mount() -> None:
-    rm = pytest.importorskip("cellctl.geometry.robot_model")
+    from cellctl.geometry import robot_model as rm
     from cellctl.geometry.catalog import load_catalog
     from cellctl.vision.collect import collect_hand_eye
 

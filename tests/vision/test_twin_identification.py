@@ -7,10 +7,9 @@ import pytest
 
 from cellctl.config import load_config
 from cellctl.geometry.transforms import pose_error
+from cellctl.sim import render as render_mod
+from cellctl.sim import scene as scene_mod
 from cellctl.vision import identify
-
-render_mod = pytest.importorskip("cellctl.sim.render")
-scene_mod = pytest.importorskip("cellctl.sim.scene")
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from cellctl.washing.twin import wash_in_twin
 
 
 @pytest.fixture(scope="module")
-def bin_case():  # noqa: ANN201
+def bin_case():
     cfg = load_config()
     cat = load_catalog(cfg.path(cfg.catalog), cfg.root)
     bt = cat.get("case_study")
@@ -26,13 +26,13 @@ def bin_case():  # noqa: ANN201
     return mesh, nominal_T_bin_base(bt, mesh)
 
 
-def _spot(mesh, centre, normal, radius=0.04) -> PowderField:  # noqa: ANN001
+def _spot(mesh, centre, normal, radius=0.04) -> PowderField:
     return PowderField(
         np.array([centre], float), np.array([radius]), np.array([EXTERNAL], np.uint8), np.array([normal], float), 7
     )
 
 
-def test_no_dirt_map_is_a_reason_and_no_motion(bin_case) -> None:  # noqa: ANN001
+def test_no_dirt_map_is_a_reason_and_no_motion(bin_case) -> None:
     mesh, T = bin_case
     plan = plan_wash(mesh, None, [T], NozzleModel(), default_robot_model())
     assert not plan.moves and "no dirt map" in plan.reason
@@ -40,7 +40,7 @@ def test_no_dirt_map_is_a_reason_and_no_motion(bin_case) -> None:  # noqa: ANN00
     assert not plan.moves and "nothing to wash" in plan.reason
 
 
-def test_bad_dirt_map_and_no_station_are_errors(bin_case) -> None:  # noqa: ANN001
+def test_bad_dirt_map_and_no_station_are_errors(bin_case) -> None:
     mesh, T = bin_case
     with pytest.raises(PlanningError, match="seen_dirty id 99999"):
         plan_wash(mesh, {"seen_dirty": [3, 99999]}, [T], NozzleModel(), default_robot_model())
@@ -48,7 +48,7 @@ def test_bad_dirt_map_and_no_station_are_errors(bin_case) -> None:  # noqa: ANN0
         plan_wash(mesh, {"seen_dirty": [3]}, [], NozzleModel(), default_robot_model())
 
 
-def test_a_spot_on_the_board_side_is_swept_with_its_passes_and_the_twin_ends_clean(bin_case) -> None:  # noqa: ANN001
+def test_a_spot_on_the_board_side_is_swept_with_its_passes_and_the_twin_ends_clean(bin_case) -> None:
     """A powder clump on the wall facing the station: every dirty face gets the required passes
     by continuous sweeps, and running them in the twin leaves no dirty face."""
     mesh, T = bin_case
@@ -70,7 +70,7 @@ def test_a_spot_on_the_board_side_is_swept_with_its_passes_and_the_twin_ends_cle
     assert not field.dirty_faces(mesh).any()
 
 
-def test_dirt_out_of_reach_is_unwashable_with_the_reason(bin_case) -> None:  # noqa: ANN001
+def test_dirt_out_of_reach_is_unwashable_with_the_reason(bin_case) -> None:
     """Dirt on the far (+y) outside wall seen from the board-side station only: no motion, and
     the region is reported unwashable with why."""
     mesh, T = bin_case
@@ -100,7 +100,7 @@ def test_targets_come_from_face_p_above_the_threshold_or_from_seen_dirty() -> No
     assert source == "seen_dirty" and got.tolist() == [False, False, True, False, True]
 
 
-def test_dilation_adds_nearby_faces_of_the_same_surface_only(bin_case) -> None:  # noqa: ANN001
+def test_dilation_adds_nearby_faces_of_the_same_surface_only(bin_case) -> None:
     from cellctl.washing.targets import dilate
 
     mesh, _ = bin_case
@@ -114,7 +114,7 @@ def test_dilation_adds_nearby_faces_of_the_same_surface_only(bin_case) -> None: 
     assert d.max() < 0.04 * 1.8 + 0.08 + 0.08  # clump reach + margin + a triangle
 
 
-def test_the_residue_pass_covers_faces_the_first_pass_left_short(bin_case) -> None:  # noqa: ANN001
+def test_the_residue_pass_covers_faces_the_first_pass_left_short(bin_case) -> None:
     """Seeded powder all over the bin, one station: the second cover pass (the residue's own jet
     directions, arm shape and rolls) sprays target faces the first pass left short, and only adds
     sweeps; without it those faces stay uncovered."""
@@ -149,7 +149,7 @@ def test_the_cpu_rate_predicts_a_station_from_the_measured_ones() -> None:
     assert _CpuRate(float("inf")).fits(10**9, 1e9)
 
 
-def test_a_cpu_budget_leaves_stations_unplanned_and_counts_them(bin_case) -> None:  # noqa: ANN001
+def test_a_cpu_budget_leaves_stations_unplanned_and_counts_them(bin_case) -> None:
     """A budget below one station's cost: the first station is planned, every other one is
     counted over budget (its dirt left for the next round), and the residue pass tries none."""
     mesh, T = bin_case

@@ -37,7 +37,7 @@ def _request(bin_type: str = "case_study") -> WashPlanRequest:
 
 
 @pytest.fixture(scope="module")
-def pool(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
+def pool(tmp_path_factory: pytest.TempPathFactory):
     p = Pool(tmp_path_factory.mktemp("pool"), workers=1)
     try:
         try:

@@ -52,7 +52,7 @@ def _scan_views(n: int) -> list[ViewpointResult]:
     return out
 
 
-def test_a_whole_bin_wash_cycle_result_fits_the_wire(cfg, case) -> None:  # noqa: ANN001, F811
+def test_a_whole_bin_wash_cycle_result_fits_the_wire(cfg, case) -> None:  # noqa: F811
     """Worst case for the wash part: every round's sweeps are planned by the real wash planner, every
     other sweep is refused with the robot's long reason, every re-inspection view stays dirty (and
     is re-looked), so all ``wash.max_rounds`` rounds run and the bin ends dirty; the scan left 120
@@ -70,7 +70,7 @@ def test_a_whole_bin_wash_cycle_result_fits_the_wire(cfg, case) -> None:  # noqa
     script = _script(cfg, label="dirty")
     n = {"wash": 0}
 
-    def wash(req):  # noqa: ANN001, ANN202
+    def wash(req):
         n["wash"] += 1
         if n["wash"] % 2 == 0:
             raise WorkerFailed(REFUSAL.format(r=n["wash"]), role="robot")

@@ -28,7 +28,7 @@ def _spot() -> PowderField:
 
 
 @pytest.fixture(scope="module")
-def parked():  # noqa: ANN201
+def parked():
     robot = make_robot(load_config(None, ["robot.speed_scale=1000", "robot.settle_s=0"]))
     robot.approach(ApproachRequest(park=True))
     sc = robot.scenario
@@ -50,14 +50,14 @@ def parked():  # noqa: ANN201
     robot.close()
 
 
-def _request(plan, round_: int = 1) -> WashRequest:  # noqa: ANN001
+def _request(plan, round_: int = 1) -> WashRequest:
     return WashRequest(
         sweeps=[WashSweep(joints=sw.q.tolist(), passes=sw.passes, region=sw.region) for sw in plan.sweeps],
         round=round_,
     )
 
 
-def test_the_sweeps_run_and_the_twin_loses_the_powder_under_the_jet(parked) -> None:  # noqa: ANN001
+def test_the_sweeps_run_and_the_twin_loses_the_powder_under_the_jet(parked) -> None:
     robot, mesh, field, plan = parked
     before = robot.sim_state().wash_passes
     reply = robot.wash(_request(plan))
@@ -74,7 +74,7 @@ def test_the_sweeps_run_and_the_twin_loses_the_powder_under_the_jet(parked) -> N
     assert not washed.dirty_faces(mesh).any()  # the jet went where the plan said, on the true bin
 
 
-def test_a_sweep_in_collision_is_refused_before_any_motion(parked) -> None:  # noqa: ANN001
+def test_a_sweep_in_collision_is_refused_before_any_motion(parked) -> None:
     robot, *_ = parked
     q0, n0 = robot.joints.copy(), robot.sim_state().wash_passes
     inside_floor = [0.0, -0.2, 2.6, 0.0, 0.0, 0.0]  # forearm folded down through the floor
@@ -83,7 +83,7 @@ def test_a_sweep_in_collision_is_refused_before_any_motion(parked) -> None:  # n
     assert np.allclose(robot.joints, q0) and robot.sim_state().wash_passes == n0
 
 
-def test_a_stop_interrupts_the_wash_like_a_move(parked) -> None:  # noqa: ANN001
+def test_a_stop_interrupts_the_wash_like_a_move(parked) -> None:
     robot, _, _, plan = parked
     robot.cfg = robot.cfg.model_copy(update={"robot": robot.cfg.robot.model_copy(update={"speed_scale": 0.5})})
     try:

@@ -16,7 +16,7 @@ from cellctl.washing.service import MeshCache, wash_plan_reply
 
 
 @pytest.fixture(scope="module")
-def setup():  # noqa: ANN201
+def setup():
     cfg = load_config()
     cat = load_catalog(cfg.path(cfg.catalog), cfg.root)
     mesh = cat.load_mesh("case_study")
@@ -28,7 +28,7 @@ def _req(station: PoseMsg, dirt_map: dict | None, bin_type: str = "case_study") 
     return WashPlanRequest(bin_type=bin_type, stations=[station], q_start=HOME_JOINTS.tolist(), dirt_map=dirt_map)
 
 
-def test_a_plan_travels_as_sweeps_with_joints_spots_and_the_faces_they_cover(setup) -> None:  # noqa: ANN001
+def test_a_plan_travels_as_sweeps_with_joints_spots_and_the_faces_they_cover(setup) -> None:
     cfg, meshes, mesh, station = setup
     f = PowderField(np.array([[0.2, -0.37, -0.15]]), np.array([0.04]), np.array([EXTERNAL], np.uint8),
                     np.array([[0, -1.0, 0]]), 7)  # fmt: skip
@@ -44,13 +44,13 @@ def test_a_plan_travels_as_sweeps_with_joints_spots_and_the_faces_they_cover(set
     assert reply.summary["sweeps"] == len(reply.sweeps) and reply.cpu_s > 0
 
 
-def test_no_dirt_map_is_a_reason_and_no_sweeps(setup) -> None:  # noqa: ANN001
+def test_no_dirt_map_is_a_reason_and_no_sweeps(setup) -> None:
     cfg, meshes, _, station = setup
     reply = wash_plan_reply(cfg, meshes, _req(station, None))
     assert reply.sweeps == [] and "no dirt map" in reply.reason
 
 
-def test_bad_requests_are_refused_naming_the_value(setup) -> None:  # noqa: ANN001
+def test_bad_requests_are_refused_naming_the_value(setup) -> None:
     cfg, meshes, _, station = setup
     with pytest.raises(ConfigError, match="no_such_bin"):
         wash_plan_reply(cfg, meshes, _req(station, {"seen_dirty": [1]}, "no_such_bin"))

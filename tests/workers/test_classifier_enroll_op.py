@@ -35,7 +35,7 @@ def service() -> ClassifierService:
     return ClassifierService(SHIPPED, decision="detector", runtime="torch", threads=1)
 
 
-def test_enroll_writes_the_file_and_the_surface_is_decided_by_it(service, tmp_path: Path) -> None:  # noqa: ANN001
+def test_enroll_writes_the_file_and_the_surface_is_decided_by_it(service, tmp_path: Path) -> None:
     before = service.describe().models["external"]
     assert before.kind == "detector"
     _views(tmp_path / "external", MIN_IMAGES)
@@ -53,7 +53,7 @@ def test_enroll_writes_the_file_and_the_surface_is_decided_by_it(service, tmp_pa
     assert not isinstance(r, Exception) and r.model_id == reply.model_id
 
 
-def test_too_few_views_are_refused_and_the_detector_in_use_stays(service, tmp_path: Path) -> None:  # noqa: ANN001
+def test_too_few_views_are_refused_and_the_detector_in_use_stays(service, tmp_path: Path) -> None:
     in_use = service.describe().models["internal"].model_id
     _views(tmp_path / "internal", MIN_IMAGES - 1)
     out = tmp_path / "internal.enrolled.pt"

@@ -90,7 +90,7 @@ def cell() -> Iterator[tuple[CellConfig, object]]:
     router.close()
 
 
-def _call(client, cfg: CellConfig, op: str, msg, expect, timeout: float = 60.0):  # noqa: ANN001, ANN202
+def _call(client, cfg: CellConfig, op: str, msg, expect, timeout: float = 60.0):
     return request(client, keys.robot_op(cfg.cell_id, op), msg, expect, timeout=timeout, role="robot")[0]
 
 

@@ -40,12 +40,12 @@ def _cfg(port: int) -> CellConfig:
     return load_config(None, [f"bus.listen={ep}", f"bus.connect={ep}", *SLOW])
 
 
-def _joints(session, cfg: CellConfig) -> np.ndarray:  # noqa: ANN001
+def _joints(session, cfg: CellConfig) -> np.ndarray:
     st, _ = request(session, keys.robot_op(cfg.cell_id, "state"), RobotStateRequest(), RobotState, timeout=5)
     return np.array(st.joints)
 
 
-def _move_in_background(session, cfg: CellConfig) -> tuple[threading.Thread, dict]:  # noqa: ANN001
+def _move_in_background(session, cfg: CellConfig) -> tuple[threading.Thread, dict]:
     out: dict = {}
 
     def go() -> None:
@@ -61,14 +61,14 @@ def _move_in_background(session, cfg: CellConfig) -> tuple[threading.Thread, dic
     return t, out
 
 
-def _wait_moving(session, cfg: CellConfig, q0: np.ndarray) -> None:  # noqa: ANN001
+def _wait_moving(session, cfg: CellConfig, q0: np.ndarray) -> None:
     deadline = time.monotonic() + 20
     while np.abs(_joints(session, cfg) - q0).max() < 0.02:
         assert time.monotonic() < deadline, "the arm did not start moving"
         time.sleep(0.05)
 
 
-def _wait_token(session, key: str) -> None:  # noqa: ANN001
+def _wait_token(session, key: str) -> None:
     deadline = time.monotonic() + 20
     while not [r for r in session.liveliness().get(key, timeout=1.0) if r.ok is not None]:
         assert time.monotonic() < deadline, f"{key} did not appear"

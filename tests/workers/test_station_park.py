@@ -12,7 +12,7 @@ from cellctl.sim import scene
 
 
 @pytest.fixture
-def robot(cfg):  # noqa: ANN001, ANN201
+def robot(cfg):
     from cellctl.workers.robot._sim import SimRobot
 
     cfg.robot.speed_scale = 50.0  # the drive is modelled time
@@ -21,7 +21,7 @@ def robot(cfg):  # noqa: ANN001, ANN201
     r.close()
 
 
-def test_park_at_a_station_pose_with_the_base_error_and_the_arm_tucked(robot) -> None:  # noqa: ANN001
+def test_park_at_a_station_pose_with_the_base_error_and_the_arm_tucked(robot) -> None:
     bt = robot.catalog.get("case_study")
     mesh = robot.catalog.load_mesh("case_study")
     T_bin_station = transform_from_xyz_rpy((0, 0, 0), (0, 0, np.pi / 2)) @ scene.nominal_T_bin_base(bt, mesh)
@@ -37,6 +37,6 @@ def test_park_at_a_station_pose_with_the_base_error_and_the_arm_tucked(robot) ->
     assert pose_error(nominal, T_world_base)[0] > 0.5  # not the nominal park
 
 
-def test_a_station_pose_in_another_frame_is_refused(robot) -> None:  # noqa: ANN001
+def test_a_station_pose_in_another_frame_is_refused(robot) -> None:
     with pytest.raises(RobotError, match="base_pose.frame_id is 'base'; expected 'bin'"):
         robot.approach(ApproachRequest(park=True, base_pose=PoseMsg.from_matrix(np.eye(4), "base")))

@@ -20,7 +20,6 @@ from cellctl.sim import scene
 from cellctl.sim.ur_controller import EmulatorProcess, free_loopback_host
 from cellctl.workers.robot import make_robot
 
-pytest.importorskip("rtde_control")
 # ur-rtde calls block holding the GIL, so a hang there is only ended by the thread method
 pytestmark = pytest.mark.timeout(240, method="thread")
 
@@ -38,7 +37,7 @@ def emu(tmp_path_factory):
         yield e
 
 
-def _cfg(emu, *extra: str):  # noqa: ANN001, ANN202
+def _cfg(emu, *extra: str):
     return load_config(
         None,
         [
@@ -62,12 +61,12 @@ def robot(emu):
     emu.inject("reset")
 
 
-def _maint(robot, action: str):  # noqa: ANN001, ANN202
+def _maint(robot, action: str):
     return robot.maintenance(RobotMaintenanceRequest(action=action, user="test"))
 
 
 class _Mover(threading.Thread):
-    def __init__(self, robot, q) -> None:  # noqa: ANN001
+    def __init__(self, robot, q) -> None:
         super().__init__(daemon=True)
         self.robot, self.q, self.error, self.reply = robot, q, None, None
 
@@ -78,14 +77,14 @@ class _Mover(threading.Thread):
             self.error = err
 
 
-def _wait_moving(emu, timeout_s: float = 10.0) -> None:  # noqa: ANN001
+def _wait_moving(emu, timeout_s: float = 10.0) -> None:
     deadline = time.monotonic() + timeout_s
     while not emu.state()["moving"]:
         assert time.monotonic() < deadline, "the arm never started"
         time.sleep(0.02)
 
 
-def _rest(emu, timeout_s: float = 10.0) -> np.ndarray:  # noqa: ANN001
+def _rest(emu, timeout_s: float = 10.0) -> np.ndarray:
     deadline = time.monotonic() + timeout_s
     while emu.state()["moving"]:
         assert time.monotonic() < deadline, "the arm did not stop"
@@ -93,13 +92,13 @@ def _rest(emu, timeout_s: float = 10.0) -> np.ndarray:  # noqa: ANN001
     return np.array(emu.state()["q"])
 
 
-def _long_goal(robot) -> np.ndarray:  # noqa: ANN001
+def _long_goal(robot) -> np.ndarray:
     """2 rad of wrist 3, towards 0 (the tests' motions must not walk out of the joint limits)."""
     start = robot.joints
     return start + (-2.0 if start[5] > 0 else 2.0) * WRIST
 
 
-def _faulted_motion(robot, emu, fault: str) -> tuple[Exception, np.ndarray, np.ndarray]:  # noqa: ANN001
+def _faulted_motion(robot, emu, fault: str) -> tuple[Exception, np.ndarray, np.ndarray]:
     start = robot.joints
     goal = _long_goal(robot)
     m = _Mover(robot, goal)
@@ -150,7 +149,7 @@ def test_the_speed_slider_is_read_and_slows_the_arm(robot, emu) -> None:
         ("inputs_in_use input_int_register_0", [], "refused ur-rtde's RTDE recipe"),
     ],
 )
-def test_a_robot_that_cannot_run_programs_is_refused_naming_why(emu, inject, overrides, match) -> None:  # noqa: ANN001
+def test_a_robot_that_cannot_run_programs_is_refused_naming_why(emu, inject, overrides, match) -> None:
     emu.inject("reset")
     emu.inject(inject)
     try:
@@ -209,7 +208,7 @@ def test_emergency_stop_needs_power_on_and_brake_release(robot, emu) -> None:
 @pytest.mark.slow  # a motion, a fault, the recovery and another motion
 @pytest.mark.parametrize(("fault", "clear", "text"), [("safeguard", "safeguard_reset", "safeguard stop"),
                                                       ("reduced", "reduced_off", "reduced mode")])  # fmt: skip
-def test_safeguard_stop_and_reduced_mode_are_faults(robot, emu, fault, clear, text) -> None:  # noqa: ANN001
+def test_safeguard_stop_and_reduced_mode_are_faults(robot, emu, fault, clear, text) -> None:
     err, _, goal = _faulted_motion(robot, emu, fault)
     assert text in str(err) and robot.fault == text
     emu.inject(clear)
@@ -353,7 +352,7 @@ def test_a_motion_ends_on_fresh_joints_when_the_polled_ones_lag(robot, emu) -> N
     lag = threading.Event()
     polled = robot._read_state
 
-    def lagging(r=None):  # noqa: ANN001, ANN202 - the monitor's poll sees nothing new while ``lag`` is set
+    def lagging(r=None):  # the monitor's poll sees nothing new while ``lag`` is set
         if lag.is_set() and threading.current_thread().name == "ur-safety-monitor" and robot._last_state is not None:
             return robot._last_state
         return polled(r)

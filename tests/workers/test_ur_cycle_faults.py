@@ -37,14 +37,13 @@ from cellctl.workers.robot import make_robot, serve_robot
 from tests.conftest import cfg_overrides
 from tests.fakes.workers import CAM_POSE, FakeCell, fake_identify
 
-pytest.importorskip("rtde_control")
 pytestmark = pytest.mark.timeout(300, method="thread")  # ur-rtde's calls may block in C++
 
 N_VIEWPOINTS = 3
 
 
 @pytest.fixture(scope="module")
-def emu(tmp_path_factory):  # noqa: ANN001, ANN201
+def emu(tmp_path_factory):
     with EmulatorProcess(
         free_loopback_host(),
         ["sim.ur_controller.unlock_delay_s=0.3"],
@@ -70,7 +69,7 @@ class ReachablePlan(FakeCell):
 class RobotWorker:
     """``cellctl worker robot`` with ``robot.backend: ur``, in a thread of this process."""
 
-    def __init__(self, cfg) -> None:  # noqa: ANN001
+    def __init__(self, cfg) -> None:
         self.robot = make_robot(cfg)
         self.session = open_session(cfg, "client")
         self.stop = threading.Event()
@@ -87,7 +86,7 @@ class RobotWorker:
 
 
 @pytest.fixture
-def rig(emu, tmp_path, port):  # noqa: ANN001, ANN201
+def rig(emu, tmp_path, port):
     from cellctl.geometry.catalog import load_catalog
 
     emu.inject("reset")
@@ -224,7 +223,7 @@ def _fault_cycle_then_good_cycle(rig: Rig, fault: str, motion: str) -> None:
     assert len(good.viewpoints) == N_VIEWPOINTS and all(v.error is None for v in good.viewpoints)
 
 
-def test_a_protective_stop_in_a_scanning_move_fails_the_cycle_and_the_operator_recovers(rig) -> None:  # noqa: ANN001
+def test_a_protective_stop_in_a_scanning_move_fails_the_cycle_and_the_operator_recovers(rig) -> None:
     _fault_cycle_then_good_cycle(rig, "protective_stop", "scanning")
 
 
@@ -233,5 +232,5 @@ def test_a_protective_stop_in_a_scanning_move_fails_the_cycle_and_the_operator_r
     ("fault", "motion"),
     [(f, m) for f in sorted(RECOVERY) for m in MOTIONS if (f, m) != ("protective_stop", "scanning")],  # default's
 )
-def test_every_fault_at_every_motion(rig, fault: str, motion: str) -> None:  # noqa: ANN001
+def test_every_fault_at_every_motion(rig, fault: str, motion: str) -> None:
     _fault_cycle_then_good_cycle(rig, fault, motion)

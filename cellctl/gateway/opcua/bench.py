@@ -187,7 +187,7 @@ class _ZenohPath:
 
 
 def _start(cmd: list[str], log: Path) -> subprocess.Popen[bytes]:
-    f = open(log, "wb")  # noqa: SIM115 - kept open for the child's life
+    f = open(log, "wb")  # kept open for the child's life
     return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
 
 

@@ -178,7 +178,7 @@ class _Users(UserManager):
         self.allow_anonymous = allow_anonymous
         self.throttle = throttle
 
-    def get_user(self, iserver: Any, username: str | None = None, password: Any = None, certificate: Any = None):  # noqa: ANN201
+    def get_user(self, iserver: Any, username: str | None = None, password: Any = None, certificate: Any = None):
         if username is None:
             # ``certificate`` is the secure channel's client certificate, not an identity: ignored
             return User(role=UserRole.Anonymous) if self.allow_anonymous else None

@@ -27,7 +27,7 @@ __all__ = [
 ]
 
 
-def build(cfg, host: str | None = None) -> tuple[UrController, UrControllerServers]:  # noqa: ANN001 - CellConfig
+def build(cfg, host: str | None = None) -> tuple[UrController, UrControllerServers]:  # CellConfig
     """The emulator of ``cfg.sim.ur_controller``, listening (arm at the twin's home pose).
 
     Raises:
@@ -48,7 +48,7 @@ def build(cfg, host: str | None = None) -> tuple[UrController, UrControllerServe
     return ctl, srv
 
 
-def run(cfg, stop, host: str | None = None) -> None:  # noqa: ANN001 - CellConfig, threading.Event
+def run(cfg, stop, host: str | None = None) -> None:  # CellConfig, threading.Event
     """Serve until ``stop`` is set; prints ``ur-controller ready on HOST`` to stderr when listening."""
     import sys
 

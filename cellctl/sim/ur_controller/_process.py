@@ -69,7 +69,7 @@ class EmulatorProcess:
             cmd += ["--config", str(config)]
         for o in self.overrides:
             cmd += ["--set", o]
-        self._log = open(log_path, "wb") if log_path is not None else subprocess.DEVNULL  # noqa: SIM115
+        self._log = open(log_path, "wb") if log_path is not None else subprocess.DEVNULL
         self.proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         self.control_port = 30099
         for o in self.overrides:

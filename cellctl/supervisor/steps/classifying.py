@@ -63,7 +63,7 @@ def view_key(v: ViewpointResult) -> tuple[int | None, str | None, int]:
     return (v.station, v.surface, v.index)
 
 
-def with_reply(v: ViewpointResult, reply) -> ViewpointResult:  # noqa: ANN001
+def with_reply(v: ViewpointResult, reply) -> ViewpointResult:
     """The viewpoint result updated with a ClassifyReply's decision and scores."""
     return v.model_copy(
         update={
@@ -79,7 +79,7 @@ def with_reply(v: ViewpointResult, reply) -> ViewpointResult:  # noqa: ANN001
     )
 
 
-def record_heat(run: StepRun, reply) -> None:  # noqa: ANN001
+def record_heat(run: StepRun, reply) -> None:
     """The reply's heat map as a colour image on :data:`~cellctl.bus.topics.HEATMAP`."""
     if not reply.heatmap or not reply.heat_grid:
         return
@@ -148,7 +148,7 @@ class Classifying(Step):
         )
 
     @staticmethod
-    def _confirming(ctx) -> bool:  # noqa: ANN001
+    def _confirming(ctx) -> bool:
         mode = ctx.cfg.classifier.relook.confirm_dirty
         return mode == "on" or (mode == "whole_bin" and ctx.whole)
 

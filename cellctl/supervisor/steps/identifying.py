@@ -117,7 +117,7 @@ class Identifying(Step):
         return "succeeded"
 
     @staticmethod
-    def _carry_over(run: StepRun, st) -> str:  # noqa: ANN001 - StationInfo
+    def _carry_over(run: StepRun, st) -> str:  # StationInfo
         """A station that cannot see the board: the bin pose measured at an earlier station, carried
         through the base's reported motion since (``base_odometry``); the planned station pose when the
         base reports no pose (``carried_over``). See decisions.md."""

@@ -34,13 +34,13 @@ from cellctl.surface import FACE_TAG, SURFACES, Surface
 PlanKey = tuple[int | None, str | None]
 
 
-def _faces_by_view(plan, plans: Mapping[PlanKey, object] | None) -> dict:  # noqa: ANN001
+def _faces_by_view(plan, plans: Mapping[PlanKey, object] | None) -> dict:
     """(station, surface, index) → face ids; a single-station cycle's plan is keyed (None, None)."""
     plans = plans if plans else {(None, None): plan}
     return {(st, surf, vp.index): vp.faces for (st, surf), p in plans.items() for vp in p.viewpoints}  # type: ignore[attr-defined]
 
 
-def view_evidence(plan, viewpoints, T_base_bin, plans=None, bin_poses=None) -> list:  # noqa: ANN001
+def view_evidence(plan, viewpoints, T_base_bin, plans=None, bin_poses=None) -> list:
     """One :class:`~cellctl.classify.heatmap.ViewEvidence` per classified view (re-looks included).
 
     ``plans`` ((station, surface) → plan) and ``bin_poses`` (station → T_base_bin) serve a whole-bin
@@ -66,7 +66,7 @@ def view_evidence(plan, viewpoints, T_base_bin, plans=None, bin_poses=None) -> l
 
 def dirt_map(
     plan, viewpoints, mesh=None, surface: Surface | None = "external", plans=None
-) -> tuple[dict, float | None]:  # noqa: ANN001
+) -> tuple[dict, float | None]:
     """The coarse map (no mesh, or no heat maps): each viewpoint's label on the faces it sees.
 
     A face seen dirty from any viewpoint is dirty; a face seen only clean is clean; a face no
@@ -97,7 +97,7 @@ def dirt_map(
     }, coverage
 
 
-def _bin_type(ctx):  # noqa: ANN001, ANN202
+def _bin_type(ctx):
     """The cycle's bin type (its ID board is an occluder for the heat projection), or None."""
     from cellctl.errors import ConfigError
 
@@ -112,7 +112,7 @@ def _ids(faces: set[int], total: int) -> np.ndarray:
     return idx[(idx >= 0) & (idx < total)]
 
 
-def _coverage(mesh, seen_ids: np.ndarray, surface: Surface | None) -> float | None:  # noqa: ANN001
+def _coverage(mesh, seen_ids: np.ndarray, surface: Surface | None) -> float | None:
     """Area fraction of ``surface``'s faces (None: every surface's) among ``seen_ids``."""
     tags = [FACE_TAG[surface]] if surface is not None else [FACE_TAG[s] for s in SURFACES]
     on_surface = np.isin(mesh.surface, tags)
@@ -120,7 +120,7 @@ def _coverage(mesh, seen_ids: np.ndarray, surface: Surface | None) -> float | No
     return float(areas[seen_ids][on_surface[seen_ids]].sum() / areas[on_surface].sum()) if on_surface.any() else None
 
 
-def surface_fractions(mesh, seen_ids: np.ndarray) -> dict[str, float | None]:  # noqa: ANN001
+def surface_fractions(mesh, seen_ids: np.ndarray) -> dict[str, float | None]:
     """Area fraction of each surface among the faces ``seen_ids`` (what min_seen_fraction is checked on)."""
     return {s: _coverage(mesh, seen_ids, s) for s in SURFACES}
 
@@ -134,7 +134,7 @@ def gate(run: StepRun, seen: dict[str, float | None] | None) -> None:
         run.event("warning", f"verdict incomplete: {why}")
 
 
-def _whole_coverage(ctx, mesh, seen: np.ndarray) -> None:  # noqa: ANN001
+def _whole_coverage(ctx, mesh, seen: np.ndarray) -> None:
     """Each (station, surface)'s own share of a whole-bin cycle's coverage (``seen``: face ids)."""
     faces_by = {k: set(f) for k, f in _faces_by_view(ctx.plan, ctx.plans).items()}
     for st, surf in ctx.plans:
@@ -212,7 +212,7 @@ class Reporting(Step):
         return "succeeded"
 
     @staticmethod
-    def _scene(ctx, mesh) -> None:  # noqa: ANN001
+    def _scene(ctx, mesh) -> None:
         """The scan in 3D for Foxglove: bin coloured by the dirt map, one arrow per viewpoint.
 
         A whole-bin cycle's views of other stations are drawn in the last station's base frame.

@@ -40,7 +40,7 @@ def _clip_near(P: np.ndarray) -> np.ndarray:
     return np.array(out).reshape(-1, 3)
 
 
-def cabin_pixels(mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, scale: float = 0.25) -> np.ndarray:  # noqa: ANN001
+def cabin_pixels(mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, scale: float = 0.25) -> np.ndarray:
     """(H, W) bool at ``scale``: the pixels no face of the bin covers (the cabin past it)."""
     import cv2
 
@@ -70,7 +70,7 @@ def cabin_pixels(mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, sca
     return on == 0
 
 
-def mask_cabin(  # noqa: ANN001
+def mask_cabin(
     png: bytes, mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, max_pixels: int = MAX_IMAGE_PIXELS
 ) -> bytes:
     """The image with the pixels off the bin filled with the median colour of the bin's, or the same
@@ -94,7 +94,7 @@ def mask_cabin(  # noqa: ANN001
     return out.tobytes() if ok else png
 
 
-def classifier_input(  # noqa: ANN001
+def classifier_input(
     run: StepRun, data: bytes, fmt: str, T_base_cam: np.ndarray, intr, surface: str | None = None
 ) -> tuple[bytes, str]:
     """What the classifier gets for a captured view of ``surface`` (default: the cycle's current one): the board

@@ -56,7 +56,7 @@ from cellctl.supervisor.steps.washing import face_mask, face_state, picture_dir,
 __all__ = ["Verifying", "imaged_faces", "merge_dirt_maps"]
 
 
-def merge_dirt_maps(old: dict[str, Any], new: dict[str, Any], mesh: Any) -> dict[str, Any]:  # noqa: ANN401
+def merge_dirt_maps(old: dict[str, Any], new: dict[str, Any], mesh: Any) -> dict[str, Any]:
     """``old`` with every face ``new`` saw replaced by what ``new`` says (a dirt map with ``face_p``)."""
     from cellctl.classify.heatmap import FaceMap
 
@@ -76,7 +76,7 @@ IMAGED_DEPTH_FACTOR = 1.5
 classifier sees a large clump beyond the measuring range; the cabin far behind the bin it ignores)."""
 
 
-def imaged_faces(ctx: Any, mesh: Any, v: ViewpointResult) -> set[int]:  # noqa: ANN401
+def imaged_faces(ctx: Any, mesh: Any, v: ViewpointResult) -> set[int]:
     """Faces of the bin a view's image shows (first hits of a ray grid across the frame, within
     ``IMAGED_DEPTH_FACTOR`` × the far depth of view), not only the faces its plan counts as measured.
 
@@ -185,7 +185,7 @@ class Verifying(Step):
         return "succeeded"
 
     @staticmethod
-    def _look(run: StepRun, vp: Any, r: int, surface: str, rank: int | None) -> None:  # noqa: ANN401
+    def _look(run: StepRun, vp: Any, r: int, surface: str, rank: int | None) -> None:
         from cellctl.geometry.transforms import invert
 
         ctx = run.ctx
@@ -296,8 +296,8 @@ class Verifying(Step):
 
     @staticmethod
     def _dirt_map(
-        ctx: Any,  # noqa: ANN401
-        mesh: Any,  # noqa: ANN401
+        ctx: Any,
+        mesh: Any,
         views: list[ViewpointResult],
         before: np.ndarray,
         washed: np.ndarray,

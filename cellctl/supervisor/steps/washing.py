@@ -79,7 +79,7 @@ def face_mask(ids: list[int], n_faces: int) -> np.ndarray:
     return out
 
 
-def _plan_view(plan: WashPlanReply, n_faces: int, T_bin_base: list[np.ndarray]) -> Any:  # noqa: ANN401
+def _plan_view(plan: WashPlanReply, n_faces: int, T_bin_base: list[np.ndarray]) -> Any:
     """What :func:`cellctl.washing.pictures.draw_wash_path` reads of a plan, from the planner's reply."""
     return SimpleNamespace(
         dirty=face_mask(plan.dirty, n_faces),
@@ -101,7 +101,7 @@ def _spot_passes(plan: WashPlanReply) -> list[Any]:
     return out
 
 
-def wash_mesh(ctx: CycleContext) -> Any:  # noqa: ANN401 - BinMesh
+def wash_mesh(ctx: CycleContext) -> Any:  # BinMesh
     if ctx.catalog is None or ctx.bin_type is None or ctx.T_base_bin is None:
         raise PlanningError("a wash needs the identified bin (type, mesh and pose); the cycle has none")
     return ctx.catalog.load_mesh(ctx.bin_type)
@@ -143,7 +143,7 @@ def washed_faces(ctx: CycleContext, n: int) -> np.ndarray:
     return face_mask(list(ctx.wash_run.get("washed", [])), n)
 
 
-def look_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:  # noqa: ANN401
+def look_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:
     """(F,) what the round re-inspects: its targets and every face its jet sprayed, dilated by the splash."""
     from cellctl.washing.targets import dilate
 
@@ -154,7 +154,7 @@ def look_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:  # noqa: ANN401
     return dilate(mesh, sprayed, ctx.cfg.wash.splash_m)
 
 
-def views_at(ctx: CycleContext, mesh: Any, rank: int | None) -> list[tuple[str, Any]]:  # noqa: ANN401
+def views_at(ctx: CycleContext, mesh: Any, rank: int | None) -> list[tuple[str, Any]]:
     """(surface, PlannedViewpoint) of station ``rank``'s plans that see a face to look at, in plan order."""
     look = look_faces(ctx, mesh)
     n = mesh.n_faces
@@ -205,7 +205,7 @@ def face_state(dirt_map: dict[str, Any], n: int) -> tuple[np.ndarray, np.ndarray
     return dirty.astype(float), seen, dirty
 
 
-def seen_fraction(ctx: CycleContext, mesh: Any) -> float:  # noqa: ANN401
+def seen_fraction(ctx: CycleContext, mesh: Any) -> float:
     """Share of the bin's area (both surfaces) the cycle's dirt map has seen: the scan's views and every
     round's re-inspection merged (faces with a probability, or in a coarse map's seen lists).
 
@@ -216,7 +216,7 @@ def seen_fraction(ctx: CycleContext, mesh: Any) -> float:  # noqa: ANN401
     return float(mesh.areas[seen].sum()) / total if total > 0 else 0.0
 
 
-def _dirty_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:  # noqa: ANN401
+def _dirty_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:
     from cellctl.washing.targets import dirty_from_map
 
     dirty, _ = dirty_from_map(ctx.dirt_map or {}, mesh.n_faces, ctx.cfg.wash.threshold)
@@ -326,7 +326,7 @@ class WashCheck(Step):
         return reply
 
     @staticmethod
-    def _pictures(ctx: CycleContext, mesh: Any, plan: WashPlanReply, r: int) -> None:  # noqa: ANN401
+    def _pictures(ctx: CycleContext, mesh: Any, plan: WashPlanReply, r: int) -> None:
         folder = picture_dir(ctx)
         if folder is None:
             return
@@ -348,7 +348,7 @@ class WashCheck(Step):
         verdict: str | None,
         reason: str | None,
         dirty: np.ndarray | None = None,
-        mesh: Any = None,  # noqa: ANN401
+        mesh: Any = None,
         unwashable: list[dict[str, Any]] | None = None,
     ) -> str:
         ctx = run.ctx

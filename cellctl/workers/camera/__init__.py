@@ -34,7 +34,7 @@ log.addHandler(logging.NullHandler())
 BACKENDS = ("sim", "opencv", "folder")
 
 
-def make_camera(cfg: CellConfig, backend: str | None = None, session=None) -> Camera:  # noqa: ANN001
+def make_camera(cfg: CellConfig, backend: str | None = None, session=None) -> Camera:
     """Build the camera backend (default ``cfg.camera.backend``); ``session`` feeds the sim its world.
 
     Raises:
@@ -71,7 +71,7 @@ def make_camera(cfg: CellConfig, backend: str | None = None, session=None) -> Ca
     raise ConfigError(f"camera backend {name!r} is unknown; expected one of {list(BACKENDS)}")
 
 
-def serve_camera(session, cfg: CellConfig, camera: Camera, stop: threading.Event) -> None:  # noqa: ANN001
+def serve_camera(session, cfg: CellConfig, camera: Camera, stop: threading.Event) -> None:
     """Serve ``camera`` on ``session`` until ``stop`` is set (blocking)."""
     from cellctl.workers._server import WorkerServer
 

@@ -171,7 +171,7 @@ class PlannerService:
             )
         except CellError:
             raise
-        except Exception as err:  # noqa: BLE001 - a cache file that passed the checks still breaks the adjustment
+        except Exception as err:  # a cache file that passed the checks still breaks the adjustment
             # A broken cache costs a replan, not the cycle: answer a miss that says why.
             log.exception("plan cache lookup for %s/%s failed", req.bin_type, req.surface)
             return PlanLookupReply(hit=False, reason=f"plan cache lookup failed ({type(err).__name__}: {err}); replan")
@@ -304,7 +304,7 @@ class PlannerService:
                     job_id=job_id, stage=stage, fraction=frac, state=state, message=message, plan_id=plan_id
                 ),
             )
-        except Exception as err:  # noqa: BLE001 - progress is best effort, the job goes on
+        except Exception as err:  # progress is best effort, the job goes on
             log.debug("progress publish failed: %s", err)
 
     def _run_jobs(self) -> None:
@@ -351,7 +351,7 @@ class PlannerService:
                 plan = make_plan(mesh, T_bin_base, params, self.robot, bin_type=req.bin_type, progress=progress)
                 plan = dataclasses.replace(plan, job_id=job_id)
                 write_plan(plan, plan_path(self.plans_dir, plan))
-        except Exception as err:  # noqa: BLE001 - a failed job must not kill the worker
+        except Exception as err:  # a failed job must not kill the worker
             reason = f"{type(err).__name__}: {err}"
             log.warning("job %s failed: %s", job_id, reason)
             self._write_record(job_id, state="failed", reason=reason)

@@ -231,7 +231,7 @@ class JobQueue:
             if ev is not None:
                 try:
                     self._handle(ev)
-                except Exception:  # noqa: BLE001 - one bad event must not stop the queue
+                except Exception:  # one bad event must not stop the queue
                     log.exception("pool queue: %s event failed", ev.kind)
                 finally:
                     if ev.query is not None and ev.kind != "claim":
@@ -484,7 +484,7 @@ def _claim(session: zenoh.Session, name: str) -> PoolAssignment | None:
     """One claim; None when the queue has no job for us (or cannot be reached: retried)."""
     try:
         replies = list(session.get(keys.pool_claim(), payload=encode(PoolClaim(instance=name)), timeout=5.0))
-    except Exception as err:  # noqa: BLE001 - the link may be down; the caller retries
+    except Exception as err:  # the link may be down; the caller retries
         log.debug("claim failed: %s", err)
         return None
     for r in replies:
@@ -508,7 +508,7 @@ def _report(session: zenoh.Session, done: PoolDone, stop_event: threading.Event,
             for r in session.get(keys.pool_done(), payload=encode(done), timeout=5.0):
                 if r.ok is not None:
                     return
-        except Exception as err:  # noqa: BLE001 - retried below
+        except Exception as err:  # retried below
             log.debug("done report failed: %s", err)
         stop_event.wait(0.5)
     log.error("job %s result could not be delivered to the pool queue within %g s", done.job_id, limit_s)

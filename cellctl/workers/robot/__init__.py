@@ -85,7 +85,7 @@ def make_robot(cfg: CellConfig, backend: str | None = None, **kwargs: object) ->
     raise ConfigError(f"robot backend {name!r} is unknown; expected one of {list(BACKENDS)}")
 
 
-def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -> None:  # noqa: ANN001
+def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -> None:
     """Serve ``robot`` on ``session`` until ``stop`` is set (blocking)."""
     from cellctl.workers._server import WorkerServer
 
@@ -99,7 +99,7 @@ def serve_robot(session, cfg: CellConfig, robot: Robot, stop: threading.Event) -
         robot.stop(req.reason)
         return req
 
-    def _supervisor_seen(sample) -> None:  # noqa: ANN001 - zenoh.Sample; runs on a Zenoh thread
+    def _supervisor_seen(sample) -> None:  # zenoh.Sample; runs on a Zenoh thread
         if sample.kind == zenoh.SampleKind.DELETE:
             robot.stop("supervisor lost (liveliness token gone)")  # sets an event: never blocks
 

@@ -275,7 +275,7 @@ class PlannedRobot(Robot):
         finally:
             self._busy.release()
 
-    def _park(self, bt, mesh, T_bin_base: NDArray[np.float64] | None = None) -> None:  # noqa: ANN001 - BinType, BinMesh
+    def _park(self, bt, mesh, T_bin_base: NDArray[np.float64] | None = None) -> None:  # BinType, BinMesh
         if np.abs(self.joints - scene.HOME_JOINTS).max() > 1e-6:
             self._go(scene.HOME_JOINTS)  # tuck the arm before the base drives
         self._park_attempt += 1
