@@ -15,7 +15,9 @@ viewpoints + filters                  :func:`~cellctl.planning.viewpoints.genera
                                       nozzle's stand-offs (jet along −normal), the planner's height,
                                       distance, occlusion and camera-body filters, plus the lance
 reachability                          :func:`~cellctl.planning.reach.reachability` with the robot's
-                                      tool frame at the nozzle (:meth:`NozzleModel.robot_with_nozzle`)
+                                      tool frame at the nozzle (:meth:`NozzleModel.robot_with_nozzle`),
+                                      then :func:`~cellctl.planning.whole.connect`: only arm
+                                      configurations joined to home by straight free motions
 visibility → sprayed                  :func:`~cellctl.planning.visibility.measurability` with the
                                       nozzle's frustum camera, cut to the cone and footprint
 sweeps                                runs of consecutive reachable waypoints of one raster line
@@ -585,6 +587,8 @@ def _station(
         return []
     c = time.process_time()
     reached = reachability(filtered, tool, world, invert(T_bin_base), q0, p.n_roll) if len(filtered) else None
+    if reached is not None and len(reached.index):
+        reached = _connected(filtered, reached, tool, world, T_bin_base, p, counts)
     if budget is not None:
         budget.rate.add(units, time.process_time() - c)
     _add(times, "reachability", t)
@@ -688,6 +692,34 @@ def _station(
         prev = exit_[int(node)]
     _add(times, "tour", t)
     return out
+
+
+def _connected(
+    vp: Any,
+    reached: Any,
+    tool: RobotModel,
+    world: Any,
+    T_bin_base: NDArray[np.float64],
+    p: WashParams,
+    counts: Counter[str],
+) -> Any:
+    """The reached waypoints the arm can get to: each joined to the arm's home by straight
+    collision-free joint motions (directly or through other waypoints), the inspection planner's
+    connection (:func:`cellctl.planning.whole.connect`).
+
+    Why home: a sweep the robot cannot move straight to from where it stands is planned through
+    home (``_plan`` in the robot worker), in ``robot.plan_timeout_s``. Reachability's arm shape is
+    the one most of a station's waypoints can use, so a few residue waypoints could get a flipped
+    shoulder no planner connects (the demo's wash story: a sweep at shoulder +3.03 rad refused every
+    round). A waypoint not joined takes its next-best solution that is, or is left unreached.
+    """
+    from cellctl.planning.whole import COARSE_STEP_RAD, connect
+
+    q_home = np.asarray(tool.q_home, np.float64)
+    con = connect(vp, reached, tool, world, invert(T_bin_base), q_home, p.n_roll, None, COARSE_STEP_RAD)
+    counts["waypoints_replaced_unconnected"] += con.replaced
+    counts["waypoints_unconnected"] += con.unconnected
+    return con.reached
 
 
 RESIDUE_TILTS_DEG = (0.0, 30.0, 50.0)
@@ -826,7 +858,8 @@ def _unwashable(
             reason = "from every station, each nozzle pose for it is out of reach, occluded, or hits the bin"
         elif not seen.reached[near].any():
             reason = (
-                "from every station, no collision-free arm configuration within the joint limits holds the nozzle there"
+                "from every station, no collision-free arm configuration within the joint limits that a straight "
+                "motion joins to the arm's home holds the nozzle there"
             )
         else:
             reason = "the reachable poses' jet meets it outside the working distance or incidence limit"
