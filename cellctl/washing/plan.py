@@ -713,10 +713,15 @@ def _connected(
     shoulder no planner connects (the demo's wash story: a sweep at shoulder +3.03 rad refused every
     round). A waypoint not joined takes its next-best solution that is, or is left unreached.
     """
-    from cellctl.planning.whole import COARSE_STEP_RAD, connect
+    import importlib
 
+    from cellctl.planning.whole import connect
+
+    # checked at the connection's own step, from the module that defines it (planning.whole is being
+    # split into modules: issue 33)
+    step = importlib.import_module(connect.__module__).COARSE_STEP_RAD
     q_home = np.asarray(tool.q_home, np.float64)
-    con = connect(vp, reached, tool, world, invert(T_bin_base), q_home, p.n_roll, None, COARSE_STEP_RAD)
+    con = connect(vp, reached, tool, world, invert(T_bin_base), q_home, p.n_roll, None, step)
     counts["waypoints_replaced_unconnected"] += con.replaced
     counts["waypoints_unconnected"] += con.unconnected
     return con.reached
