@@ -50,3 +50,22 @@ def test_the_whole_bin_wash_cycle_must_end_clean_after_a_wash_round() -> None:
     assert whole.expect.verdict == "clean" and whole.expect.washed
     (single,) = [s for s in _stories("case_study", HOME, NUDGED, MOVED, False, True) if s.params.get("mode")]
     assert single.expect.verdict is None
+
+
+def test_story_n_plays_story_1_then_n_with_their_numbers_and_refuses_one_it_lacks() -> None:
+    import argparse
+
+    import pytest
+
+    from cellctl.cli.demo import _chosen
+    from cellctl.errors import ConfigError
+
+    ap = argparse.ArgumentParser()
+    register(ap.add_subparsers())
+    assert ap.parse_args(["demo"]).story is None
+    stories = _stories("case_study", HOME, NUDGED, MOVED, whole=True, wash=True)
+    assert [n for n, _ in _chosen(stories, None)] == [1, 2, 3, 4]
+    (n1, s1), (n3, s3) = _chosen(stories, ap.parse_args(["demo", "--story", "3"]).story)
+    assert (n1, n3) == (1, 3) and s1 is stories[0] and s3.params.get("mode") == "wash_and_verify"
+    with pytest.raises(ConfigError, match="--story 5: this demo has stories 1-4"):
+        _chosen(stories, [5])

@@ -19,7 +19,8 @@ what the scan found from the stations, the re-inspection looks again, and the cy
 three pictures (dirt map before, wash path, dirt map after) written; one cycle tells "dirty" and "washed clean", so the
 default story scans no more than before plus the wash rounds (the whole demo ~10 min on 2 cores, 2026-12-02).
 ``--no-wash`` plays the plain dirty scan instead. The single-station story adds its wash cycle after its dirty
-scan (its rounds, no verdict asserted: one park does not reach all the dirt).
+scan (its rounds, no verdict asserted: one park does not reach all the dirt). ``--story N`` plays story N alone
+(numbered as the table numbers them), after story 1: the new bin's plan every other story needs.
 """
 
 from __future__ import annotations
@@ -55,6 +56,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=True,
         help="the dirty bin is a wash-and-verify cycle (mode=wash_and_verify: wash, re-inspect, clean); "
         "--no-wash: the plain dirty scan",
+    )
+    p.add_argument(
+        "--story",
+        type=int,
+        action="append",
+        metavar="N",
+        help="play only story N (repeatable; numbered as the table is), after story 1 (the new bin's plan the others "
+        "need); default: every story",
     )
     add_config_arguments(p)
     p.set_defaults(func=run)
@@ -203,6 +212,21 @@ def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool, was
     return [*stages, beyond]
 
 
+def _chosen(stages: list[Stage], wanted: list[int] | None) -> list[tuple[int, Stage]]:
+    """The stories to play with their numbers: all, or story 1 (it plans the bin) and the ``wanted`` ones.
+
+    Raises:
+        ConfigError: a story number the demo does not have.
+    """
+    from cellctl.errors import ConfigError
+
+    bad = [n for n in wanted or [] if not 1 <= n <= len(stages)]
+    if bad:
+        raise ConfigError(f"--story {bad[0]}: this demo has stories 1-{len(stages)}")
+    keep = {1, *wanted} if wanted else set(range(1, len(stages) + 1))
+    return [(n, st) for n, st in enumerate(stages, 1) if n in keep]
+
+
 def run(args: argparse.Namespace) -> int:  # a story reads best top to bottom
     from cellctl.app import build_cell
     from cellctl.bus import keys
@@ -236,7 +260,7 @@ def run(args: argparse.Namespace) -> int:  # a story reads best top to bottom
     # systematic parking offset (an obstacle where the base would park).
     nudged = (0.008, -0.006, math.radians(0.5))
     moved = (-0.15, 0.0, math.radians(5.0))
-    stages = _stories(bt, home, nudged, moved, whole=not args.single_station, wash=args.wash)
+    stages = _chosen(_stories(bt, home, nudged, moved, whole=not args.single_station, wash=args.wash), args.story)
 
     def _terminate(signum: int, _frame: object) -> None:
         raise KeyboardInterrupt(f"signal {signum}")  # unwinds the cell: workers stopped, logs closed
@@ -260,7 +284,7 @@ def run(args: argparse.Namespace) -> int:  # a story reads best top to bottom
             return 1
         _say("all workers alive\n")
 
-        for i, stage in enumerate(stages, 1):
+        for i, stage in stages:
             row = Row(i, stage.story)
             rows.append(row)
             if stage.scenario:
