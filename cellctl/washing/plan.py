@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from cellctl.geometry.catalog import BinMesh
 from cellctl.geometry.transforms import invert
 from cellctl.planning.robot import RobotModel
-from cellctl.surface import INTERNAL
+from cellctl.surface import INTERNAL, SURFACES
 from cellctl.washing.nozzle import NozzleModel
 from cellctl.washing.targets import Facet, dilate, dirty_from_map, face_adjacency, facets_of
 
@@ -130,6 +130,12 @@ class Unwashable:
     area_m2: float
     centroid: NDArray[np.float64]
     reason: str
+
+    def describe(self) -> str:
+        """The piece in words: its size, surface, centre (bin frame, mm) and first faces."""
+        ids = ", ".join(str(int(f)) for f in self.faces[:5]) + (", …" if len(self.faces) > 5 else "")
+        c = ", ".join(f"{v * 1e3:.0f}" for v in self.centroid)
+        return f"{self.area_m2 * 1e4:.0f} cm² of the {SURFACES[self.surface]} surface at ({c}) mm, faces {ids}"
 
 
 @dataclass
@@ -424,7 +430,10 @@ def plan_wash(
     times["total"] = sum(times.values())
     reason = None
     if not sweeps:
-        reason = "no nozzle pose reaches any dirty region: " + "; ".join(sorted({u.reason for u in unwashable}))
+        # each piece named (how big, where, which faces; the largest three): the cycle ends dirty with this reason
+        big = sorted(unwashable, key=lambda u: -u.area_m2)
+        named = [u.describe() + f": {u.reason}" for u in big[:3]] + [f"{len(big) - 3} more"] * (len(big) > 3)
+        reason = "no nozzle pose reaches any dirty region: " + "; ".join(named)
     return WashPlan(
         sweeps=tuple(sweeps),
         transits_free=tuple(transits),
