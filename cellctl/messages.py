@@ -707,9 +707,9 @@ class CycleResult(WireMessage):
     )
     decision_path: dict[Surface, DecisionPath] | None = Field(
         default=None,
-        description="per surface, what the views were judged against: references (a commissioned reference set "
-        "holds every scanned plan of the surface), enrolled (none: a site-enrolled detector), shipped (none: the "
-        "shipped model)",
+        description="per surface, what the views were judged against: references (views of the surface were decided "
+        "by the comparison with their commissioned reference: ViewpointResult.decided_by says which), enrolled "
+        "(none: a site-enrolled detector), shipped (none: the shipped model)",
     )
     reference_version: int | None = Field(
         default=None, ge=1, description="the reference set (of the bin type) the references came from"

@@ -228,7 +228,11 @@ replay runs beside its own empty reference root (it must never add a set to the 
 
 
 def _reference_relative(msg: dict[str, Any]) -> dict[str, Any]:
-    """An enroll request with its paths from the reference root on (the replay's root is a scratch folder)."""
+    """An enroll request with its paths from the reference root on (the replay's root is a scratch folder); a
+    classify request without the reference the scan found on disk (the scratch root has none: the recorded
+    reply still says which path decided)."""
+    if msg.get("type") == "cellctl/ClassifyRequest":
+        return {k: v for k, v in msg.items() if k != "reference"}
     if msg.get("type") != "cellctl/EnrollRequest":
         return msg
     cut = {k: str(msg.get(k, "")).rpartition("/references/")[2] for k in ("images", "out")}

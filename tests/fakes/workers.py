@@ -158,7 +158,11 @@ class FakeCell:
         self._guard("classify")
         n = sum(1 for c in self.calls if c == "classify") - 1
         dirty = n in self.dirty_viewpoints
-        return ClassifyReply(label="dirty" if dirty else "clean", p_dirty=0.9 if dirty else 0.1, model_id="fake")
+        # a view sent with its reference is judged against it, as the real worker does when it aligns
+        path = {"decided_by": "reference", "reference_reason": "aligned"} if req.reference is not None else {}
+        return ClassifyReply(
+            label="dirty" if dirty else "clean", p_dirty=0.9 if dirty else 0.1, model_id="fake", **path
+        )
 
     def _lookup(self, req: PlanLookupRequest, _: bytes | None) -> PlanLookupReply:
         self._guard("lookup")

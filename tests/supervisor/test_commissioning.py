@@ -151,6 +151,9 @@ def test_commissioning_writes_a_reference_set_chained_into_the_audit(cfg, cell, 
     # a later cycle of the commissioned plan is judged against the references
     assert after.outcome == "completed" and after.decision_path == {"external": "references"}
     assert after.reference_version == 1
+    # per view: the request carried the viewpoint's reference (bin-frame poses, the plane) and the reply's path
+    assert [(v.decided_by, v.reference_reason) for v in after.viewpoints] == [("reference", "aligned")] * 3
+    assert [v.decided_by for v in res.viewpoints] == [None] * 3  # the commissioning views: no reference sent
     with open(cfg.path(after.log), "rb") as f:  # in the log's own metadata and in Status.admin too
         meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["result"]
     assert meta["decision_path"] == "external=references" and meta["reference_version"] == "1"
@@ -178,6 +181,7 @@ def test_a_replanned_bin_falls_back_until_commissioned_again(cfg, cell, plc) -> 
     assert first.commission is not None and first.commission.version == 1
     # no references for the new plan: the detector enrolled at commissioning decides, and says so
     assert replanned.decision_path == {"external": "enrolled"} and replanned.reference_version is None
+    assert [v.reference_reason for v in replanned.viewpoints] == [None] * 3  # no set holds plan-2
     assert again.commission is not None and again.commission.version == 2 and again.commission.plan_ids == ["plan-2"]
     assert [v for v, _ in set_versions(root, "case_study")] == [1, 2]
     assert old_plan.decision_path == {"external": "references"} and old_plan.reference_version == 1

@@ -75,6 +75,9 @@ def with_reply(v: ViewpointResult, reply) -> ViewpointResult:
             "model_id": reply.model_id,
             "heatmap": reply.heatmap,
             "heat_grid": reply.heat_grid,
+            "decided_by": reply.decided_by,
+            # the scan's own reason (the plan's set has no reference for the viewpoint) unless the worker has one
+            "reference_reason": reply.reference_reason or v.reference_reason,
         }
     )
 

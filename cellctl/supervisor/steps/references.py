@@ -2,11 +2,16 @@
 
 Every cycle passes here after its last classification, before reporting.
 
-* **Decision path** per surface (``CycleResult.decision_path``): ``references`` when a reference set
-  of the bin type (:mod:`cellctl.recording.references`) holds every plan the cycle scanned for the
-  surface; else ``enrolled`` when a site-enrolled detector (model id ``<surface>-enrolled-…``)
-  decided a view of it; else ``shipped``. A replan makes a new plan id, which no set holds until it
-  is commissioned. A commissioning cycle's own path is computed before its set exists: its views
+* **Reference query** (:func:`reference_query`, called by the scan for every view outside a
+  commissioning cycle): the viewpoint's stored reference in the newest set of the bin type holding
+  the plan (:mod:`cellctl.recording.references`), both camera poses in the bin frame and the viewed
+  plane; the classifier worker compares the view with it and says which path decided.
+* **Decision path** per surface (``CycleResult.decision_path``): ``references`` when views of the
+  surface were decided against their references (``ViewpointResult.decided_by``); else ``enrolled``
+  when a site-enrolled detector (model id ``<surface>-enrolled-…``) decided a view of it; else
+  ``shipped``. A replan makes a new plan id, which no set holds until it is commissioned. The
+  per-path counts and the reasons a reference did not decide go into the record
+  (:func:`decision_counts`). A commissioning cycle's own path is computed before its set exists: its views
   were judged without it.
 * **Commissioning** (Start ``mode=commission``; :func:`store_reference` kept each view during the
   scan): the set is given the bin type's next version, the classifier worker enrolls each surface's
@@ -26,12 +31,26 @@ import numpy as np
 
 from cellctl.bus import topics
 from cellctl.errors import RecordingError, WorkerError
-from cellctl.messages import CommissionResult, EnrollReply, EnrollRequest, Intrinsics
-from cellctl.recording.references import ReferenceSetWriter, enrolled_file, latest_set, reference_root
+from cellctl.messages import ClassifyReference, CommissionResult, EnrollReply, EnrollRequest, Intrinsics, PoseMsg
+from cellctl.recording.references import (
+    ReferenceSetWriter,
+    enrolled_file,
+    latest_set,
+    lookup_reference,
+    reference_root,
+)
 from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import Step
 
-__all__ = ["ENROLL_TIMEOUT_S", "References", "decision_paths", "store_reference"]
+__all__ = [
+    "ENROLL_TIMEOUT_S",
+    "References",
+    "decision_counts",
+    "decision_paths",
+    "reference_query",
+    "reference_state",
+    "store_reference",
+]
 
 ENROLL_TIMEOUT_S = 1800.0
 """How long one surface's enrollment may take on the classifier worker: a whole-bin plan gives it
@@ -66,6 +85,58 @@ def store_reference(
     )
 
 
+_CASTERS: dict[str, Any] = {}
+"""bin type -> ray caster of its mesh (the viewed plane of each reference; built once per process)."""
+
+
+def reference_query(ctx: CycleContext, viewpoint: int, T_base_cam: np.ndarray) -> ClassifyReference | None:
+    """What the scan asks the classifier to compare a view with: the viewpoint's stored reference in
+    the newest set holding the plan scanned now, both cameras in the bin frame of their own cycle,
+    and the viewed plane from the mesh at the reference pose. None when the plan has no set, the
+    set has no reference for this viewpoint (refused while commissioning) or a pose, the intrinsics
+    or the mesh's plane is missing: the detector decides alone (:func:`reference_state` says why).
+    """
+    plan = ctx.plan
+    if plan is None or ctx.bin_type is None or ctx.T_base_bin is None or ctx.catalog is None:
+        return None
+    ref = lookup_reference(reference_root(ctx.cfg), ctx.bin_type, plan.plan_id or "unnamed", viewpoint)
+    if ref is None or ref.T_bin_cam is None or ref.intrinsics is None:
+        return None
+    from cellctl.classify.reference import plane_from_mesh
+    from cellctl.errors import ClassifierError
+
+    mesh = ctx.catalog.load_mesh(ctx.bin_type)
+    if ctx.bin_type not in _CASTERS:
+        from cellctl.classify.heatmap import MeshCaster
+
+        _CASTERS[ctx.bin_type] = MeshCaster(mesh)
+    intr = ref.intrinsics
+    try:
+        plane = plane_from_mesh(_CASTERS[ctx.bin_type], mesh, ref.T_bin_cam, intr.K(), intr.width, intr.height)
+    except ClassifierError:
+        return None
+    T_bin_cam = np.linalg.inv(ctx.T_base_bin) @ np.asarray(T_base_cam, np.float64)
+    return ClassifyReference(
+        image=str(ref.image),
+        sha256=ref.sha256,
+        version=ref.version,
+        reference_pose=PoseMsg.from_matrix(ref.T_bin_cam, "bin"),
+        view_pose=PoseMsg.from_matrix(T_bin_cam, "bin"),
+        intrinsics=intr,
+        plane_normal=plane.normal,
+        plane_distance=plane.distance,
+    )
+
+
+def reference_state(ctx: CycleContext) -> str | None:
+    """For a view sent without a reference: ``no_reference`` when the plan scanned now has a set
+    (the viewpoint has none in it), None when it has none (the plan was never commissioned)."""
+    if ctx.plan is None or ctx.bin_type is None:
+        return None
+    found = latest_set(reference_root(ctx.cfg), ctx.bin_type, ctx.plan.plan_id or "unnamed")
+    return "no_reference" if found is not None else None
+
+
 def _scanned_plans(ctx: CycleContext) -> dict[str, list[str]]:
     """surface → the plan ids the cycle scanned for it."""
     out: dict[str, list[str]] = {}
@@ -74,20 +145,41 @@ def _scanned_plans(ctx: CycleContext) -> dict[str, list[str]]:
     return out
 
 
+def decision_counts(ctx: CycleContext) -> dict[str, dict[str, int]]:
+    """Per surface, how many classified views each path decided (``reference``, ``detector``, ``model``)
+    and, for views whose plan had references, why the detector decided alone (``<reason>``)."""
+    out: dict[str, dict[str, int]] = {}
+    for v in ctx.viewpoints:
+        if v.label is None:
+            continue
+        c = out.setdefault(v.surface or ctx.surface, {})
+        key = v.decided_by or "detector"
+        c[key] = c.get(key, 0) + 1
+        if v.reference_reason not in (None, "aligned"):
+            c[str(v.reference_reason)] = c.get(str(v.reference_reason), 0) + 1
+    return out
+
+
 def decision_paths(ctx: CycleContext) -> tuple[dict[str, str] | None, int | None]:
-    """Per surface, what its views were judged against, and the newest reference set version used."""
+    """Per surface, what its views were judged against, and the newest reference set version used.
+
+    ``references`` only where views were decided with the comparison against their reference
+    (``ViewpointResult.decided_by == 'reference'``): a set that holds the plan is not enough — the
+    views of a viewpoint without a reference, past the pose tolerance or whose alignment was
+    rejected were judged by the detector alone, and :func:`decision_counts` records how many.
+    """
     if ctx.bin_type is None or not ctx.plans:
         return None, None
     root = reference_root(ctx.cfg)
     paths: dict[str, str] = {}
     version = None
     for surface, plan_ids in _scanned_plans(ctx).items():
-        found = [latest_set(root, ctx.bin_type, pid) for pid in plan_ids]
-        if all(f is not None for f in found):
-            paths[surface] = "references"
-            version = max([version or 0, *(f[0].version for f in found if f is not None)])
-            continue
         mine = [v for v in ctx.viewpoints if (v.surface or ctx.surface) == surface]
+        if any(v.decided_by == "reference" for v in mine):
+            paths[surface] = "references"
+            found = [latest_set(root, ctx.bin_type, pid) for pid in plan_ids]
+            version = max([version or 0, *(f[0].version for f in found if f is not None)]) or None
+            continue
         enrolled = any("-enrolled-" in (v.model_id or "") for v in mine)
         paths[surface] = "enrolled" if enrolled else "shipped"
     return paths, version
@@ -156,7 +248,17 @@ class References(Step):
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
         ctx.decision_path, ctx.reference_version = decision_paths(ctx)  # type: ignore[assignment]
-        record = {"decision_path": ctx.decision_path, "reference_version": ctx.reference_version}
+        counts = decision_counts(ctx)
+        record = {
+            "decision_path": ctx.decision_path,
+            "reference_version": ctx.reference_version,
+            "decided_by": counts,
+        }
+        for surface, c in counts.items():
+            if ctx.decision_path and ctx.decision_path.get(surface) != "references" and c.get("detector"):
+                why = {k: n for k, n in c.items() if k not in ("reference", "detector", "model")}
+                if why:  # the plan had references, yet none decided a view: say why in the event log
+                    run.event("warning", f"{surface}: no view was judged against its reference ({why})")
         if ctx.mode == "commission":
             ctx.commission = commission(run, record)
         else:

@@ -11,6 +11,7 @@ from cellctl.images import MAX_IMAGE_PIXELS
 from cellctl.messages import (
     CaptureReply,
     CaptureRequest,
+    ClassifyReference,
     ClassifyReply,
     ClassifyRequest,
     MoveReply,
@@ -23,7 +24,7 @@ from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import Step
 from cellctl.supervisor.steps.board_mask import mask_board
 from cellctl.supervisor.steps.identifying import captured_image
-from cellctl.supervisor.steps.references import store_reference
+from cellctl.supervisor.steps.references import reference_query, reference_state, store_reference
 
 NEAR_M = 0.02
 """Faces are clipped at this distance in front of the camera before they are drawn."""
@@ -111,10 +112,11 @@ def classifier_input(
     return (image, "png") if image is not data else (data, fmt)
 
 
-def classify_image(run: StepRun, index: int, image: bytes, fmt: str, surface: str) -> ClassifyReply:
-    reply, _ = run.call(
-        "classifier", "classify", ClassifyRequest(surface=surface, format=fmt), ClassifyReply, payload=image
-    )
+def classify_image(
+    run: StepRun, index: int, image: bytes, fmt: str, surface: str, reference: ClassifyReference | None = None
+) -> ClassifyReply:
+    req = ClassifyRequest(surface=surface, format=fmt, reference=reference)
+    reply, _ = run.call("classifier", "classify", req, ClassifyReply, payload=image)
     return reply
 
 
@@ -210,10 +212,15 @@ class Scanning(Step):
                 result = result.model_copy(update={"label": ctx.params.label})
             else:
                 image, fmt = classifier_input(run, data, cap.format, moved.camera_pose.matrix(), cap.intrinsics)
+                reference = None
                 if ctx.mode == "commission":  # the bin is declared clean: this view is its viewpoint's reference
                     store_reference(ctx, vp.index, image, fmt, moved.camera_pose.matrix(), cap.intrinsics)
+                else:  # a commissioned plan: the classifier compares the view with its viewpoint's reference
+                    reference = reference_query(ctx, vp.index, moved.camera_pose.matrix())
+                    if reference is None:
+                        result = result.model_copy(update={"reference_reason": reference_state(ctx)})
                 ctx.classifications[len(ctx.viewpoints)] = ctx.pool.submit(
-                    classify_image, background, vp.index, image, fmt, surface
+                    classify_image, background, vp.index, image, fmt, surface, reference
                 )
             ctx.viewpoints.append(result)
             ctx.next_viewpoint = k + 1

@@ -42,6 +42,7 @@ from cellctl.messages import (
     ErrorReply,
 )
 from cellctl.surface import SURFACES, check_surface
+from cellctl.workers.classifier.referencing import ReferenceJudge
 
 __all__ = ["BACKENDS", "BatchingClassifyServer", "ClassifierService", "run_worker"]
 
@@ -82,11 +83,14 @@ class ClassifierService:
 
         torch.set_num_threads(threads or os.cpu_count() or 1)
         self.decision = decision
+        self.references: ReferenceJudge | None = None
         self.detectors: dict[str, Any] = {}
         self.paths: dict[str, Path] = {}
         if decision in ("auto", "detector"):
             self.detectors, missing = load_detectors(models_dir, runtime, threads)
             self.paths = {s: detector_path(models_dir, s) for s in self.detectors}
+            # the reference fusions were fitted on the shipped detectors' maps: those compute them
+            self.references = ReferenceJudge(models_dir, dict(self.detectors), max_pixels)
             for s, path in (detector_files or {}).items():
                 # a configured enrolled file must load: never fall back to the shipped one silently;
                 # it shares the shipped detector's network export (enrollment changes no weights)
@@ -146,14 +150,27 @@ class ClassifierService:
                 groups.setdefault(req.surface, []).append((i, img))
             except CellError as err:
                 out[i] = err
+        reasons: dict[int, str] = {}  # item -> why its reference did not decide it
         with self._lock:
             for surface, entries in groups.items():
                 if surface in self.detectors:
                     from cellctl.classify.heatmap import encode_heat
 
-                    for (i, _), d in zip(
-                        entries, self.detectors[surface].predict([im for _, im in entries]), strict=True
-                    ):
+                    alone = []
+                    for i, im in entries:
+                        ref = items[i][0].reference
+                        if ref is None:
+                            alone.append((i, im))
+                            continue
+                        judged = self.references.judge(surface, im, ref) if self.references else "no_fusion"
+                        if isinstance(judged, str):
+                            reasons[i] = judged
+                            alone.append((i, im))
+                        else:
+                            out[i] = judged
+                    if not alone:
+                        continue
+                    for (i, _), d in zip(alone, self.detectors[surface].predict([im for _, im in alone]), strict=True):
                         out[i] = ClassifyReply(
                             label=d.label,
                             p_dirty=d.p_dirty,
@@ -163,12 +180,20 @@ class ClassifierService:
                             anomaly_z=d.anomaly_z,
                             heatmap=encode_heat(d.heat),
                             heat_grid=int(d.heat.shape[0]),
+                            decided_by="detector",
+                            reference_reason=reasons.get(i),  # type: ignore[arg-type]
                         )
                     continue
                 preds = self.models[surface].predict([img for _, img in entries])
                 for (i, _), pr in zip(entries, preds, strict=True):
+                    ref = items[i][0].reference
                     out[i] = ClassifyReply(
-                        label=pr.label, p_dirty=pr.p_dirty, uncertain=pr.uncertain, model_id=pr.model_id
+                        label=pr.label,
+                        p_dirty=pr.p_dirty,
+                        uncertain=pr.uncertain,
+                        model_id=pr.model_id,
+                        decided_by="model",
+                        reference_reason="no_fusion" if ref is not None else None,
                     )
         return [o if o is not None else ClassifierError("internal: item left unanswered") for o in out]
 
