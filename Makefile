@@ -9,13 +9,13 @@ NODE_DIR := .node
 NODE_OPCUA := 2.186.4
 NODE_STAMP := $(NODE_DIR)/.installed-node-opcua-client-$(NODE_OPCUA)
 
-.PHONY: demo test test-all bootstrap system-deps node-deps lint clean
+.PHONY: demo test test-all bootstrap system-deps node-deps lint typecheck clean
 
 demo: $(STAMP)
 	$(VENV)/bin/cellctl demo
 
-# CI runs `make test`: lint first (seconds), then the tests.
-test: $(STAMP) node-deps lint
+# CI runs `make test`: lint and the type check first (seconds when mypy's cache is warm), then the tests.
+test: $(STAMP) node-deps lint typecheck
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
 test-all: $(STAMP) node-deps
@@ -23,6 +23,10 @@ test-all: $(STAMP) node-deps
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check cellctl tests
+
+# mypy (settings in pyproject.toml, cache in .venv/): strict packages clean, the rest within .ci/mypy_baseline.json.
+typecheck: $(STAMP)
+	$(PY) .ci/mypy_gate.py
 
 bootstrap: $(STAMP)
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import datetime as _dt
 import enum
 from collections.abc import Mapping
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal, cast, get_args
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, FiniteFloat, field_validator, model_validator
@@ -38,6 +38,7 @@ __all__ = [
     "ClassifyReply",
     "ClassifyRequest",
     "Command",
+    "CommandName",
     "CycleOutcome",
     "CycleResult",
     "CommissionResult",
@@ -178,8 +179,15 @@ class UnitMode(enum.IntEnum):
     maintenance = 2
     manual = 3
 
+    @property
+    def wire_name(self) -> UnitModeName:
+        """The name on the wire (``Command.unit_mode``, ``Ack``/``Status.unit_mode``)."""
+        return cast(UnitModeName, self.name)
+
 
 UnitModeName = Literal["production", "maintenance", "manual"]
+CommandName = Literal["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"]
+"""A PackML command's name on the wire (``Command.command``)."""
 
 MAX_USER_CHARS = 64
 MAX_REQUEST_ID_CHARS = 128
@@ -202,9 +210,7 @@ class Command(WireMessage):
 
     type: Literal["cellctl/Command"] = "cellctl/Command"
     v: Literal[1] = 1
-    command: (
-        Literal["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"] | None
-    ) = None
+    command: CommandName | None = None
     cntrl_cmd: int | None = Field(default=None, description="PackTags CntrlCmd code 1..10")
     unit_mode: UnitModeName | None = Field(default=None, description="requested PackML unit mode")
     unit_mode_code: int | None = Field(default=None, description="PackTags UnitModeRequested code 1..3")
@@ -435,7 +441,7 @@ class LastCycle(BaseModel):
             finished=res.finished,
             coverage_by_surface=res.coverage_by_surface,
             min_seen_fraction=res.min_seen_fraction,
-            decision_path=dict(res.decision_path) if res.decision_path else None,
+            decision_path={k: v for k, v in res.decision_path.items()} if res.decision_path else None,
         )
 
 

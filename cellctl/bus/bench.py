@@ -16,7 +16,7 @@ from cellctl.bus.codec import decode_as, encode
 from cellctl.bus.session import open_session, private_bus_overrides
 from cellctl.config import load_config, output_overrides
 from cellctl.errors import ConfigError
-from cellctl.messages import Ack, Command, Status
+from cellctl.messages import Ack, Command, CommandName, Status
 
 
 def _pct(xs: list[float], p: float) -> float:
@@ -78,7 +78,7 @@ def bench_bus(opts: BenchOptions) -> dict[str, Any]:
             ack_query: list[float] = []
             ack_put: list[float] = []
             status_lat: list[float] = []
-            seq = [("reset", "Idle"), ("stop", "Stopped")]
+            seq: list[tuple[CommandName, str]] = [("reset", "Idle"), ("stop", "Stopped")]
             for i in range(n):
                 name, target = seq[i % 2]
                 msg = Command(command=name, request_id=f"b{i}")
@@ -88,7 +88,7 @@ def bench_bus(opts: BenchOptions) -> dict[str, Any]:
                 if i % 4 < 2:
                     (r,) = list(s.get(keys.cmd(cfg.cell_id), payload=encode(msg), timeout=5))
                     t1 = time.perf_counter()
-                    if not decode_as(Ack, r.ok.payload.to_bytes()).accepted:
+                    if r.ok is None or not decode_as(Ack, r.ok.payload.to_bytes()).accepted:
                         raise RuntimeError(f"{name} rejected")
                     ack_query.append((t1 - t0) * 1e3)
                 else:

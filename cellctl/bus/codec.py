@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import json
-from typing import TypeVar
+from collections.abc import Iterable
+from typing import Any, TypeVar
 
 from pydantic import ValidationError
 
@@ -54,8 +55,8 @@ def _too_deep(obj: object, limit: int) -> bool:
         o, depth = stack.pop()
         if depth > limit:
             return True
-        children = o.values() if isinstance(o, dict) else o
-        stack.extend((c, depth + 1) for c in children if isinstance(c, dict | list))  # type: ignore[union-attr]
+        children: Iterable[object] = o.values() if isinstance(o, dict) else o if isinstance(o, list) else ()
+        stack.extend((c, depth + 1) for c in children if isinstance(c, dict | list))
     return False
 
 
@@ -149,6 +150,6 @@ def decode_as(model: type[M], data: bytes | bytearray | memoryview | str, max_by
     return msg
 
 
-def json_schemas() -> dict[str, dict]:
+def json_schemas() -> dict[str, dict[str, Any]]:
     """JSON Schema of every wire message, keyed by message type."""
     return {name: m.model_json_schema() for name, m in sorted(MESSAGE_TYPES.items())}

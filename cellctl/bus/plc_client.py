@@ -20,7 +20,17 @@ from cellctl.bus.codec import decode_as, encode
 from cellctl.bus.session import open_session
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, WorkerTimeout
-from cellctl.messages import Ack, Command, CycleResult, Event, PlanJobProgress, Status, UnitModeName, now_iso
+from cellctl.messages import (
+    Ack,
+    Command,
+    CommandName,
+    CycleResult,
+    Event,
+    PlanJobProgress,
+    Status,
+    UnitModeName,
+    now_iso,
+)
 
 __all__ = ["PlcClient"]
 
@@ -70,7 +80,7 @@ class PlcClient:
                 )
             )
 
-    def command(self, name: str, timeout: float = 10.0, **params: Any) -> Ack:
+    def command(self, name: CommandName, timeout: float = 10.0, **params: Any) -> Ack:
         """Send one PackML command by query and return its Ack.
 
         Raises:
@@ -133,12 +143,13 @@ class PlcClient:
             st = self.last_status or self.status(timeout)
             if st.state == "Idle":
                 return
-            cmd = "clear" if st.state == "Aborted" else "reset"
+            cmd: CommandName = "clear" if st.state == "Aborted" else "reset"
             target = "Stopped" if cmd == "clear" else "Idle"
             ack = self.command(cmd)
             if not ack.accepted:
                 raise CellError(f"cannot bring the cell to Idle: {cmd} refused in {st.state}: {ack.reason}")
-            if self.wait_for(lambda s, t=target: s.state == t, timeout) is None:
+            # the predicate runs before the next round rebinds ``target``
+            if self.wait_for(lambda s: s.state == target, timeout) is None:
                 raise CellError(f"cell did not reach {target} within {timeout:g} s after {cmd}")
         raise CellError(f"cell did not reach Idle; it is in {self.last_status.state if self.last_status else '?'}")
 
@@ -160,7 +171,9 @@ class PlcClient:
         self.wait_for(lambda s: s.state in ("Complete", "Aborted", "Stopped", "Held"), 30)
         return res
 
-    def wait_plan_job(self, job_id: str, timeout: float, on_progress: Callable[[PlanJobProgress], None] | None = None):
+    def wait_plan_job(
+        self, job_id: str, timeout: float, on_progress: Callable[[PlanJobProgress], None] | None = None
+    ) -> PlanJobProgress | None:
         """Wait for planning job ``job_id`` to end; returns its last progress (state done/failed) or None."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:

@@ -33,7 +33,9 @@ class Reply:
     payload: bytes | None = None
 
 
-def _err_text(err: zenoh.ReplyError) -> str:
+def _err_text(err: zenoh.ReplyError | None) -> str:
+    if err is None:
+        return "<unreadable error payload>"
     try:
         return err.payload.to_bytes().decode("utf-8", "replace")
     except Exception:  # a reply error without a readable payload
@@ -68,17 +70,17 @@ def request(
     op = key.rsplit("/", 1)[-1]
     body = encode(msg)
     # No consolidation: Zenoh would otherwise keep only the last of several replies, silently.
-    kwargs: dict[str, object] = {
-        "timeout": timeout,
-        "target": zenoh.QueryTarget.BEST_MATCHING,
-        "consolidation": zenoh.ConsolidationMode.NONE,
-    }
-    if payload is None:
-        kwargs["payload"] = body
-    else:
-        kwargs["payload"] = payload
-        kwargs["attachment"] = body
-    replies = list(session.get(key, **kwargs))
+    # A raw payload (an image) travels as the payload, the request as the attachment.
+    replies = list(
+        session.get(
+            key,
+            timeout=timeout,
+            target=zenoh.QueryTarget.BEST_MATCHING,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            payload=body if payload is None else payload,
+            attachment=None if payload is None else body,
+        )
+    )
     if not replies:
         raise WorkerUnavailable(
             f"no {role or 'worker'} serves {key!r} (0 replies: nobody serves it, or the worker dropped the query)",

@@ -38,7 +38,7 @@ class Accepted:
             accepted=True,
             state=state,
             user=cmd.user,
-            unit_mode=now.name if now is not None else None,
+            unit_mode=now.wire_name if now is not None else None,
         )
 
 
@@ -55,7 +55,7 @@ def check_command(payload: bytes, *, max_bytes: int, state: str, allowed: list[s
     except ProtocolError as err:
         # a PLC matches Acks to requests: name the request whenever the payload lets us read it
         rid = peek_request_id(payload, max_bytes)
-        return Ack(request_id=rid, accepted=False, reason=str(err), state=state, unit_mode=mode.name)
+        return Ack(request_id=rid, accepted=False, reason=str(err), state=state, unit_mode=mode.wire_name)
 
     def reject(reason: str, command: str | None) -> Ack:
         return Ack(
@@ -65,7 +65,7 @@ def check_command(payload: bytes, *, max_bytes: int, state: str, allowed: list[s
             reason=reason,
             state=state,
             user=cmd.user,
-            unit_mode=mode.name,
+            unit_mode=mode.wire_name,
         )
 
     if cmd.base_parked is not None:

@@ -92,7 +92,7 @@ def make_status(
         step=step or None,
         cycle_id=cycle_id,
         available_commands=available,
-        unit_mode=mode.name,
+        unit_mode=mode.wire_name,
         unit_mode_code=mode.value,
         last_error=last_error,
         workers=workers,

@@ -139,7 +139,7 @@ class CycleRecorder(Recorder):
             bin_type=result.bin.type,
             plan_id=result.plan_id,
             reason=result.reason,
-            log_sha256=file_sha256_or_none(self.path),
+            log_sha256=file_sha256_or_none(self.path) if self.path is not None else None,
             finished=result.finished,
         )
 
@@ -179,7 +179,7 @@ def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: st
         whole_plan_id=ctx.whole_plan_id if whole else None,
         coverage_by_surface=ctx.coverage_by_surface,
         min_seen_fraction=(
-            dict(ctx.cfg.classifier.verdict.min_seen_fraction)
+            {k: v for k, v in ctx.cfg.classifier.verdict.min_seen_fraction.items()}
             if outcome == CycleOutcome.completed and ctx.verdict is not None
             else None
         ),

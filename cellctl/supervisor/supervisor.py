@@ -201,7 +201,7 @@ class Supervisor:
         if refusal := self.replay_guard.refusal(checked.cmd):
             return Ack(
                 request_id=checked.cmd.request_id, command=checked.cmd.name if checked.mode is None else None,
-                accepted=False, reason=refusal, state=before, user=checked.cmd.user, unit_mode=self.unit_mode.name,
+                accepted=False, reason=refusal, state=before, user=checked.cmd.user, unit_mode=self.unit_mode.wire_name,
             )  # fmt: skip
         ack = self._apply(checked, before)
         if ack.accepted:
@@ -239,7 +239,7 @@ class Supervisor:
         except CellError as err:
             return Ack(
                 request_id=checked.cmd.request_id, command="base_parked", accepted=False, reason=str(err),
-                state=state, user=checked.cmd.user, unit_mode=self.unit_mode.name,
+                state=state, user=checked.cmd.user, unit_mode=self.unit_mode.wire_name,
             )  # fmt: skip
         self.cycles.event("info", f"base confirmed parked at station {k}{by}")
         return checked.ack(state, self.unit_mode)
