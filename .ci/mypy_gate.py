@@ -58,7 +58,9 @@ def run_mypy() -> tuple[Counter[str], dict[str, list[str]], float]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--update", action="store_true", help="write the current counts to the baseline")
-    ap.add_argument("--allow-raise", action="store_true", help="with --update: let a count go up (say why in the commit)")
+    ap.add_argument(
+        "--allow-raise", action="store_true", help="with --update: let a count go up (say why in the commit)"
+    )
     args = ap.parse_args()
 
     counts, lines, wall = run_mypy()

@@ -148,8 +148,11 @@ class PlcClient:
             ack = self.command(cmd)
             if not ack.accepted:
                 raise CellError(f"cannot bring the cell to Idle: {cmd} refused in {st.state}: {ack.reason}")
-            # the predicate runs before the next round rebinds ``target``
-            if self.wait_for(lambda s: s.state == target, timeout) is None:
+
+            def reached(s: Status, t: str = target) -> bool:
+                return s.state == t
+
+            if self.wait_for(reached, timeout) is None:
                 raise CellError(f"cell did not reach {target} within {timeout:g} s after {cmd}")
         raise CellError(f"cell did not reach Idle; it is in {self.last_status.state if self.last_status else '?'}")
 
