@@ -33,6 +33,10 @@ class BenchOptions:
         out: where the CLI also writes the JSON; benches that make a figure put it beside it.
         family: ``bench whole-bin --family [F[:A-B]]``: plan meshes A..B of the shape family F
             (:mod:`cellctl.geometry.family`) instead of the catalog; None = the catalog.
+        commissioned: ``bench inspect --commissioned``: a commissioning cycle first, then each view
+            decided with and without its reference (:mod:`cellctl.classify.inspect_commissioned`).
+        first: ``--seed-offset``: the first cycle of a slice (cycles ``first .. first + n - 1``).
+        merge: ``--merge``: slice JSONs to merge into one report instead of running cycles.
     """
 
     n: int | None = None
@@ -41,6 +45,9 @@ class BenchOptions:
     overrides: tuple[str, ...] = ()
     out: Path | None = None
     family: str | None = None
+    commissioned: bool = False
+    first: int = 0
+    merge: tuple[Path, ...] = ()
 
     def __post_init__(self) -> None:
         if self.n is not None and (isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 1):
@@ -52,6 +59,9 @@ class BenchOptions:
         object.__setattr__(self, "overrides", tuple(self.overrides))
         if self.out is not None:
             object.__setattr__(self, "out", Path(self.out))
+        if isinstance(self.first, bool) or not isinstance(self.first, int) or self.first < 0:
+            raise ConfigError(f"bench seed offset (first cycle) {self.first!r} must be a non-negative integer")
+        object.__setattr__(self, "merge", tuple(Path(p) for p in self.merge))
 
     def load_config(self) -> CellConfig:
         """The cell config: ``config`` with the user's ``overrides`` (benches that add their own

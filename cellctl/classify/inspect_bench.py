@@ -51,15 +51,20 @@ BENCH_BIN = "case_study"
 RENDER_WIDTH = 256
 
 
-def _one_spot(mesh: Any, seen_faces: np.ndarray, rng: np.random.Generator, seed: int) -> Any:
-    from cellctl.sim.ground_truth import PowderField
-
-    f = int(rng.choice(seen_faces))
+def point_on_face(mesh: Any, faces: np.ndarray, rng: np.random.Generator) -> tuple[int, np.ndarray]:
+    """A face drawn from ``faces`` and a uniform point on it (bin frame)."""
+    f = int(rng.choice(faces))
     tri = mesh.vertices[mesh.faces[f]]
     u, v = rng.uniform(size=2)
     if u + v > 1:
         u, v = 1 - u, 1 - v
-    c = tri[0] + u * (tri[1] - tri[0]) + v * (tri[2] - tri[0])
+    return f, tri[0] + u * (tri[1] - tri[0]) + v * (tri[2] - tri[0])
+
+
+def _one_spot(mesh: Any, seen_faces: np.ndarray, rng: np.random.Generator, seed: int) -> Any:
+    from cellctl.sim.ground_truth import PowderField
+
+    f, c = point_on_face(mesh, seen_faces, rng)
     return PowderField(
         c[None, :],
         np.array([float(rng.uniform(0.012, 0.025))]),
@@ -130,7 +135,8 @@ def classifier_view(
 
 
 def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
-    """Run ``opts.n`` cycles (default 200); returns the JSON described in the module doc."""
+    """Run ``opts.n`` cycles (default 200); returns the JSON described in the module doc. (``--commissioned``:
+    :mod:`cellctl.classify.inspect_commissioned`.)"""
     cfg = opts.load_config()
     run = collect_cycles(opts, cfg)
     return score_cycles(run, cfg.classifier.verdict, figures_out=opts.out)

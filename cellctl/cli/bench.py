@@ -83,6 +83,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="whole-bin: plan the shape family's meshes instead of the catalog (F[:A-B], default mixed:0-11)",
     )
+    p.add_argument(
+        "--commissioned",
+        action="store_true",
+        help="inspect: one commissioning cycle, then every view decided with and without its reference",
+    )
+    p.add_argument(
+        "--seed-offset", type=int, default=0, help="inspect --commissioned: first cycle of this slice (0, 50, …)"
+    )
+    p.add_argument(
+        "--merge", nargs="+", default=(), metavar="JSON", help="inspect --commissioned: merge slice JSONs, run nothing"
+    )
     add_config_arguments(p)
     p.set_defaults(func=run)
 
@@ -96,12 +107,18 @@ def options_from_args(args: argparse.Namespace) -> BenchOptions:
         overrides=tuple(args.overrides),
         out=Path(args.out) if args.out else None,
         family=args.family,
+        commissioned=getattr(args, "commissioned", False),
+        first=getattr(args, "seed_offset", 0),
+        merge=tuple(getattr(args, "merge", ())),
     )
 
 
 def run(args: argparse.Namespace) -> int:
     opts = options_from_args(args)
-    mod, fn = BENCHES[args.what][0].split(":")
+    target = BENCHES[args.what][0]
+    if args.what == "inspect" and (opts.commissioned or opts.merge):  # with and without commissioned references
+        target = "cellctl.classify.inspect_commissioned:bench_inspect_commissioned"
+    mod, fn = target.split(":")
     result = getattr(importlib.import_module(mod), fn)(opts)
     text = json.dumps(result, indent=2)
     print(text)
