@@ -226,11 +226,15 @@ def generate_and_filter(s: Setup, st: _Stages) -> Filtered:
     """
     from cellctl.planning.filters import camera_collision_filter, distance_filter, height_filter, occlusion_filter
     from cellctl.planning.seeds import sample_seeds
-    from cellctl.planning.viewpoints import generate_viewpoints
+    from cellctl.planning.viewpoints import concat, generate_viewpoints, opening_viewpoints
 
     p, mesh = s.params, s.mesh
     pts, sfaces = sample_seeds(mesh, p.surface, p.seed_pct, s.rng)
     vp = generate_viewpoints(pts, mesh.normals[sfaces], sfaces, p.surface, p.distances)
+    if p.surface == "internal" and p.opening_views:
+        # after the fixed distances (a seed takes its first reachable rank): looking in through the
+        # opening, where the fixed distances put the camera inside a deep cavity
+        vp = concat(vp, opening_viewpoints(pts, sfaces, p.camera.dov, len(p.distances)))
     generated = len(vp)
     keep = height_filter(vp, mesh, float(max(rm.CAMERA_BOX_SIZE)))
     after_height = int(keep.sum())

@@ -86,6 +86,10 @@ class PlanParams:
             joints, same arm shape, collision-free) when the base parks this far off in x, y
             and yaw; so a cached plan can be adjusted to the next park instead of replanned.
             0 disables the check.
+        opening_views: internal surface: also look at each seed from the top opening's axis
+            (:func:`cellctl.planning.viewpoints.opening_viewpoints`), after the fixed distances.
+            A plan file holds the key only when it is on: files written before it (without
+            such views) read as off.
     """
 
     surface: str = "external"
@@ -107,6 +111,7 @@ class PlanParams:
     q_start: tuple[float, ...] | None = None
     robust_m: float = 0.04
     robust_deg: float = 2.0
+    opening_views: bool = True
 
     def check(self) -> None:
         """Raise PlanningError naming the first bad parameter."""
@@ -129,6 +134,8 @@ class PlanParams:
         d["distances"] = list(self.distances)
         d["camera"] = self.camera.to_json()
         d["q_start"] = list(self.q_start) if self.q_start is not None else None
+        if not self.opening_views:
+            del d["opening_views"]  # absent = off: how every file written before the option reads
         return d
 
     @classmethod
@@ -153,6 +160,7 @@ class PlanParams:
             d["distances"] = tuple(_seq(d["distances"], "params.distances"))
         if d.get("q_start") is not None:
             d["q_start"] = tuple(_seq(d["q_start"], "params.q_start"))
+        d.setdefault("opening_views", False)  # a file without the key was planned without them
         defaults = cls()
         for k, v in d.items():
             _check_param(k, v, getattr(defaults, k))

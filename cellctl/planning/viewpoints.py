@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 
 from cellctl.errors import PlanningError
 
-__all__ = ["Viewpoints", "generate_viewpoints", "rotation_z_to"]
+__all__ = ["Viewpoints", "concat", "generate_viewpoints", "opening_viewpoints", "rotation_z_to"]
 
 
 class Viewpoints:
@@ -100,3 +100,66 @@ def generate_viewpoints(
     seed = np.repeat(np.arange(n), D)
     rank = np.tile(np.arange(D), n)
     return Viewpoints(T.reshape(-1, 4, 4), seed, rank, np.asarray(seed_faces)[seed], P[seed])
+
+
+OPENING_ANCHORS_M = (0.10, 0.0, -0.15)
+"""Heights above the top-opening centre (bin frame z) the opening views look from: above the
+opening (the wrist stays out of it), in its plane, and just inside it (the camera dips in)."""
+OPENING_FAR_MARGIN_M = 0.05
+"""An opening view stays this far inside the camera's far depth of view."""
+
+
+def opening_viewpoints(
+    points: NDArray[np.float64],
+    seed_faces: NDArray[np.int64],
+    dov: tuple[float, float],
+    first_rank: int,
+    anchors: tuple[float, ...] = OPENING_ANCHORS_M,
+) -> Viewpoints:
+    """Internal viewpoints that look at each seed *through the top opening* (ranks ``first_rank`` …).
+
+    The fixed distances of :func:`generate_viewpoints` put the camera 0.3–0.4 m from the seed on
+    the ray from the opening: for a deep cavity behind a narrow opening that is inside the bin, where
+    no arm reaches (issue 35: a narrow-opening hopper, 4 of 422 internal viewpoints reachable from any
+    station). Here, per anchor A on the opening's axis (``anchors`` m above its centre, the bin-frame
+    origin), the camera looks from A at the seed P: at A itself when P lies within the depth of view
+    (less :data:`OPENING_FAR_MARGIN_M`), else as far back towards A as the depth of view allows. The
+    arm then reaches in along the line of sight, the wrist behind the camera, through the opening.
+
+    Args:
+        points: (N, 3) internal seed points, m (bin frame).
+        seed_faces: (N,) their faces.
+        dov: the camera's (near, far) depth of view, m.
+        first_rank: the rank of the first anchor's views (after the fixed distances' ranks).
+        anchors: heights of the anchors above the opening centre, m, in preference order.
+    """
+    P = np.asarray(points, dtype=np.float64)
+    near, far = float(dov[0]), float(dov[1]) - OPENING_FAR_MARGIN_M
+    if far <= near:
+        raise PlanningError(f"camera depth of view {list(dov)} leaves no room for opening views (far − near ≤ 0.05 m)")
+    n, D = len(P), len(anchors)
+    A = np.zeros((D, 3))
+    A[:, 2] = anchors
+    v = P[:, None, :] - A[None]  # (n, D, 3) anchor → seed
+    dist = np.linalg.norm(v, axis=2)
+    dist = np.maximum(dist, 1e-6)
+    k = v / dist[..., None]
+    d = np.clip(dist, near + 0.05, far)
+    T = np.zeros((n, D, 4, 4))
+    T[:, :, :3, :3] = rotation_z_to(k.reshape(-1, 3)).reshape(n, D, 3, 3)
+    T[:, :, :3, 3] = P[:, None, :] - d[..., None] * k
+    T[:, :, 3, 3] = 1.0
+    seed = np.repeat(np.arange(n), D)
+    rank = first_rank + np.tile(np.arange(D), n)
+    return Viewpoints(T.reshape(-1, 4, 4), seed, rank, np.asarray(seed_faces)[seed], P[seed])
+
+
+def concat(a: Viewpoints, b: Viewpoints) -> Viewpoints:
+    """Both batches as one (``b`` after ``a``; seeds index the same seed list)."""
+    return Viewpoints(
+        np.concatenate([a.T, b.T]),
+        np.concatenate([a.seed, b.seed]),
+        np.concatenate([a.rank, b.rank]),
+        np.concatenate([a.seed_face, b.seed_face]),
+        np.concatenate([a.seed_point, b.seed_point]),
+    )
