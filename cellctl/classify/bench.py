@@ -16,6 +16,8 @@ backbone, as before ONNX Runtime) and ``detector_onnx`` on ONNX Runtime
 (:mod:`cellctl.classify.runtime`, at ``classifier.threads`` or its default), plus ORT at the
 other thread count (``detector_onnx_<k>threads``); ``onnx_vs_torch`` counts identical labels on
 the bench's images and ``setup.loadavg_during_latency`` the load around the timed loop.
+``detector_with_reference``: the whole per-view decision of a commissioned plan (the ONNX detector fused
+with the change map against the view's reference) beside the detector alone, on 20 twin pairs.
 """
 
 from __future__ import annotations
@@ -132,6 +134,22 @@ def _agreement(ref: Any, other: Any, images: list[np.ndarray]) -> dict[str, Any]
     }
 
 
+def _with_reference(cfg: Any, det: Any, surface: str, seed: int, n: int) -> dict[str, Any]:
+    """The per-view decision a commissioned plan gets (issue 34): the detector (as the worker runs it) fused
+    with the change map against the view's reference, timed interleaved with the detector alone on twin
+    pairs at the demo's parking error (:func:`cellctl.classify.reference_bench.latency`). Target ≤ 15 ms."""
+    from cellctl.classify.reference import ReferenceFusion, fusion_path
+    from cellctl.classify.reference_bench import draw_pairs, latency
+    from cellctl.classify.reference_pairs import make_pair_source
+
+    path = fusion_path(cfg.path(cfg.classifier.models_dir), surface)
+    if not path.is_file():
+        return {"error": f"no reference fusion {str(path)!r}"}
+    print("bench: per-view decision with the reference (twin pairs)", file=sys.stderr)
+    pairs = draw_pairs(make_pair_source(surface, cfg), 20, 20_000 + seed, True)
+    return {**latency(det, ReferenceFusion.load(path, surface), pairs, n), "pairs": len(pairs), "target_ms": 15.0}
+
+
 def bench_classify(opts: BenchOptions) -> dict[str, Any]:
     """Measure every variant; returns ``{"fp32": {...}, "fused": {...}, "int8": {...}, "setup": {...}}``."""
     import torch
@@ -194,6 +212,8 @@ def bench_classify(opts: BenchOptions) -> dict[str, Any]:
     if "detector_onnx" in dets:
         out["detector_onnx_vs_torch_p50"] = round(lat["detector_onnx"][0] / lat["detector"][0], 3)
         out["onnx_vs_torch"] = _agreement(dets["detector"], dets["detector_onnx"], images)
+    if "detector_onnx" in dets:
+        out["detector_with_reference"] = _with_reference(cfg, dets["detector_onnx"], surface, opts.seed, n)
     print("bench: int8 (reference)", file=sys.stderr)
     try:
         q = _int8(base, images[:64])
