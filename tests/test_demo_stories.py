@@ -69,3 +69,19 @@ def test_story_n_plays_story_1_then_n_with_their_numbers_and_refuses_one_it_lack
     assert (n1, n3) == (1, 3) and s1 is stories[0] and s3.params.get("mode") == "wash_and_verify"
     with pytest.raises(ConfigError, match="--story 5: this demo has stories 1-4"):
         _chosen(stories, [5])
+
+
+def test_the_new_bin_story_commissions_before_the_clean_and_dirty_cycles() -> None:
+    """Issue 34: after story 1's plan a commissioning cycle (no story number of its own: --story N keeps its
+    meaning); each cycle prints what its surfaces were judged against."""
+    from types import SimpleNamespace
+
+    from cellctl.cli.demo import _paths
+
+    for whole in (True, False):
+        stories = _stories("case_study", HOME, NUDGED, MOVED, whole=whole, wash=True)
+        assert [s.commission for s in stories] == [True] + [False] * (len(stories) - 1)
+    view = SimpleNamespace(label="clean", decided_by="reference")
+    res = SimpleNamespace(decision_path={"external": "references"}, viewpoints=[view, view])
+    assert _paths(res) == "   decision path: external references (views: 2 by reference)"
+    assert "none" in _paths(SimpleNamespace(decision_path=None, viewpoints=[]))

@@ -104,6 +104,8 @@ class Stage:
     rows: list[Row] = field(default_factory=list)
     params: dict[str, Any] = field(default_factory=dict)
     """Start params of the stage's cycle (``mode=wash_and_verify``)."""
+    commission: bool = False
+    """After the stage's plan is made: a commissioning cycle of the clean bin (:func:`_commission`)."""
 
 
 def _say(text: str) -> None:
@@ -159,6 +161,7 @@ def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool, was
         {"bin_type": bt, "bin_xyz_yaw": home, "dirty": False, "park_offset_xy_yaw": (0.0, 0.0, 0.0)},
         Expect("replan_required"),
         after="wait_plan",
+        commission=True,  # the clean and dirty cycles after it are judged against the references
     )
     dirty = Stage(
         "same place, powder on the bin → dirty",
@@ -210,6 +213,76 @@ def _stories(bt: str, home: tuple, nudged: tuple, moved: tuple, whole: bool, was
             )
         )
     return [*stages, beyond]
+
+
+COMMISSIONER = "demo:commissioner"
+"""The user who declares the demo's bin clean (a commissioning cycle needs a named user)."""
+
+
+def _paths(res: Any) -> str:
+    """What each surface was judged against, and by how many of the result's views."""
+    if not res.decision_path:
+        return "   decision path: none (no view judged)"
+    counts: dict[str, int] = {}
+    for v in res.viewpoints:
+        if v.label is not None:
+            counts[v.decided_by or "detector"] = counts.get(v.decided_by or "detector", 0) + 1
+    views = ", ".join(f"{n} by {k}" for k, n in sorted(counts.items()))
+    return "   decision path: " + ", ".join(f"{s} {p}" for s, p in res.decision_path.items()) + f" (views: {views})"
+
+
+def _commission(plc: Any, n: int, timeout: float) -> Row:
+    """The commissioning cycle (Start ``mode=commission`` in maintenance, by :data:`COMMISSIONER`): a reference
+    per viewpoint of the clean bin, the detectors enrolled; back to production after it."""
+    from cellctl.errors import CellError
+    from cellctl.messages import Command, now_iso
+
+    row = Row(n, "clean bin declared clean → commissioning")
+    _say(f"── cycle {n}: {row.story} (maintenance, {COMMISSIONER})")
+    t0 = time.monotonic()
+    try:
+        plc.to_idle()
+    except CellError as err:
+        row.note = str(err)
+        return row
+    ack = plc.unit_mode("maintenance", user=COMMISSIONER)
+    if ack.accepted:
+        params = {"mode": "commission"}
+        ack = plc.send(
+            Command(command="start", user=COMMISSIONER, params=params, request_id=plc._next_id(), stamp=now_iso())
+        )
+    if not ack.accepted:
+        row.note = f"commissioning refused: {ack.reason}"
+        return row
+    try:
+        res = plc.results.get(timeout=timeout)
+    except queue.Empty:
+        row.note = f"no result within {timeout:g} s"
+        plc.command("abort")
+        return row
+    plc.wait_for(lambda s: s.state in ("Complete", "Aborted", "Stopped"), 30)
+    row.seconds = time.monotonic() - t0
+    _fill(row, res)
+    c = res.commission
+    row.ok = res.outcome.value == "completed" and c is not None
+    if c is not None:
+        enrolled = ", ".join(c.enrolled) or "none"
+        problems = "; ".join(f"{s}: {why}" for s, why in c.problems.items())
+        _say(f"   reference set v{c.version} of {c.bin_type}: {c.references} views; enrolled {enrolled}")
+        if problems:
+            _say(f"   not enrolled: {problems}")
+        row.note = f"set v{c.version}, {c.references} references"
+    else:
+        row.note = f"expected a reference set: {res.reason}"
+    _say(_paths(res))
+    try:
+        plc.to_idle()
+        back = plc.unit_mode("production", user=COMMISSIONER).accepted
+    except CellError:
+        back = False
+    if not back:
+        row.ok, row.note = False, "could not return to production"
+    return row
 
 
 def _chosen(stages: list[Stage], wanted: list[int] | None) -> list[tuple[int, Stage]]:
@@ -329,8 +402,7 @@ def run(args: argparse.Namespace) -> int:  # a story reads best top to bottom
             row.ok = not problems
             row.note = "; ".join(problems) or (res.reason or "")[:60]
             failures += bool(problems)
-            if res.decision_path:  # what each surface was judged against (references / enrolled / shipped)
-                _say("   decision path: " + ", ".join(f"{s} {p}" for s, p in res.decision_path.items()))
+            _say(_paths(res))  # what each surface was judged against (references / enrolled / shipped)
             if res.wash is not None:  # wash_and_verify: the rounds and where their pictures are
                 w = res.wash
                 pics = [p for r in w.rounds for p in r.pictures]
@@ -376,6 +448,9 @@ def run(args: argparse.Namespace) -> int:  # a story reads best top to bottom
                     row.ok = False
                     row.note = "planning job did not finish"
                     failures += 1
+                elif stage.commission:  # before the clean and dirty cycles: they are judged against it
+                    rows.append(_commission(plc, i, args.cycle_timeout))
+                    failures += not rows[-1].ok
             if res.outcome.value in ("failed", "aborted"):
                 plc.command("clear")
                 plc.wait_for(lambda s: s.state == "Stopped", 30)
