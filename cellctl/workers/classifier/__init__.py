@@ -8,7 +8,10 @@ surface with a detector (``<surface>.detect.pt``, :mod:`cellctl.classify.fusion`
 it unless ``classifier.decision`` is ``supervised``; ``classifier.detector_files`` replaces a
 surface's shipped detector by a site-enrolled file (:mod:`cellctl.classify.enroll`). The
 ``models`` op (``cell/<id>/classifier/models``, :class:`~cellctl.messages.ClassifierModels`) and
-the start-up log line name what decides each surface.
+the start-up log line name what decides each surface. A request that carries the view's commissioned
+reference (``ClassifyRequest.reference``) is decided against it when the surface has a fitted fusion and
+the reference aligns (:mod:`cellctl.workers.classifier.referencing`); the reply says which path decided
+(``decided_by``) and, when the detector decided alone, why (``reference_reason``).
 Queries that are already queued when the worker picks one up are answered as one batch (up
 to ``classifier.max_batch``), one forward pass per surface. A bad image, an unknown surface or
 a surface whose weights are missing gets a :class:`~cellctl.errors.ClassifierError` error
