@@ -34,8 +34,9 @@ def load_identification(cfg: CellConfig) -> tuple[Any, Any]:
 
 def preflight(cfg: CellConfig) -> None:
     """What ``cellctl run`` needs beyond a well-formed config, checked before anything starts (``validate``
-    runs the same): the state machines, the bin catalog parsed as a catalog, ``sim.bin_type`` in it when
-    a sim backend renders it. Endpoints are checked when the config is read (:mod:`cellctl.bus.endpoints`).
+    runs the same): the state machines, the nozzle model, the hand–eye file, the bin catalog parsed as a
+    catalog, ``sim.bin_type`` in it when a sim backend renders it. Endpoints are checked when the config
+    is read (:mod:`cellctl.bus.endpoints`).
 
     Raises:
         ConfigError: one line naming the key and the value.
@@ -43,8 +44,16 @@ def preflight(cfg: CellConfig) -> None:
     from cellctl.errors import ConfigError
     from cellctl.geometry.catalog import load_catalog
     from cellctl.supervisor.registry import load_definitions
+    from cellctl.vision.handeye import configured_hand_eye
+    from cellctl.washing.nozzle import NozzleModel
 
     load_definitions(cfg.root)
+    # The checks across a model's fields that need the domain's models (config.py imports none):
+    try:
+        NozzleModel.from_config(cfg.nozzle)
+    except ConfigError as err:
+        raise ConfigError(f"nozzle: {err}") from None
+    configured_hand_eye(cfg)  # a bad calibration stops `validate`/`run`, not the first move
     try:
         catalog = load_catalog(cfg.path(cfg.catalog))  # as the identify step loads it (load_identification)
     except ConfigError as err:

@@ -43,6 +43,7 @@ __all__ = [
     "UrFaultPolicy",
     "WashConfig",
     "apply_overrides",
+    "config_leaves",
     "default_config_path",
     "load_config",
     "output_overrides",
@@ -99,11 +100,17 @@ class _Model(BaseModel):
 class BusConfig(_Model):
     """Zenoh endpoints. The daemon is a router listening on ``listen``; others are clients."""
 
-    listen: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
-    connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    listen: list[str] = Field(
+        default_factory=lambda: ["tcp/127.0.0.1:7447"], description="Zenoh endpoints the daemon's router listens on"
+    )
+    connect: list[str] = Field(
+        default_factory=lambda: ["tcp/127.0.0.1:7447"], description="Zenoh endpoints workers and clients connect to"
+    )
     lease_ms: int = Field(default=2000, ge=500, le=60000, description="link lease; bounds hang detection")
     zenoh_config: Path | None = Field(default=None, description="extra Zenoh json5 (tuning; loaded first)")
-    multicast_scouting: StrictBool = False
+    multicast_scouting: StrictBool = Field(
+        default=False, description="find peers by UDP multicast (off: only listed endpoints)"
+    )
     security_dir: Path | None = Field(
         default=None, description="`cellctl secure init` folder: user/password auth, ACL, TLS (docs/security.md)"
     )
@@ -125,30 +132,35 @@ class BusConfig(_Model):
 class Timeouts(_Model):
     """Seconds to wait for each worker op before declaring the worker hung."""
 
-    default: float = Field(default=5.0, gt=0)
-    approach: float = Field(default=60.0, gt=0)
-    move: float = Field(default=60.0, gt=0)
-    capture: float = Field(default=10.0, gt=0)
-    classify: float = Field(default=10.0, gt=0)
-    plan_submit: float = Field(default=5.0, gt=0)
-    plan_wait: float = Field(default=600.0, gt=0)
-    stop: float = Field(default=2.0, gt=0)
+    default: float = Field(default=5.0, gt=0, description="any worker op not named below")
+    approach: float = Field(default=60.0, gt=0, description="the base parking at a station")
+    move: float = Field(default=60.0, gt=0, description="one robot move to a viewpoint")
+    capture: float = Field(default=10.0, gt=0, description="one camera capture")
+    classify: float = Field(default=10.0, gt=0, description="one classifier request")
+    plan_submit: float = Field(default=5.0, gt=0, description="the planner accepting a job")
+    plan_wait: float = Field(default=600.0, gt=0, description="a planner job to finish (supervisor.wait_for_plan)")
+    stop: float = Field(default=2.0, gt=0, description="the robot acknowledging a stop")
     wash: float = Field(default=120.0, gt=0, description="one wash request: the transit to a sweep and its passes")
     wash_plan: float = Field(default=180.0, gt=0, description="a wash plan from the planner worker")
 
 
 class SupervisorConfig(_Model):
-    status_period_s: float = Field(default=1.0, gt=0, le=60)
+    status_period_s: float = Field(default=1.0, gt=0, le=60, description="Status published at least this often")
     timeouts: Timeouts = Field(default_factory=Timeouts)
-    required_workers: list[str] = Field(default_factory=lambda: ["robot", "camera", "classifier", "planner"])
-    on_worker_lost: Literal["abort", "hold"] = "abort"
-    identify_attempts: int = Field(default=3, ge=1, le=10)
+    required_workers: list[str] = Field(
+        default_factory=lambda: ["robot", "camera", "classifier", "planner"],
+        description="roles that must be alive for Start to be accepted",
+    )
+    on_worker_lost: Literal["abort", "hold"] = Field(
+        default="abort", description="a required worker lost during Execute: Abort, or Hold until it is back"
+    )
+    identify_attempts: int = Field(default=3, ge=1, le=10, description="bin identifications tried before aborting")
     identify_views: int = Field(
         default=1, ge=1, le=5, description="observation poses fused per identification (>1 when one view is not enough)"
     )
     wait_for_plan: StrictBool = Field(default=False, description="wait for the planner job instead of replan_required")
     auto_reset: StrictBool = Field(default=False, description="Complete → Resetting → Idle without a PLC Reset")
-    max_command_bytes: int = Field(default=64 * 1024, ge=256)
+    max_command_bytes: int = Field(default=64 * 1024, ge=256, description="a larger Command payload is refused")
     spawn_workers: list[str] = Field(
         default_factory=lambda: ["robot", "camera", "classifier", "planner"],
         description="roles started as child processes by `cellctl run --with-workers` and `cellctl demo`",
@@ -164,8 +176,8 @@ class SupervisorConfig(_Model):
 
 
 class RecordingConfig(_Model):
-    dir: Path = Path("logs")
-    index: Path = Path("logs/cells.db")
+    dir: Path = Field(default=Path("logs"), description="folder of the per-cycle MCAP logs")
+    index: Path = Field(default=Path("logs/cells.db"), description="SQLite index of recorded cycles")
 
 
 class UrFaultPolicy(_Model):
@@ -195,12 +207,12 @@ class UrConfig(_Model):
 
 
 class RobotConfig(_Model):
-    backend: Literal["sim", "ur"] = "sim"
+    backend: Literal["sim", "ur"] = Field(default="sim", description="sim: the pybullet twin; ur: a UR10e (robot.ur)")
     speed_fraction: float = Field(default=0.5, gt=0, le=1, description="of the UR10e joint speed limits (sim and ur)")
     ur: UrConfig = Field(default_factory=UrConfig)
     speed_scale: float = Field(default=1.0, gt=0, le=1000, description="sim: >1 runs motions faster")
-    settle_s: float = Field(default=0.2, ge=0, le=10)
-    joint_state_hz: float = Field(default=10.0, gt=0, le=500)
+    settle_s: float = Field(default=0.2, ge=0, le=10, description="wait after a move before it is reported done")
+    joint_state_hz: float = Field(default=10.0, gt=0, le=500, description="rate the robot worker publishes JointState")
     plan_timeout_s: float = Field(default=3.0, gt=0, le=60, description="sim: RRTConnect budget per move")
     collision_margin_m: float = Field(default=0.005, ge=0, le=0.1, description="sim: clearance around the arm")
     hand_eye: Path | None = Field(
@@ -210,12 +222,14 @@ class RobotConfig(_Model):
 
 
 class CameraConfig(_Model):
-    backend: Literal["sim", "opencv", "folder"] = "sim"
+    backend: Literal["sim", "opencv", "folder"] = Field(
+        default="sim", description="sim: the twin's renderer; opencv: a device or stream; folder: replay images"
+    )
     device: str = Field(default="0", description="opencv: device index or stream URL")
     folder: Path | None = Field(default=None, description="folder: directory of images to replay")
-    width: int = Field(default=1280, gt=0)
-    height: int = Field(default=720, gt=0)
-    format: Literal["png", "jpeg"] = "png"
+    width: int = Field(default=1280, gt=0, description="image width, px")
+    height: int = Field(default=720, gt=0, description="image height, px")
+    format: Literal["png", "jpeg"] = Field(default="png", description="image encoding on the wire")
     fx: float | None = Field(default=None, gt=0, description="px; None: D435 colour defaults scaled to width")
     fy: float | None = Field(default=None, gt=0, description="px; None: same as fx")
     cx: float | None = Field(default=None, description="px; None: image centre")
@@ -242,17 +256,9 @@ class NozzleConfig(_Model):
     mount_xyz_rpy: tuple[float, float, float, float, float, float] = Field(
         default=(0.0, 0.0, 0.25, 0.0, 0.0, 0.0), description="nozzle tip in the flange frame: m, m, m, deg, deg, deg"
     )
-    lance_radius_m: float = Field(default=0.015, gt=0, lt=0.1)
-
-    @model_validator(mode="after")
-    def _consistent(self) -> NozzleConfig:
-        from cellctl.washing.nozzle import NozzleModel
-
-        try:
-            NozzleModel.from_config(self)
-        except ConfigError as err:
-            raise ValueError(str(err)) from None
-        return self
+    lance_radius_m: float = Field(default=0.015, gt=0, lt=0.1, description="lance radius (m): its body clearance")
+    # Whether the fields make a nozzle that works (its footprint, reach, clearance) is the nozzle model's check
+    # (cellctl.washing.nozzle.NozzleModel), run by the composition root (cellctl.app.preflight) and its factory.
 
 
 class WashConfig(_Model):
@@ -338,12 +344,12 @@ class RelookConfig(_Model):
 class DetectorFiles(_Model):
     """Site-enrolled detector files (`cellctl detector enroll`), per surface; None: the shipped one."""
 
-    external: Path | None = None
-    internal: Path | None = None
+    external: Path | None = Field(default=None, description="enrolled detector of the external surface")
+    internal: Path | None = Field(default=None, description="enrolled detector of the internal surface")
 
 
 class ClassifierConfig(_Model):
-    backend: Literal["torch"] = "torch"
+    backend: Literal["torch"] = Field(default="torch", description="the classifier worker's implementation")
     # The detector is the default (issue 31): on two clean/dirty generators made outside the project the
     # supervised whole-image model passed 22-72 % of dirty images as clean (external 22-28 % and 72 %,
     # internal 40 %), the detector 0-16 %; its weakness, false alarms on a steel it never saw, is what
@@ -365,7 +371,7 @@ class ClassifierConfig(_Model):
         description="surfaces whose views have the pixels off the bin (the cabin past the rim) filled before "
         "classification: the internal model learned the cavity, and called the lit cabin past the rim dirty",
     )
-    models_dir: Path = Path("models/classifier")
+    models_dir: Path = Field(default=Path("models/classifier"), description="folder of the shipped classifier models")
     imagenet_weights: Path | None = Field(default=None, description="optional local torchvision ResNet18 state_dict")
     variant: Literal["fp32", "fused"] = Field(
         default="fused", description="fused: batch norm folded + frozen graph (same outputs, faster)"
@@ -403,8 +409,8 @@ class PoseTolerance(_Model):
     so the tolerance must exceed that, or every cycle replans.
     """
 
-    translation_mm: float = Field(default=80.0, gt=0)
-    rotation_deg: float = Field(default=4.0, gt=0)
+    translation_mm: float = Field(default=80.0, gt=0, description="bin position difference, mm")
+    rotation_deg: float = Field(default=4.0, gt=0, description="bin orientation difference, deg")
 
 
 class WholeBinConfig(_Model):
@@ -417,7 +423,7 @@ class WholeBinConfig(_Model):
         "`incomplete` rather than `clean`",
     )
     candidates: int = Field(default=8, ge=1, le=36, description="station candidates around the bin")
-    max_stations: int = Field(default=4, ge=1, le=36)
+    max_stations: int = Field(default=4, ge=1, le=36, description="stations a whole-bin plan may use")
     park_distance_m: float = Field(default=0.75, gt=0, le=3, description="base origin beyond the bin's extent")
     min_station_gain_pct: float = Field(
         default=2.0, ge=0, lt=100, description="% of a surface's bound a station must add"
@@ -434,8 +440,8 @@ class WholeBinConfig(_Model):
     )
     settle_s: float = Field(default=0.5, ge=0, le=10, description="modelled settle per viewpoint (paper: 1 s)")
     capture_s: float = Field(default=0.1, ge=0, le=10, description="modelled capture per viewpoint")
-    base_speed_m_s: float = Field(default=0.5, gt=0, le=3)
-    base_turn_deg_s: float = Field(default=45.0, gt=0, le=360)
+    base_speed_m_s: float = Field(default=0.5, gt=0, le=3, description="modelled base travel speed")
+    base_turn_deg_s: float = Field(default=45.0, gt=0, le=360, description="modelled base turn rate")
     park_s: float = Field(default=3.0, ge=0, le=60, description="docking time per station")
     inner_candidates: int = Field(
         default=4, ge=0, le=36, description="directions of the inner station ring (0: outer ring only)"
@@ -470,12 +476,14 @@ class WholeBinConfig(_Model):
 
 
 class PlannerConfig(_Model):
-    plans_dir: Path = Path("models/plans")
+    plans_dir: Path = Field(default=Path("models/plans"), description="folder of the plan cache")
     tolerance: PoseTolerance = Field(default_factory=PoseTolerance)
-    surface: Surface = "external"
-    seed_pct: float = Field(default=10.0, gt=0, le=100)
-    mode: Literal["fast", "paper"] = "fast"
-    seed: int = 0
+    surface: Surface = Field(default="external", description="the surface a single-station cycle scans")
+    seed_pct: float = Field(default=10.0, gt=0, le=100, description="% of the surface's faces used as viewpoint seeds")
+    mode: Literal["fast", "paper"] = Field(
+        default="fast", description="fast: the project's planner; paper: the paper's RRT* baseline"
+    )
+    seed: int = Field(default=0, description="random seed of the planner (same seed, same plan)")
     whole: WholeBinConfig = Field(default_factory=WholeBinConfig)
 
 
@@ -484,11 +492,11 @@ class UrControllerConfig(_Model):
 
     host: str = Field(default="127.0.0.1", description="loopback address it listens on (127.0.0.0/8)")
     control_port: int = Field(default=30099, ge=1024, le=65535, description="fault-injection text socket")
-    model: str = "UR10"
-    serial: str = "20235500001"
+    model: str = Field(default="UR10", description="model name the dashboard reports")
+    serial: str = Field(default="20235500001", description="serial number the dashboard reports")
     polyscope: str = Field(default="5.11.1.108318", description="PolyScope version it reports (e-Series: 5.x)")
-    robot_mode: Literal["RUNNING", "IDLE", "POWER_OFF"] = "RUNNING"
-    remote_control: StrictBool = True
+    robot_mode: Literal["RUNNING", "IDLE", "POWER_OFF"] = Field(default="RUNNING", description="robot mode at start")
+    remote_control: StrictBool = Field(default=True, description="the pendant is in remote control (RTDE may drive it)")
     unlock_delay_s: float = Field(default=5.0, ge=0, le=60, description="protective stop: unlock after (s)")
     stop_decel: float = Field(default=10.0, gt=0, le=40, description="safety stops' deceleration, rad/s²")
 
@@ -496,7 +504,7 @@ class UrControllerConfig(_Model):
 class BaseConfig(_Model):
     """The mobile base: ``sim`` (the twin parks it) or ``manual`` (an operator/PLC parks and confirms)."""
 
-    backend: Literal["sim", "manual"] = "sim"
+    backend: Literal["sim", "manual"] = Field(default="sim", description="sim: the twin parks it; manual: confirmed")
     confirm_timeout_s: float = Field(default=300.0, gt=0, le=3600, description="manual: wait for the confirmation")
     # An AMR docking on its markers repeats to a few mm; its map pose is what carries the bin pose to a
     # station that cannot see the board (bin_pose_source base_odometry), so its error bounds the cycle's there.
@@ -511,20 +519,20 @@ class BaseConfig(_Model):
 class SimConfig(_Model):
     """The pybullet twin's scenario (used by sim backends only)."""
 
-    bin_type: str = "case_study"
+    bin_type: str = Field(default="case_study", description="catalog bin the twin shows")
     bin_pose_xyz_yaw: tuple[float, float, float, float] = Field(
         default=(0.0, 0.0, 0.0, 0.0), description="bin pose in the world: x, y, z (m), yaw (deg)"
     )
-    dirty: StrictBool = False
-    powder_amount: float = Field(default=0.5, ge=0, le=1)
-    seed: int = 0
-    approach_error_m: float = Field(default=0.02, ge=0, le=0.5)
-    approach_error_deg: float = Field(default=1.0, ge=0, le=30)
+    dirty: StrictBool = Field(default=False, description="the twin's bin carries powder")
+    powder_amount: float = Field(default=0.5, ge=0, le=1, description="how much powder a dirty bin carries (0..1)")
+    seed: int = Field(default=0, description="random seed of the scenario (powder, parking errors)")
+    approach_error_m: float = Field(default=0.02, ge=0, le=0.5, description="parking position error, radius (m)")
+    approach_error_deg: float = Field(default=1.0, ge=0, le=30, description="parking yaw error, ± deg")
     ur_controller: UrControllerConfig = Field(default_factory=UrControllerConfig)
 
 
 class CellSection(_Model):
-    id: str = "cell1"
+    id: str = Field(default="cell1", description="the cell's id in every key expression (cell/<id>/...)")
 
     @field_validator("id")
     @classmethod
@@ -542,7 +550,7 @@ class CellConfig(_Model):
     bus: BusConfig = Field(default_factory=BusConfig)
     supervisor: SupervisorConfig = Field(default_factory=SupervisorConfig)
     recording: RecordingConfig = Field(default_factory=RecordingConfig)
-    catalog: Path = Path("config/bins.yaml")
+    catalog: Path = Field(default=Path("config/bins.yaml"), description="the bin catalog (types, meshes, boards)")
     robot: RobotConfig = Field(default_factory=RobotConfig)
     base: BaseConfig = Field(default_factory=BaseConfig)
     camera: CameraConfig = Field(default_factory=CameraConfig)
@@ -554,27 +562,8 @@ class CellConfig(_Model):
     review: ReviewConfig = Field(default_factory=ReviewConfig)
 
     root: Path = Field(default=PROJECT_ROOT, exclude=True, description="base of relative paths")
-
-    @model_validator(mode="after")
-    def _hand_eye_loads(self) -> CellConfig:
-        # Checked on load so a bad calibration stops `cellctl validate`/`run`, not the first move.
-        self.T_flange_cam()
-        return self
-
-    def T_flange_cam(self) -> Any:
-        """The configured hand–eye ``T_flange_cam`` (4, 4 ndarray), or None when ``robot.hand_eye`` is unset.
-
-        Raises:
-            ConfigError: the file is missing or invalid (:func:`cellctl.vision.handeye.load_hand_eye`).
-        """
-        if self.robot.hand_eye is None:
-            return None
-        from cellctl.vision.handeye import load_hand_eye
-
-        try:
-            return load_hand_eye(self.path(self.robot.hand_eye))
-        except ConfigError as err:
-            raise ConfigError(f"robot.hand_eye: {err}") from None
+    # The hand-eye file robot.hand_eye names is read and checked by cellctl.vision.handeye.configured_hand_eye
+    # (run by cellctl.app.preflight, so `validate`/`run` refuse a bad one before the first move).
 
     @property
     def cell_id(self) -> str:
@@ -732,3 +721,34 @@ def load_config(path: Path | str | None = None, overrides: list[str] | None = No
     if "models_dir" not in (data.get("classifier") or {}) and not cfg.path(cfg.classifier.models_dir).exists():
         cfg.classifier.models_dir = PROJECT_ROOT / cfg.classifier.models_dir
     return cfg
+
+
+def _section_model(annotation: Any) -> type[BaseModel] | None:
+    """The config section a field holds (``RobotConfig``; also through ``X | None``), or None for a leaf."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    if typing.get_origin(annotation) in (list, dict, tuple):
+        return None
+    for arg in typing.get_args(annotation):
+        found = _section_model(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def config_leaves(model: type[BaseModel] | None = None, prefix: str = "") -> list[tuple[str, Any, str]]:
+    """Every settable leaf of the cell config: ``(dotted key, default, description)``, in file order.
+
+    What ``cellctl schema --config`` prints; a test holds every leaf to a description.
+    """
+    rows: list[tuple[str, Any, str]] = []
+    for name, field in (model or CellConfig).model_fields.items():
+        if field.exclude:
+            continue
+        section = _section_model(field.annotation)
+        if section is not None:
+            rows += config_leaves(section, f"{prefix}{name}.")
+        else:
+            default = field.get_default(call_default_factory=True)
+            rows.append((f"{prefix}{name}", default, field.description or ""))
+    return rows

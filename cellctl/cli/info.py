@@ -8,8 +8,11 @@ from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("schema", help="print the JSON Schemas of every wire message")
+    p = sub.add_parser("schema", help="print the JSON Schemas of every wire message (--config: the config's keys)")
     p.add_argument("type", nargs="?", default=None, help="one message type, e.g. cellctl/Command")
+    p.add_argument(
+        "--config", action="store_true", help="instead: every cell config key with its default and description"
+    )
     p.set_defaults(func=run_schema)
 
     s = sub.add_parser("states", help="print the PackML and cycle state machines")
@@ -27,6 +30,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_schema(args: argparse.Namespace) -> int:
     from cellctl.bus.codec import json_schemas
     from cellctl.errors import ProtocolError
+
+    if args.config:
+        from cellctl.config import config_leaves
+
+        for key, default, description in config_leaves():
+            shown = str(default) if isinstance(default, Path) else json.dumps(default, default=str)
+            print(f"{key} = {shown}  # {description}")
+        return 0
 
     schemas = json_schemas()
     if args.type:

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from cellctl.geometry import robot_model as rm
 from cellctl.geometry.transforms import invert
+from cellctl.vision.handeye import configured_hand_eye
 
 if TYPE_CHECKING:
     from cellctl.config import CellConfig
@@ -50,7 +51,7 @@ class RobotModel:
     @classmethod
     def from_config(cls, cfg: CellConfig) -> RobotModel:
         """The cell's model with the configured hand–eye (``robot.hand_eye``), else the nominal mount."""
-        T = cfg.T_flange_cam()
+        T = configured_hand_eye(cfg)
         return cls() if T is None else cls(T_flange_cam=T)
 
     def model_id(self) -> str:

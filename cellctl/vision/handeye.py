@@ -21,7 +21,7 @@ import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -29,7 +29,17 @@ from numpy.typing import ArrayLike, NDArray
 from cellctl.errors import CellError, ConfigError
 from cellctl.geometry.transforms import check_transform, invert, pose_from_transform, transform_from
 
-__all__ = ["MAX_FLANGE_CAM_M", "HandEyeResult", "load_hand_eye", "log_rotation", "solve_hand_eye"]
+if TYPE_CHECKING:
+    from cellctl.config import CellConfig
+
+__all__ = [
+    "MAX_FLANGE_CAM_M",
+    "HandEyeResult",
+    "configured_hand_eye",
+    "load_hand_eye",
+    "log_rotation",
+    "solve_hand_eye",
+]
 
 # A camera further than this from the flange is a wrong file or wrong units (mm), not a mount.
 MAX_FLANGE_CAM_M = 0.5
@@ -177,6 +187,20 @@ def solve_hand_eye(T_base_flange: Sequence[ArrayLike], T_cam_board: Sequence[Arr
         n_views=n,
         axis_spread_deg=spread,
     )
+
+
+def configured_hand_eye(cfg: CellConfig) -> NDArray[np.float64] | None:
+    """The configured hand–eye ``T_flange_cam`` (4, 4), or None when ``robot.hand_eye`` is unset.
+
+    Raises:
+        ConfigError: the file is missing or invalid (:func:`load_hand_eye`), named as ``robot.hand_eye``.
+    """
+    if cfg.robot.hand_eye is None:
+        return None
+    try:
+        return load_hand_eye(cfg.path(cfg.robot.hand_eye))
+    except ConfigError as err:
+        raise ConfigError(f"robot.hand_eye: {err}") from None
 
 
 def load_hand_eye(path: Path) -> NDArray[np.float64]:

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from cellctl.app import preflight
 from cellctl.config import load_config
 from cellctl.errors import ConfigError
 from cellctl.planning.robot import default_robot_model
@@ -33,8 +34,8 @@ def test_default_config_has_a_nozzle_and_two_passes() -> None:
     ],
 )
 def test_bad_nozzle_config_is_a_config_error_naming_the_value(override: str, named: str) -> None:
-    with pytest.raises(ConfigError, match=named):
-        load_config(None, [override])
+    with pytest.raises(ConfigError, match=named):  # as `validate` and `run` check it (config.py imports no model)
+        preflight(load_config(None, [override]))
 
 
 def test_sprayed_is_the_cone_cut_to_footprint_and_incidence() -> None:

@@ -41,6 +41,7 @@ from cellctl.motion import UR10E, Trajectory, time_parametrize
 from cellctl.sim import scene
 from cellctl.sim.collision import CollisionWorld, densify
 from cellctl.sim.motion import STEP_RAD, path_length, plan_path
+from cellctl.vision.handeye import configured_hand_eye
 from cellctl.workers.robot._port import Robot
 
 __all__ = ["DRIVE_S", "FROZEN_GAP_S", "PlannedRobot", "TwinBaseReport"]
@@ -76,7 +77,7 @@ class PlannedRobot(Robot):
         self, cfg: CellConfig, catalog: Catalog | None = None, on_change: Callable[[], None] | None = None
     ) -> None:
         self.cfg = cfg
-        self.T_flange_cam = cfg.T_flange_cam()
+        self.T_flange_cam = configured_hand_eye(cfg)
         """The controller's hand–eye estimate (``robot.hand_eye``); None: the nominal mount."""
         self.catalog = catalog or load_catalog(cfg.path(cfg.catalog))
         s = cfg.sim
