@@ -140,6 +140,7 @@ def reachability(
     accept: Callable[[int, NDArray[np.float64]], bool] | None = None,
     verify: Callable[[int, NDArray[np.float64]], bool] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    joinable: Callable[[NDArray[np.float64]], NDArray[np.bool_]] | None = None,
 ) -> Reached:
     """Keep, per seed direction, the first distance rank with a free IK solution.
 
@@ -165,6 +166,10 @@ def reachability(
             motion planner finds a path to it from the start); refused → unreachable.
             (paper mode: "a motion planner finds a path to it from the start").
         progress: ``progress(done, total)`` callback.
+        joinable: optional batch test of configurations (e.g. a straight free motion from home
+            reaches them): the preferred arm shape is then the most used one some of whose
+            solutions near its median pass it (tried in order of use, a few solutions each); the
+            most used one when none does. None: the most used one.
     """
     rolls = roll_sequence(n_roll)
     checks0 = world.checks
@@ -195,10 +200,7 @@ def reachability(
             m = np.isin(own, ids[:: max(1, len(ids) // SHAPE_SAMPLE)])
             fs = world.robot_free(Qc[m])
             if fs.any():
-                o, b, Qf = own[m][fs], br[m][fs], Qc[m][fs]
-                preferred = int(np.argmax([len(np.unique(o[b == k])) for k in range(8)]))
-                sel = b == preferred
-                centre = np.median(Qf[sel], axis=0) if sel.any() else q_ref
+                preferred, centre = _preferred_shape(own[m][fs], br[m][fs], Qc[m][fs], q_ref, joinable)
         if preferred is not None and centre is not None:
             # once the arm shape is fixed only its solutions can be kept (below): check only those
             shape = (br >> 1) == (preferred >> 1)
@@ -214,10 +216,7 @@ def reachability(
         free = world.robot_free(Qc)
         Qc, rc, own, br = Qc[free], rc[free], own[free], br[free]
         if preferred is None and len(Qc):
-            per_branch = [len(np.unique(own[br == b])) for b in range(8)]
-            preferred = int(np.argmax(per_branch))
-            sel = br == preferred
-            centre = np.median(Qc[sel], axis=0) if sel.any() else q_ref
+            preferred, centre = _preferred_shape(own, br, Qc, q_ref, joinable)
         offers: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
         for i in idx:
             m = own == i
@@ -253,6 +252,34 @@ def reachability(
     roll = np.array([it[2] for it in items])
     T = np.array([vp.T[i] @ _rz(a) for i, a in zip(index, roll, strict=True)]).reshape(-1, 4, 4)
     return Reached(index=index, T=T, q=q, roll=roll, checks=world.checks - checks0, tried=tried)
+
+
+JOIN_TRIES = 4  # solutions nearest a shape's median that ``joinable`` is asked about
+
+
+def _preferred_shape(
+    own: NDArray[np.int64],
+    br: NDArray[np.int64],
+    Q: NDArray[np.float64],
+    q_ref: NDArray[np.float64],
+    joinable: Callable[[NDArray[np.float64]], NDArray[np.bool_]] | None,
+) -> tuple[int, NDArray[np.float64]]:
+    """The IK branch most viewpoints can use (free solutions ``Q`` of viewpoints ``own``, branches ``br``)
+    and its median configuration; with ``joinable``, the most used one whose solutions nearest its median
+    pass it (the most used one when none does)."""
+    per_branch = [len(np.unique(own[br == b])) for b in range(8)]
+    preferred = int(np.argmax(per_branch))
+    if joinable is not None:
+        for b in np.argsort([-n for n in per_branch], kind="stable"):
+            if per_branch[b] == 0:
+                break
+            Qb = Q[br == b]
+            near = Qb[np.argsort(np.linalg.norm(Qb - np.median(Qb, axis=0), axis=1), kind="stable")[:JOIN_TRIES]]
+            if joinable(near).any():
+                preferred = int(b)
+                break
+    sel = br == preferred
+    return preferred, (np.median(Q[sel], axis=0) if sel.any() else q_ref)
 
 
 def _lazy_first(

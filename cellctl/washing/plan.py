@@ -341,9 +341,11 @@ def plan_wash(
     from cellctl.planning.raycast import RayCaster
 
     rays = RayCaster(mesh.vertices, mesh.faces)
-    # demand is counted on points, each face's centroid and corners: a face is washed when all
-    # of them have been under the jet, whichever sweeps put them there
-    fpts = _face_points(mesh)
+    # demand is counted on points, each face's centroid and corners (and more inside a face too
+    # long for them): a face is washed when all of them have been under the jet, whichever sweeps
+    # put them there
+    fp = _face_points(mesh, nozzle.line_spacing_m)
+    fpts = fp.ids
     need = np.zeros(int(fpts.max()) + 1, np.int64)
     need[fpts[targets].reshape(-1)] = nozzle.required_passes
     sweeps: list[Sweep] = []
@@ -382,7 +384,7 @@ def plan_wash(
         T_bin_base = poses[k]
         budget = _Budget(rate, cpu0, "stations_over_budget")
         st = _station(
-            mesh, facets, lines, T_bin_base, need, fpts, nozzle, robot, p, q0, rays, seen, times, counts, budget
+            mesh, facets, lines, T_bin_base, need, fp, nozzle, robot, p, q0, rays, seen, times, counts, budget
         )
         if not st:
             continue
@@ -396,10 +398,14 @@ def plan_wash(
         # the shape and rolls that suit those few waypoints alone
         t = time.perf_counter()
         rp = replace(p, n_roll=max(p.n_roll, p.residue_rolls))
-        r_facets, r_lines = _residue_lines(mesh, facets, fpts, need, targets)
+        r_facets, r_lines = _residue_lines(mesh, facets, fp, need, targets)
         r_seen = _Seen(sum(len(ln.points) for ln in r_lines))
         r_pts = np.concatenate([ln.points for ln in r_lines]) if r_lines else np.zeros((0, 3))
-        near = [int((np.linalg.norm(r_pts - T[:3, 3], axis=1) <= MAX_REACH_M).sum()) for T in poses]
+        # a point is within the nozzle's reach from a base when the flange is (the distance filter's
+        # test): MAX_REACH_M plus the lance and the longest stand-off. On the points themselves it left
+        # out the one station that reached the demo's dirty sliver from home (round 3, face 4365)
+        lance = float(np.linalg.norm(nozzle.T_flange_nozzle()[:3, 3])) + max(nozzle.distances)
+        near = [int((np.linalg.norm(r_pts - T[:3, 3], axis=1) <= MAX_REACH_M + lance).sum()) for T in poses]
         before = int((need > 0).sum())
         # the same unit (a pose and roll through IK and collision checks) as the first pass: its rate holds
         rate.first_free = False
@@ -411,7 +417,7 @@ def plan_wash(
             budget = _Budget(rate, cpu0, "residue_stations_over_budget")
             skipped = counts[budget.key]
             st = _station(
-                mesh, r_facets, r_lines, poses[k], need, fpts, nozzle, robot, rp, q0, rays, r_seen, {}, counts, budget
+                mesh, r_facets, r_lines, poses[k], need, fp, nozzle, robot, rp, q0, rays, r_seen, {}, counts, budget
             )
             counts["residue_stations"] += counts[budget.key] == skipped
             if st and k not in used:
@@ -525,7 +531,7 @@ def _station(
     lines: list[_Line],
     T_bin_base: NDArray[np.float64],
     need: NDArray[np.int64],
-    fpts: NDArray[np.int64],
+    fp: _FacePoints,
     nozzle: NozzleModel,
     robot: RobotModel,
     p: WashParams,
@@ -549,6 +555,7 @@ def _station(
 
     # seeds → nozzle poses → the planner's filters; only lines over faces still needing passes
     t = time.perf_counter()
+    fpts = fp.ids
     live = [i for i, ln in enumerate(lines) if need[fpts[ln.faces]].any()]
     if not live:
         return []
@@ -563,8 +570,7 @@ def _station(
     from scipy.spatial import cKDTree
 
     pos = np.zeros((len(need), 3))
-    pos[fpts[:, 0]] = mesh.centroids
-    pos[fpts[:, 1:].reshape(-1)] = mesh.vertices[mesh.faces].reshape(-1, 3)
+    pos[fpts.reshape(-1)] = fp.pos.reshape(-1, 3)
     d, _ = cKDTree(pos[need > 0]).query(pts, distance_upper_bound=nozzle.footprint_m)
     useful = np.isfinite(d)
     pts, seed_faces, nrm, line_of, wp_all, extra = (x[useful] for x in (pts, seed_faces, nrm, line_of, wp_all, extra))
@@ -595,7 +601,17 @@ def _station(
         counts[budget.key] += 1
         return []
     c = time.process_time()
-    reached = reachability(filtered, tool, world, invert(T_bin_base), q0, p.n_roll) if len(filtered) else None
+    # IK solutions ranked and wrapped towards home, as the inspection planner's are: the arm drives between
+    # stations at home and the robot plans a move it cannot make straight through home (the tour still
+    # starts at q0)
+    q_home = np.asarray(tool.q_home, np.float64)
+
+    def from_home(Q: NDArray[np.float64]) -> NDArray[np.bool_]:
+        return world.motion_free(np.repeat(q_home[None], len(Q), axis=0), Q, _connect_step())
+
+    reached = None
+    if len(filtered):  # the arm shape: the most used one a straight motion from home reaches
+        reached = reachability(filtered, tool, world, invert(T_bin_base), q_home, p.n_roll, joinable=from_home)
     if reached is not None and len(reached.index):
         reached = _connected(filtered, reached, tool, world, T_bin_base, p, counts)
     if budget is not None:
@@ -614,20 +630,21 @@ def _station(
 
     # the faces each reached waypoint sprays: the visibility stage with the nozzle's frustum,
     # cut back to the cone and the footprint (any face: overspray is washed area too). A face
-    # counts as sprayed by a sweep when its centroid and its three corners each lie under the
-    # spot of some waypoint of it: a face half under the jet keeps its powder at the other end.
+    # counts as sprayed by a sweep when its centroid, its three corners and its inner points each
+    # lie under the spot of some waypoint of it: a face half under the jet keeps its powder at the
+    # other end.
     t = time.perf_counter()
     allf = np.arange(mesh.n_faces)
     wp_ids = np.flatnonzero(ok_wp)
     under = np.zeros((len(pts), len(need)), bool)
     C = measurability(wp_T[wp_ids], mesh, allf, nozzle.frustum_camera(), rays)
-    corners = mesh.vertices[mesh.faces]
     for col, w in enumerate(wp_ids):
         rows = np.flatnonzero(C[:, col])
         if len(rows):
-            P = np.concatenate([mesh.centroids[rows, None], corners[rows]], axis=1).reshape(-1, 3)
-            hit = nozzle.sprayed(wp_T[w], P, np.repeat(mesh.normals[rows], 4, axis=0))
-            under[w, fpts[rows][hit.reshape(-1, 4)]] = True
+            real = fp.real[rows]  # (the padding repeats the centroid: checked once)
+            nrm_r = np.broadcast_to(mesh.normals[rows, None], (*real.shape, 3))
+            hit = nozzle.sprayed(wp_T[w], fp.pos[rows][real], nrm_r[real])
+            under[w, fpts[rows][real][hit]] = True
     _add(times, "visibility", t)
 
     # sweeps: runs of consecutive reached waypoints of a line joined by short free motions
@@ -662,7 +679,8 @@ def _station(
     # greedy multi-cover: each target face gets the passes it still needs
     left = need.copy()
     area = np.zeros(len(need))
-    np.add.at(area, fpts.reshape(-1), np.repeat(mesh.areas / 4, 4))  # each point stands for a share of its faces
+    share = (mesh.areas / fp.real.sum(axis=1))[:, None] * fp.real  # each point stands for a share of its faces
+    np.add.at(area, fpts.reshape(-1), share.reshape(-1))
     chosen: Counter[int] = Counter()
     while M is not None:
         gains = M @ (area * (left > 0))
@@ -722,18 +740,23 @@ def _connected(
     shoulder no planner connects (the demo's wash story: a sweep at shoulder +3.03 rad refused every
     round). A waypoint not joined takes its next-best solution that is, or is left unreached.
     """
+    from cellctl.planning.whole import connect
+
+    q_home = np.asarray(tool.q_home, np.float64)
+    con = connect(vp, reached, tool, world, invert(T_bin_base), q_home, p.n_roll, None, _connect_step())
+    counts["waypoints_replaced_unconnected"] += con.replaced
+    counts["waypoints_unconnected"] += con.unconnected
+    return con.reached
+
+
+def _connect_step() -> float:
+    """The connection's motion check step (rad), from the module that defines :func:`connect`
+    (planning.whole is being split into modules: issue 33)."""
     import importlib
 
     from cellctl.planning.whole import connect
 
-    # checked at the connection's own step, from the module that defines it (planning.whole is being
-    # split into modules: issue 33)
-    step = importlib.import_module(connect.__module__).COARSE_STEP_RAD
-    q_home = np.asarray(tool.q_home, np.float64)
-    con = connect(vp, reached, tool, world, invert(T_bin_base), q_home, p.n_roll, None, step)
-    counts["waypoints_replaced_unconnected"] += con.replaced
-    counts["waypoints_unconnected"] += con.unconnected
-    return con.reached
+    return float(importlib.import_module(connect.__module__).COARSE_STEP_RAD)
 
 
 RESIDUE_TILTS_DEG = (0.0, 30.0, 50.0)
@@ -742,11 +765,11 @@ RESIDUE_AZIMUTHS = 6
 
 
 def _residue_lines(
-    mesh: BinMesh, facets: list[Facet], fpts: NDArray[np.int64], need: NDArray[np.int64], targets: NDArray[np.bool_]
+    mesh: BinMesh, facets: list[Facet], fp: _FacePoints, need: NDArray[np.int64], targets: NDArray[np.bool_]
 ) -> tuple[list[Facet], list[_Line]]:
     """Extra candidates for the target points still short of passes: one single-waypoint line
-    per point and jet direction, aimed at the point (pulled a fifth of the way into a target face
-    it belongs to, off the edge) along the mean normal of its target faces and that normal
+    per point and jet direction, aimed at the point (a corner pulled a fifth of the way into a target
+    face it belongs to, off the edge) along the mean normal of its target faces and that normal
     tilted by :data:`RESIDUE_TILTS_DEG` at :data:`RESIDUE_AZIMUTHS` azimuths: the first pass's
     jet follows a facet's mean normal, which a corner on a crease or a face deep inside a
     narrow opening needs at another angle."""
@@ -755,10 +778,9 @@ def _residue_lines(
         region_of[fc.faces] = fc.region
     out_f: list[Facet] = []
     out_l: list[_Line] = []
-    tri = mesh.vertices[mesh.faces]
-    pos = np.concatenate([mesh.centroids[:, None], tri], axis=1)  # (F, 4, 3) as fpts
+    fpts, pos = fp.ids, fp.pos
     tf = np.flatnonzero(targets)
-    short = need[fpts[tf]] > 0  # (T, 4)
+    short = need[fpts[tf]] > 0  # (T, K)
     done: set[int] = set()
     for row, col in zip(*np.nonzero(short), strict=True):
         pid = int(fpts[tf[row], col])
@@ -769,7 +791,7 @@ def _residue_lines(
         f = int(owners[0])
         nm = (mesh.normals[owners] * mesh.areas[owners, None]).sum(axis=0)
         nm = nm / max(float(np.linalg.norm(nm)), 1e-12)
-        pt = 0.8 * pos[f, col] + 0.2 * mesh.centroids[f]
+        pt = 0.8 * pos[f, col] + 0.2 * mesh.centroids[f] if 1 <= col <= 3 else pos[f, col]  # corners only
         helper = np.array([0.0, 0.0, 1.0]) if abs(nm[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
         e1 = np.cross(nm, helper)
         e1 /= np.linalg.norm(e1)
@@ -786,11 +808,58 @@ def _residue_lines(
     return out_f, out_l
 
 
-def _face_points(mesh: BinMesh) -> NDArray[np.int64]:
-    """(F, 4) point ids of each face: its centroid (id = face id), then its corners (welded by position)."""
+@dataclass(frozen=True)
+class _FacePoints:
+    """The points demand is counted on, per face (F, K): ids (a point shared by faces has one id),
+    positions, and which slots are real (the rest repeat the face's centroid, to keep K per face)."""
+
+    ids: NDArray[np.int64]
+    pos: NDArray[np.float64]
+    real: NDArray[np.bool_]
+
+
+def _face_points(mesh: BinMesh, spacing: float) -> _FacePoints:
+    """Each face's centroid (id = face id), its corners (welded by position), and inside a face some
+    part of which lies further than ``spacing`` from all of those, more points (farthest first, until
+    every part of it is within ``spacing`` of one; ids after the corners'). The plan passes the raster's
+    line spacing: a face is then represented as densely as a sweep covers it.
+
+    Why: the demo's dirty sliver (face 4365 of the case study, 58 cm long and 5 cm wide, where the
+    jet along its normal cannot go) had its powder between its centroid and a corner, 6 cm from both:
+    the residue pass aimed at those four points only, and the powder between stayed."""
     key = np.round(mesh.vertices / 1e-5).astype(np.int64)
     _, weld = np.unique(key, axis=0, return_inverse=True)
-    return np.concatenate([np.arange(mesh.n_faces)[:, None], mesh.n_faces + weld.reshape(-1)[mesh.faces]], axis=1)
+    ids = np.concatenate([np.arange(mesh.n_faces)[:, None], mesh.n_faces + weld.reshape(-1)[mesh.faces]], axis=1)
+    tri = mesh.vertices[mesh.faces]
+    pos = np.concatenate([mesh.centroids[:, None], tri], axis=1)
+    longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+    extra: dict[int, NDArray[np.float64]] = {}
+    for f in np.flatnonzero(longest > 1.5 * spacing):  # (a shorter face is within spacing of its corners)
+        m = int(np.ceil(2 * longest[f] / spacing))  # a barycentric grid half the spacing apart
+        i, j = np.meshgrid(np.arange(m + 1), np.arange(m + 1), indexing="ij")
+        ok = i + j <= m
+        b = np.stack([i[ok], j[ok], m - i[ok] - j[ok]], axis=1) / m
+        cand = b @ tri[f]
+        d = np.linalg.norm(cand[:, None] - pos[f][None], axis=2).min(axis=1)
+        kept = []
+        while d.max() > spacing:
+            k = int(np.argmax(d))
+            kept.append(cand[k])
+            d = np.minimum(d, np.linalg.norm(cand - cand[k], axis=1))
+        if kept:
+            extra[int(f)] = np.array(kept)
+    n_extra = max((len(v) for v in extra.values()), default=0)
+    real = np.zeros((mesh.n_faces, 4 + n_extra), bool)
+    real[:, :4] = True
+    ids = np.concatenate([ids, np.repeat(ids[:, :1], n_extra, axis=1)], axis=1)
+    pos = np.concatenate([pos, np.repeat(pos[:, :1], n_extra, axis=1)], axis=1)
+    nxt = int(ids.max()) + 1
+    for f, P in extra.items():
+        ids[f, 4 : 4 + len(P)] = np.arange(nxt, nxt + len(P))
+        pos[f, 4 : 4 + len(P)] = P
+        real[f, 4 : 4 + len(P)] = True
+        nxt += len(P)
+    return _FacePoints(ids, pos, real)
 
 
 def _nozzle_poses(

@@ -1,12 +1,14 @@
 """Wash sweeps the arm can get to: every sweep is joined to the arm's home by straight collision-free
 joint motions (the inspection planner's connection), so the robot, which plans a sweep it cannot
-move straight to through home, is never handed a flipped arm shape no planner connects.
+move straight to through home, is never handed a flipped arm shape no planner connects; and the
+powder on a long sliver of a face is washed where it lies, not only at the face's corners.
 
 The case is the demo's wash story (cycle 3 at f281124, round 3): one dirty face, 4365, a 145 cm²
 sliver of the outside wall beside the powder clump at (-0.43, 0.335, -0.585), planned from the four
 stations the scan used (their measured poses and the arm's joints, as logged). The planner gave it
 one sweep with the shoulder at +3.03 rad that the arm refused every round ("no collision-free path
 from home … within 3 s (RRTConnect)") and the cycle failed: "robot ran none of the 1 wash sweeps".
+The powder there is the edge of the demo's clump at (-0.43, 0.335, -0.585) (scenario seed 18).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from cellctl.planning.collision import PlanningWorld
 from cellctl.planning.robot import default_robot_model
 from cellctl.washing.nozzle import NozzleModel
 from cellctl.washing.plan import WashParams, plan_wash
+from cellctl.washing.twin import wash_in_twin
 
 # T_bin_base of the four stations (position, quaternion xyzw), as the round-3 WashPlanRequest had them
 STATIONS = [
@@ -69,11 +72,11 @@ def _joined_to_home(plan, mesh, nozzle, robot) -> list[bool]:
 
 
 def test_a_flipped_sweep_no_planner_connects_is_not_planned(setup) -> None:
-    """The sliver's only sweep was a flipped shoulder no motion from home reaches: none is planned now,
-    and the face is reported unwashable from these stations with why (the cycle then ends dirty,
-    naming it, instead of failing on a sweep the arm refuses)."""
+    """The sliver's only sweep was a flipped shoulder no motion from home reaches: every sweep planned
+    now is joined to home; the face's far corner (near the floor) stays out of reach, so it is reported
+    unwashable with why (a plan with no sweep names it in its reason: the cycle ends dirty, naming it)."""
     mesh, nozzle, robot, poses = setup
-    params = WashParams(threshold=0.5, margin_m=0.02, q_start=Q_START)
+    params = WashParams(threshold=0.5, margin_m=0.02, q_start=Q_START, cpu_budget_s=60.0)
     plan = plan_wash(mesh, {"seen_dirty": [FACE]}, poses, nozzle, robot, params)
     joined = _joined_to_home(plan, mesh, nozzle, robot)
     assert all(joined), [np.round(sw.q[0], 2).tolist() for sw, ok in zip(plan.sweeps, joined, strict=True) if not ok]
@@ -93,3 +96,29 @@ def test_every_sweep_of_the_first_round_is_joined_to_home(setup) -> None:
     joined = _joined_to_home(plan, mesh, nozzle, robot)
     assert all(joined), [np.round(sw.q[0], 2).tolist() for sw, ok in zip(plan.sweeps, joined, strict=True) if not ok]
     assert plan.summary(mesh)["covered_m2"] > 0.8 * float(mesh.areas[plan.targets].sum()) - 0.0145
+
+
+def test_the_powder_on_the_sliver_is_washed_by_the_sweeps_the_arm_can_get_to(setup) -> None:
+    """The sweeps of the round-3 plan that are joined to home, run in the twin over the demo's powder,
+    wash the clump's edge on the sliver (its demand points now lie along the face, not only at its
+    centroid and corners, and the residue pass tries every station whose flange reaches)."""
+    from dataclasses import replace
+
+    from cellctl.sim.ground_truth import PowderField
+
+    mesh, nozzle, robot, poses = setup
+    params = WashParams(threshold=0.5, margin_m=0.02, q_start=Q_START, cpu_budget_s=60.0)
+    plan = plan_wash(mesh, {"seen_dirty": [FACE]}, poses, nozzle, robot, params)
+    joined = _joined_to_home(plan, mesh, nozzle, robot)
+    runnable = replace(plan, sweeps=tuple(sw for sw, ok in zip(plan.sweeps, joined, strict=True) if ok))
+    field = PowderField.sample(mesh, 0.01, 18)
+    clump = int(np.argmin(np.linalg.norm(field.centres - [-0.43, 0.335, -0.585], axis=1)))
+    V = mesh.vertices[mesh.faces[FACE]]
+    u = np.random.default_rng(0).random((4000, 2))
+    u = u[u.sum(axis=1) <= 1]
+    P = V[0] + u[:, :1] * (V[1] - V[0]) + u[:, 1:] * (V[2] - V[0])
+    P = P[np.linalg.norm(P - field.centres[clump], axis=1) <= field.radii[clump]]  # the powder on the sliver
+    assert len(P) > 50
+    wash_in_twin(field, runnable, mesh, nozzle)
+    left = field.remaining(P, np.repeat(mesh.normals[FACE][None], len(P), axis=0))
+    assert left.mean() < 0.2, (len(runnable.sweeps), float(left.mean()))
