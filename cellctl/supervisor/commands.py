@@ -29,6 +29,19 @@ class Accepted:
     base_station: int | None = None
     """The station a manual base is confirmed parked at (a base confirmation only)."""
 
+    def refuse(self, state: str, reason: str, mode: UnitMode) -> Ack:
+        """The refusing Ack of a command that passed the checks but cannot be applied now."""
+        cmd = self.cmd
+        return Ack(
+            request_id=cmd.request_id,
+            command=None if self.mode is not None else cmd.name,
+            accepted=False,
+            reason=reason,
+            state=state,
+            user=cmd.user,
+            unit_mode=mode.wire_name,
+        )
+
     def ack(self, state: str, mode: UnitMode | None = None) -> Ack:
         """The accepting Ack: ``state`` after applying, ``mode`` the unit mode now (default: the one asked for)."""
         cmd, now = self.cmd, mode or self.mode

@@ -7,7 +7,7 @@ import itertools
 import threading
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import zenoh
 
@@ -15,10 +15,11 @@ from cellctl.bus import keys, topics
 from cellctl.bus.rpc import request
 from cellctl.config import CellConfig
 from cellctl.errors import ProtocolError, WorkerError
-from cellctl.messages import CycleOutcome, CycleResult, StartParams, StopRequest
+from cellctl.messages import CycleOutcome, CycleResult, StartParams, StopRequest, WireMessage
 from cellctl.recording.index import CycleIndex
 from cellctl.supervisor.admin import AdminBook
 from cellctl.supervisor.context import CycleContext, Identify
+from cellctl.supervisor.health import StopReason
 from cellctl.supervisor.publisher import Outbox
 from cellctl.supervisor.recorder import CycleRecorder, NullRecorder, Recorder, assemble_result, new_cycle_id
 from cellctl.workers.base import make_base
@@ -84,6 +85,18 @@ class CycleKeeper:
         ctx = self.open_ctx
         return ctx.log if ctx is not None else None
 
+    def write(self, key: str, msg: WireMessage) -> None:
+        """Record ``msg`` on ``key`` in the open cycle's log (none open: nothing)."""
+        if (rec := self.record) is not None:
+            rec.write_message(key, msg)
+
+    def interrupted(self) -> str | None:
+        """Mark the cycles a previous run left open as interrupted (index); the reason to show, if any."""
+        rows = self.index.mark_interrupted()
+        if not rows:
+            return None
+        return f"cycle {', '.join(r.cycle_id for r in rows)} was interrupted (supervisor restarted); Reset to recover"
+
     def event(self, level: str, text: str) -> None:
         ctx = self.ctx
         self.outbox.announce(level, text, ctx.cycle_id if ctx is not None else None, self.record)
@@ -144,14 +157,26 @@ class CycleKeeper:
         if due is not None:
             due[0].set()
 
-    def correct_reason(self, cycle_id: str, old: str, new: str) -> bool:
-        """Correct a closed cycle's reason where it is still mutable (the results kept in memory);
-        its log and index row are sealed. Returns whether the cycle was found with reason ``old``."""
+    def correct_reason(self, old: StopReason, new: StopReason) -> Literal["open", "sealed"] | None:
+        """Give the cycle that stopped with ``old`` the reason ``new``: the open cycle (``"open"``), or a
+        closed one where it is still mutable, the results kept in memory (``"sealed"``: its log and index
+        row are not; a warning event says so). None: no cycle still carries ``old``."""
+        ctx = self.open_ctx
+        if ctx is not None and ctx.reason is old:
+            ctx.reason = new
+            return "open"
         for i, res in enumerate(self.results):
-            if res.cycle_id == cycle_id and res.reason == old:
+            # a result holds the reason's text (it went over the wire); the cycle id makes it this loss's
+            if old.cycle_id is not None and res.cycle_id == old.cycle_id and res.reason == old:
                 self.results[i] = res.model_copy(update={"reason": new})
-                return True
-        return False
+                # closed before the report came: its log and index row are sealed (sha256, hash chain)
+                self.event(
+                    "warning",
+                    f"cycle {old.cycle_id}: the {old.role} fault report came after the cycle closed; its reason is "
+                    f"{str(new)!r} (the cycle's log and index row keep {str(old)!r})",
+                )
+                return "sealed"
+        return None
 
     def finalize(self, default_outcome: CycleOutcome, reason: str | None = None) -> CycleResult | None:
         """Close the open cycle: result into the log, log closed, index row closed, result published."""

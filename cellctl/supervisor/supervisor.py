@@ -4,8 +4,9 @@ Concurrency model (why it looks like this):
 
 * Zenoh callbacks only put typed events (:mod:`.events`) on the queue (never block, never call Zenoh).
 * One dispatcher thread owns the ``transitions`` machine (:mod:`.machine`): it checks commands
-  (:mod:`.commands`), fires triggers, publishes Ack/Status (:mod:`.publisher`), and reacts to
-  liveliness (:mod:`.roster`) and finished work.
+  (:mod:`.commands`), fires triggers or runs a registered handler (:mod:`.command_handlers`),
+  publishes Ack/Status (:mod:`.publisher`), and reacts to liveliness (:mod:`.roster`), fault
+  reports joined to losses (:mod:`.health`) and finished work.
 * The work of an acting state (a cycle step of :mod:`.steps` or a PackML behaviour of
   :mod:`.behaviours`) runs on its own short-lived thread (:mod:`.runner`); any state change
   cancels it. The open cycle, its log and its result are :mod:`.cycles` / :mod:`.recorder`.
@@ -13,25 +14,25 @@ Concurrency model (why it looks like this):
 
 from __future__ import annotations
 
-import logging
-import queue
 import threading
-import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from cellctl.bus import keys
-from cellctl.bus.codec import decode, encode
+from cellctl.bus.codec import encode
 from cellctl.config import CellConfig
-from cellctl.errors import CellError, ProtocolError
-from cellctl.messages import Ack, CycleResult, Event, FaultReport, Status, UnitMode
+from cellctl.errors import CellError
+from cellctl.messages import Ack, CycleResult, Status, UnitMode
 from cellctl.recording.index import CycleIndex
 from cellctl.supervisor import events
 from cellctl.supervisor.admin import AdminBook
 from cellctl.supervisor.behaviours import BEHAVIOUR_CLASSES, BEHAVIOURS
+from cellctl.supervisor.command_handlers import HANDLERS
 from cellctl.supervisor.commands import Accepted, check_command, recorded_command
 from cellctl.supervisor.context import Identify
 from cellctl.supervisor.cycles import CycleKeeper
+from cellctl.supervisor.dispatcher import Dispatcher
+from cellctl.supervisor.health import FaultExplainsLoss, WorkerHealth
 from cellctl.supervisor.inbox import declare_inbox, undeclare_all
 from cellctl.supervisor.machine import CellModel, build_machine
 from cellctl.supervisor.publisher import Outbox, make_status, reply
@@ -49,15 +50,7 @@ if TYPE_CHECKING:
 
 __all__ = ["BEHAVIOURS", "Supervisor", "load_definitions"]
 
-log = logging.getLogger(__name__)
-log.addHandler(logging.NullHandler())
-
-FAULT_WINDOW_S = 2.0
-"""A worker's fault report and its token's loss belong together within this window (either order:
-the report is a put, the loss a liveliness undeclaration, and Zenoh orders neither against the other)."""
-
-
-class Supervisor:
+class Supervisor(Dispatcher):
     """The cell supervisor. Build it with :func:`cellctl.app.build_cell`.
 
     Args:
@@ -72,10 +65,10 @@ class Supervisor:
         self, cfg: CellConfig, session: zenoh.Session | None, index: CycleIndex, *,
         identify: Identify | None = None, catalog: Catalog | None = None,
     ) -> None:  # fmt: skip
+        super().__init__(cfg.supervisor.status_period_s)
         self.cfg, self.session, self.index, self.catalog = cfg, session, index, catalog
         self.cell_id = cfg.cell_id
         self.packml, self.cycle = load_definitions(cfg.root)
-        self._events: queue.Queue[events.DispatchEvent] = queue.Queue()
         self.roster = WorkerRoster(cfg.cell_id, cfg.supervisor.required_workers, liveliness_query(session, cfg.cell_id))
         self.outbox = Outbox(session, cfg.cell_id)
         self.admin = AdminBook(index)
@@ -91,15 +84,8 @@ class Supervisor:
         self.last_error: str | None = None
         self.on_state_change: Callable[[Status], None] | None = None
         self._status: Status | None = None
-        self._thread: threading.Thread | None = None
-        self._stopped = threading.Event()
         self._decls: list[Any] = []
-        self._faults: dict[str, tuple[float, str]] = {}
-        """role -> (monotonic time, text) of its last fault report (``robot fault: …``)."""
-        self.fault_reports: dict[str, FaultReport] = {}
-        """role -> its last typed fault report (condition, robot mode, safety bits), while active."""
-        self._lost: dict[str, tuple[float, str, str, str | None]] = {}
-        """role -> (monotonic time, reason, state, cycle id) of its last token loss in a cycle with no report yet."""
+        self.health = WorkerHealth(on_report=lambda m: self.cycles.write(keys.worker_fault(self.cell_id, m.role), m))
 
     @property
     def state(self) -> str:
@@ -116,58 +102,27 @@ class Supervisor:
 
     def start(self) -> None:
         """Declare the bus interface and start the dispatcher thread (non-blocking)."""
-        interrupted = self.index.mark_interrupted()
-        if interrupted:
-            ids = ", ".join(r.cycle_id for r in interrupted)
-            self.last_error = f"cycle {ids} was interrupted (supervisor restarted); Reset to recover"
-            self.admin.stop_reason = self.last_error
+        if (interrupted := self.cycles.interrupted()) is not None:
+            self.last_error = self.admin.stop_reason = interrupted
         self._decls = declare_inbox(self.session, self.cell_id, self._events.put)
         self.outbox.declare()
-        self._thread = threading.Thread(target=self._loop, name="dispatcher", daemon=True)
-        self._thread.start()
+        self._start_dispatcher()
         reconcile = (RECONCILE_S, self._stopped, self._events.put)
         threading.Thread(target=self.roster.reconcile, args=reconcile, name="alive-reconcile", daemon=True).start()
         self._events.put(events.PublishStatus())
 
     def stop(self, timeout: float = 10.0) -> None:
         """Finish the open cycle's log, stop the dispatcher, undeclare everything."""
-        if self._thread is None:
-            return
-        self._events.put(events.Shutdown())
-        self._thread.join(timeout)
-        undeclare_all(self._decls)
-        self.outbox.undeclare()
-        self._thread = None
+        if self._stop_dispatcher(timeout):
+            undeclare_all(self._decls)
+            self.outbox.undeclare()
 
-    def __enter__(self) -> Supervisor:
-        self.start()
-        return self
+    def _beat(self) -> None:
+        self._publish_status(record=False)
 
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def wait_stopped(self, timeout: float | None = None) -> bool:
-        return self._stopped.wait(timeout)
-
-    def _loop(self) -> None:
-        period = self.cfg.supervisor.status_period_s
-        next_beat = time.monotonic() + period
-        while True:
-            try:
-                ev = self._events.get(timeout=max(0.0, next_beat - time.monotonic()))
-            except queue.Empty:
-                self._publish_status(record=False)
-                next_beat = time.monotonic() + period
-                continue
-            try:
-                if isinstance(ev, events.Shutdown):
-                    self.runner.cancel()
-                    self.last_error = self.cycles.shutdown(self.state) or self.last_error
-                    self._stopped.set()
-                    return
-                self._dispatch(ev)
-            except Exception:  # the dispatcher must survive any bug in one event
-                log.exception("dispatcher failed on %s", type(ev).__name__)
+    def _shutdown(self) -> None:
+        self.runner.cancel()
+        self.last_error = self.cycles.shutdown(self.state) or self.last_error
 
     def _dispatch(self, ev: events.DispatchEvent) -> None:
         match ev:
@@ -178,7 +133,8 @@ class Supervisor:
             case events.AliveChanged(key, present):
                 self._on_alive(key, present)
             case events.EventReceived(payload):
-                self._on_fault_report(payload)
+                if (explained := self.health.report(payload)) is not None:
+                    self._fault_explains_loss(explained)
             case events.AliveSync(counts):
                 if self.roster.sync(counts):
                     self._publish_status()
@@ -199,10 +155,7 @@ class Supervisor:
         if not isinstance(checked, Accepted):
             return checked
         if refusal := self.replay_guard.refusal(checked.cmd):
-            return Ack(
-                request_id=checked.cmd.request_id, command=checked.cmd.name if checked.mode is None else None,
-                accepted=False, reason=refusal, state=before, user=checked.cmd.user, unit_mode=self.unit_mode.wire_name,
-            )  # fmt: skip
+            return checked.refuse(before, refusal, self.unit_mode)
         ack = self._apply(checked, before)
         if ack.accepted:
             self.replay_guard.acted(checked.cmd)
@@ -210,8 +163,13 @@ class Supervisor:
 
     def _apply(self, checked: Accepted, before: str) -> Ack:
         cmd, by = checked.cmd, f" by {checked.cmd.user}" if checked.cmd.user else ""
-        if checked.base_station is not None:
-            return self._confirm_base(checked, before, by)
+        if (handler := HANDLERS.get(cmd.name)) is not None:  # a command that moves no PackML state
+            try:
+                done = handler(self.cycles, checked)
+            except CellError as err:
+                return checked.refuse(before, str(err), self.unit_mode)
+            self.cycles.event("info", f"{done}{by}")
+            return checked.ack(before, self.unit_mode)
         if checked.mode is not None:
             self.unit_mode = checked.mode
             self.cycles.event("info", f"unit mode {checked.mode.name}{by}")
@@ -226,23 +184,6 @@ class Supervisor:
             self.cycles.note(f"{name} commanded in {self.state}")
         self.model.trigger(name)
         return checked.ack(self.top_state, self.unit_mode)
-
-    def _confirm_base(self, checked: Accepted, state: str, by: str) -> Ack:
-        """A manual base's ``base_parked`` confirmation: wakes the approaching step that waits for it."""
-        k = checked.base_station
-        assert k is not None
-        confirm = getattr(self.cycles.base, "confirm", None)
-        try:
-            if confirm is None:
-                raise CellError(f"base backend {self.cfg.base.backend!r} parks by itself; nothing to confirm")
-            confirm(k)
-        except CellError as err:
-            return Ack(
-                request_id=checked.cmd.request_id, command="base_parked", accepted=False, reason=str(err),
-                state=state, user=checked.cmd.user, unit_mode=self.unit_mode.wire_name,
-            )  # fmt: skip
-        self.cycles.event("info", f"base confirmed parked at station {k}{by}")
-        return checked.ack(state, self.unit_mode)
 
     def _on_command(self, payload: bytes, query: events.Query | None) -> None:
         ack = self.apply_command(payload)
@@ -308,20 +249,14 @@ class Supervisor:
         if self.top_state not in ACTIVE_STATES:
             self.cycles.event("warning", f"{role} worker left (liveliness)")
             return
-        reason = f"{role} worker lost (liveliness token gone) in {self.state}"
-        now = time.monotonic()
-        fault = self._faults.get(role)
-        if fault is not None and now - fault[0] <= FAULT_WINDOW_S:
-            reason = f"{fault[1]} ({role} worker unavailable in {self.state})"
-        else:
-            ctx = self.cycles.open_ctx
-            self._lost[role] = (now, reason, self.state, ctx.cycle_id if ctx is not None else None)
+        ctx = self.cycles.open_ctx
+        reason = self.health.loss(role, self.state, ctx.cycle_id if ctx is not None else None)
+        if reason.fault is None:
             # a fault report may be just behind the loss (Zenoh orders a put and an undeclaration
             # apart): the cycle's close waits a moment for it, so the sealed record names the fault
             self.cycles.expect_reason()
         self.last_error = self.admin.stop_reason = reason
         self.cycles.event("error", reason)
-        ctx = self.cycles.open_ctx
         if self.cfg.supervisor.on_worker_lost == "hold" and self.top_state == "Execute":
             if ctx is not None:
                 ctx.saved_step = self.model.step
@@ -330,52 +265,14 @@ class Supervisor:
         self.cycles.note(reason, failed=True)
         self.model.trigger("abort")
 
-    def _on_fault_report(self, payload: bytes) -> None:
-        """A worker's fault report (:class:`FaultReport`, or the first form: an error Event
-        ``"<role> fault: <text>"``): remembered for its token's loss, or, when the loss came first,
-        it replaces that loss's reason (cycle, last error, stop reason)."""
-        try:
-            msg = decode(payload)
-        except ProtocolError:
-            return
-        if isinstance(msg, FaultReport):
-            role, text = msg.role, msg.text
-            if role not in keys.ROLES:
-                return
-            if not msg.active:  # cleared by an operator: no reason for a later loss
-                self.fault_reports.pop(role, None)
-                self._faults.pop(role, None)
-                return
-            self.fault_reports[role] = msg
-            if (rec := self.cycles.record) is not None:
-                rec.write_message(keys.worker_fault(self.cell_id, role), msg)
-        elif isinstance(msg, Event):
-            role, sep, _ = msg.text.partition(" fault: ")
-            if msg.level != "error" or not sep or role not in keys.ROLES:
-                return
-            text = msg.text
-        else:
-            return
-        now = time.monotonic()
-        self._faults[role] = (now, text)
-        lost = self._lost.pop(role, None)
-        if lost is None or now - lost[0] > FAULT_WINDOW_S:
-            return
-        old, new = lost[1], f"{text} ({role} worker unavailable in {lost[2]})"
-        ctx = self.cycles.open_ctx
-        if ctx is not None and ctx.reason == old:
-            ctx.reason = new
-        elif lost[3] is not None and self.cycles.correct_reason(lost[3], old, new):
-            # closed before the report came: its log and index row are sealed (sha256, hash chain)
-            self.cycles.event(
-                "warning", f"cycle {lost[3]}: the {role} fault report came after the cycle closed; its reason is "
-                f"{new!r} (the cycle's log and index row keep {old!r})",
-            )  # fmt: skip
+    def _fault_explains_loss(self, ev: FaultExplainsLoss) -> None:
+        """The loss's reason, wherever it went (the cycle, last error, stop reason), becomes the fault's."""
+        self.cycles.correct_reason(ev.before, ev.after)
         self.cycles.reason_arrived()
-        if self.last_error == old:
-            self.last_error = new
-        if self.admin.stop_reason == old:
-            self.admin.stop_reason = new
+        if self.last_error is ev.before:
+            self.last_error = ev.after
+        if self.admin.stop_reason is ev.before:
+            self.admin.stop_reason = ev.after
         self._publish_status()
 
     def _make_status(self) -> Status:
@@ -392,8 +289,8 @@ class Supervisor:
         st = self._make_status()
         self._status = st
         self.outbox.status(st)
-        if record and (rec := self.cycles.record) is not None:
-            rec.write_message(keys.status(self.cell_id), st)
+        if record:
+            self.cycles.write(keys.status(self.cell_id), st)
         if self.on_state_change is not None and record:
             self.on_state_change(st)
 

@@ -39,8 +39,8 @@ def test_a_robot_fault_report_reaches_the_supervisor_and_observers(cell, secured
         time.sleep(0.3)
         pub.put(encode(Event(level="error", text="robot fault: protective stop")))
         deadline = time.monotonic() + 5
-        while "robot" not in cell.supervisor._faults or not seen:
+        while "robot" not in cell.supervisor.health.faults or not seen:
             assert time.monotonic() < deadline, "the fault report did not arrive"
             time.sleep(0.02)
-    assert cell.supervisor._faults["robot"][1] == "robot fault: protective stop"
+    assert cell.supervisor.health.faults["robot"][1] == "robot fault: protective stop"
     assert b"protective stop" in seen[0]

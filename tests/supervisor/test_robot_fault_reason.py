@@ -32,11 +32,11 @@ def test_the_cycle_result_names_the_robot_fault(cfg, cell, plc, report_first) ->
         report = encode(Event(level="error", text="robot fault: protective stop"))
         if report_first:
             pub.put(report)
-            _wait(lambda: "robot" in cell.supervisor._faults)
+            _wait(lambda: "robot" in cell.supervisor.health.faults)
             fake.kill("robot")
         else:
             fake.kill("robot")
-            _wait(lambda: "robot" in cell.supervisor._lost)
+            _wait(lambda: "robot" in cell.supervisor.health.lost)
             pub.put(report)
         st = plc.wait_for(lambda s: s.state == "Aborted", 10)
         assert st is not None
@@ -52,15 +52,13 @@ def test_the_cycle_result_names_the_robot_fault(cfg, cell, plc, report_first) ->
 
 
 def test_a_report_from_long_ago_is_not_the_reason_of_a_later_loss(cfg, cell, plc, monkeypatch) -> None:  # noqa: F811
-    import cellctl.supervisor.supervisor as sup
-
-    monkeypatch.setattr(sup, "FAULT_WINDOW_S", 0.2)
+    monkeypatch.setattr(cell.supervisor.health, "window_s", 0.2)
     with FakeCell(cfg, n_viewpoints=20, move_delay_s=0.2) as fake:
         plc.cmd("reset")
         assert plc.wait_for(lambda s: s.state == "Idle", 10)
         pub = fake.session.declare_publisher(keys.worker_fault(cfg.cell_id, "robot"))
         pub.put(encode(Event(level="error", text="robot fault: protective stop")))
-        _wait(lambda: "robot" in cell.supervisor._faults)
+        _wait(lambda: "robot" in cell.supervisor.health.faults)
         time.sleep(0.3)
         assert plc.cmd("start").accepted
         _wait(lambda: "move" in fake.calls)

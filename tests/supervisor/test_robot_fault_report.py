@@ -43,10 +43,10 @@ def _fault_in_a_scan(cfg, cell, plc, fake, report_first: bool, lag_s: float = 0.
     _wait(lambda: "move" in fake.calls)
     if send and report_first:
         pub.put(encode(REPORT))
-        _wait(lambda: "robot" in cell.supervisor._faults)
+        _wait(lambda: "robot" in cell.supervisor.health.faults)
     fake.kill("robot")
     if send and not report_first:
-        _wait(lambda: "robot" in cell.supervisor._lost)
+        _wait(lambda: "robot" in cell.supervisor.health.lost)
         time.sleep(lag_s)
         pub.put(encode(REPORT))
     assert plc.wait_for(lambda s: s.state == "Aborted", 10) is not None
@@ -59,7 +59,7 @@ def test_a_typed_report_names_the_fault_and_is_in_the_cycle_log(cfg, cell, plc) 
         res, pub = _fault_in_a_scan(cfg, cell, plc, fake, report_first=True)
         pub.undeclare()
     assert res.outcome == "failed" and res.reason == REASON
-    got = cell.supervisor.fault_reports["robot"]
+    got = cell.supervisor.health.fault_reports["robot"]
     assert got.condition == "protective_stop" and got.safety_mode == "PROTECTIVE_STOP"
     logged = [decode(m.data) for m in read_cycle(cfg.path(res.log)).on(keys.worker_fault(cfg.cell_id, "robot"))]
     assert logged == [REPORT]
@@ -95,9 +95,9 @@ def test_a_cleared_report_is_no_reason_for_a_later_loss(cfg, cell, plc) -> None:
         pub = fake.session.declare_publisher(keys.worker_fault(cfg.cell_id, "robot"))
         time.sleep(0.1)
         pub.put(encode(REPORT))
-        _wait(lambda: "robot" in cell.supervisor._faults)
+        _wait(lambda: "robot" in cell.supervisor.health.faults)
         pub.put(encode(REPORT.model_copy(update={"active": False, "detail": "cleared by maintenance"})))
-        _wait(lambda: "robot" not in cell.supervisor._faults)
+        _wait(lambda: "robot" not in cell.supervisor.health.faults)
         res, pub2 = _fault_in_a_scan(cfg, cell, plc, fake, report_first=False, send=False)
         pub.undeclare()
         pub2.undeclare()

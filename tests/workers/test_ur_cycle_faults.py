@@ -205,15 +205,15 @@ def _fault_cycle_then_good_cycle(rig: Rig, fault: str, motion: str) -> None:
     assert np.abs(np.array(rig.emu.state()["q"]) - q).max() < 1e-9
     assert rig.worker.robot.fault is not None and any(t in rig.worker.robot.fault for t in texts)
     # the typed report reached the supervisor (FaultReport on robot/fault), with the controller's state
-    rig.wait(lambda: "robot" in rig.cell.supervisor.fault_reports, "the fault report", 10)
-    report = rig.cell.supervisor.fault_reports["robot"]
+    rig.wait(lambda: "robot" in rig.cell.supervisor.health.fault_reports, "the fault report", 10)
+    report = rig.cell.supervisor.health.fault_reports["robot"]
     assert report.condition in CONDITIONS[fault] and report.detail == rig.worker.robot.fault
     assert report.robot_mode is not None and report.safety_status_bits is not None
     # the operator's recovery: the condition cleared at the controller, then clear_fault
     recover(rig)
     assert rig.maintenance("clear_fault").fault is None
     rig.wait(lambda: rig.cell.supervisor.status.workers.get("robot", False), "robot worker back", 30)
-    rig.wait(lambda: "robot" not in rig.cell.supervisor.fault_reports, "the cleared report", 10)
+    rig.wait(lambda: "robot" not in rig.cell.supervisor.health.fault_reports, "the cleared report", 10)
     assert rig.plc.command("clear", timeout=10).accepted
     rig.wait(lambda: rig.state() == "Stopped", "Stopped")
     rig.start_cycle()

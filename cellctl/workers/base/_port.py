@@ -54,6 +54,14 @@ class Base(abc.ABC):
         """
         return None
 
+    def confirm(self, station: int) -> None:
+        """A person or the PLC says the base is parked at ``station`` (bases with ``NEEDS_CONFIRMATION``).
+
+        Raises:
+            RobotError: this base parks by itself, or the confirmation changes nothing.
+        """
+        raise RobotError(f"base confirmed parked at station {station}, but this base parks by itself")
+
 
 def _check_station(station: int) -> int:
     if not isinstance(station, int) or station < 0:
