@@ -17,12 +17,13 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, StrictBool, ValidationError, field_validator, model_validator
 
 from cellctl.bus.keys import ROLES, check_cell_id
 from cellctl.errors import ConfigError
 from cellctl.images import MAX_IMAGE_PIXELS, MIN_IMAGE_SIDE
 from cellctl.review.config import ReviewConfig
+from cellctl.strict_model import ConfigModel as _Model
 from cellctl.surface import SURFACES, Surface
 
 __all__ = [
@@ -89,12 +90,6 @@ def resolve_config_path(given: Path | str | None, cwd: Path | None = None) -> tu
     if local.is_file():
         return local, "./config/cell.yaml in the working directory"
     return default_config_path(), PACKAGED
-
-
-class _Model(BaseModel):
-    # Flags are StrictBool: pydantic would otherwise read "on"/"yes" as True behind the
-    # operator's back; YAML parsing keeps them strings so they are reported instead.
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
 
 class BusConfig(_Model):

@@ -18,6 +18,7 @@ LEAVES = {
     "cellctl.images",
     "cellctl.review",
     "cellctl.review.config",
+    "cellctl.strict_model",
     "cellctl.surface",
 }
 

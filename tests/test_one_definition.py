@@ -22,6 +22,8 @@ CONCEPTS = {
     "surface list": (r"^\s*SURFACES\s*[:=]", "surface.py"),
     "surface name type": (r"^Surface\s*=", "surface.py"),
     "face tags": (r"^(EXTERNAL|INTERNAL)\s*=", "surface.py"),
+    # a config record that rejects unknown keys (was four private ``_Model`` copies)
+    "strict config model base": (r"^class (_Model|\w*ConfigModel)\(BaseModel\)", "strict_model.py"),
 }
 
 

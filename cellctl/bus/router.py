@@ -31,12 +31,13 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator
 
 from cellctl.bus.keys import check_cell_id
 from cellctl.bus.security import apply_security
 from cellctl.config import apply_overrides, explain_validation, safe_yaml_load
 from cellctl.errors import ConfigError
+from cellctl.strict_model import FrozenConfigModel as _Model
 
 __all__ = [
     "PoolSection",
@@ -52,10 +53,6 @@ log.addHandler(logging.NullHandler())
 
 _ENDPOINT = re.compile(r"^(tcp|tls|quic|udp)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9.-]+):\d{1,5}(#.*)?$")
 _HOST = re.compile(r"^[a-z][a-z0-9-]{0,63}$")
-
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 class PoolSection(_Model):

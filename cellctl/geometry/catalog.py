@@ -45,11 +45,12 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from cellctl.errors import CellError, ConfigError
 from cellctl.geometry.transforms import check_transform, invert, transform_from
 from cellctl.hashing import file_sha256
+from cellctl.strict_model import FrozenConfigModel as _Model
 from cellctl.surface import FACE_TAG, INTERNAL, SURFACES
 
 __all__ = [
@@ -66,10 +67,6 @@ __all__ = [
 
 FRAME_TOL_M = 0.02
 """How far above z = 0 a vertex may lie (rims, handles) and still follow the frame convention."""
-
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 def _as_transform(v: Any, name: str) -> list[list[float]]:

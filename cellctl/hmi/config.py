@@ -12,11 +12,12 @@ import os
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, StrictBool, ValidationError, field_validator
+from pydantic import Field, StrictBool, ValidationError, field_validator
 
 from cellctl.config import apply_overrides, explain_validation, project_root, safe_yaml_load
 from cellctl.errors import ConfigError
 from cellctl.login_throttle import ThrottleConfig
+from cellctl.strict_model import ConfigModel as _Model
 
 __all__ = ["ROLES", "FoxgloveConfig", "HmiConfig", "HmiUser", "default_hmi_config_path", "load_hmi_config"]
 
@@ -27,10 +28,6 @@ the unit mode; ``qa`` reviews views and releases verdicts but sends no command; 
 and reads only (as without a login). Without a login the HMI is read-only."""
 
 Role = Literal["operator", "maintenance", "qa", "viewer"]
-
-
-class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
 
 class HmiUser(_Model):

@@ -9,15 +9,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field, StrictBool
+from pydantic import Field, StrictBool
+
+from cellctl.strict_model import ConfigModel
 
 __all__ = ["ReviewConfig"]
 
 
-class ReviewConfig(BaseModel):
+class ReviewConfig(ConfigModel):
     """Operator review of uncertain and dirty views (docs/hmi/README.md, "Review")."""
-
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
     require_for_uncertain: StrictBool = Field(
         default=True,
