@@ -77,25 +77,28 @@ def test_enrollment_lowers_false_alarms_on_the_sites_own_steel(
     assert sum(d.label == "dirty" for d in det.predict(dirty)) >= 0.6 * len(dirty)
 
 
-def test_threshold_comes_from_the_held_out_images_and_the_card_says_so(
+def test_threshold_comes_from_every_image_left_out_and_the_card_says_so(
     shipped_external: Detector, enrolled: tuple[Detector, Path, Path]
 ) -> None:
-    """Half of the 24 images are held out; the threshold lies above the highest held-out clean score
-    (0 of 12 above it: expected false-dirty 1/13, Clopper-Pearson bound); the card names count, hash,
-    base and bound."""
+    """Each of the 24 images is scored without its own bank entries; the threshold lies above the
+    highest such clean score (0 of 24 above it: expected false-dirty 1/25, Clopper-Pearson bound); the
+    card names count, hash, base, bound and the site's own bank and statistics."""
     det, _, _ = enrolled
     card = det.enrollment
     assert card is not None
-    assert card["split"] == {"seed": 0, "fit": 12, "held_out": 12}
+    assert card["split"] == {"seed": 0, "rule": "leave one image out", "fit": 24, "held_out": 24}
+    assert card["method"] == "site-scaled/2"
     assert card["source"]["images"] == 24 and len(card["source"]["sha256"]) == 64
     assert card["base"]["model_id"] == shipped_external.model_id
     held = card["held_out"]
-    assert held["clean"] == 12 and held["false_dirty"] == 0 and held["base_false_dirty"] >= 1
-    assert held["expected_false_dirty"] == pytest.approx(1 / 13, abs=1e-4)
-    assert held["false_dirty_upper95"] == pytest.approx(1 - 0.05 ** (1 / 12), abs=1e-4)  # Clopper-Pearson, 0 of 12
+    assert held["clean"] == 24 and held["false_dirty"] == 0 and held["base_false_dirty"] >= 1
+    assert held["expected_false_dirty"] == pytest.approx(1 / 25, abs=1e-4)
+    assert held["false_dirty_upper95"] == pytest.approx(1 - 0.05 ** (1 / 24), abs=1e-4)  # Clopper-Pearson, 0 of 24
     assert det.threshold > held["max_clean_p_dirty"] - 1e-5 and det.threshold <= 0.95
-    assert card["bank"]["size"] == shipped_external.bank.bank.shape[0] + card["bank"]["site_patches"]
-    assert card["bank"]["site_patches"] == 512 and card["fuse"] != shipped_external.fuse
+    assert card["bank"]["size"] == card["bank"]["site_patches"] == 2048
+    # the site's statistics replace the training patches' (the head reads raw features: unchanged)
+    assert not np.allclose(det.bank.mean.numpy(), shipped_external.bank.mean.numpy())
+    assert card["fuse"] != shipped_external.fuse and det.fuse[0] > 0 and det.fuse[1] > 0
 
 
 def test_a_steel_it_cannot_tell_from_dirt_is_refused_rather_than_enrolled_blind(
@@ -155,7 +158,7 @@ def test_enroll_cli_writes_one_file_with_its_card(tmp_path: Path, capsys) -> Non
     card = json.loads(cap.out.splitlines()[-1])
     assert rc == 0 and out.is_file() and sorted(p.name for p in tmp_path.iterdir()) == ["e.pt", "in"]
     assert card["source"]["images"] == 12 and card["model_id"].startswith("external-enrolled-")
-    assert "enroll external: bank +512 patches of 6 fit images" in cap.err
+    assert "enroll external: clean bank of 2048 patches of 12 images" in cap.err
 
 
 @pytest.mark.parametrize(
