@@ -42,7 +42,8 @@ __all__ = ["BACKBONES", "SIZES", "FrozenPatches", "bank_compare", "frozen_backbo
 BACKBONES = ("finetuned", "lite0", "lite1", "lite2")
 SIZES = (128, 160, 192)
 SITE_PATCHES = 256
-"""Site patches the enrolled bank adds (as :data:`cellctl.classify.enroll.SITE_BANK`)."""
+"""Site patches this comparison adds to the training bank (the first enrollment's merged bank; site-scaled
+enrollment, :mod:`cellctl.classify.enroll`, replaces the bank with the site's own instead)."""
 BANK = 1024
 
 
