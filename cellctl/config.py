@@ -13,8 +13,9 @@ models, ``states/``) come from the install when the config's folder has none.
 from __future__ import annotations
 
 import typing
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 import yaml
 from pydantic import BaseModel, Field, StrictBool, ValidationError, field_validator, model_validator
@@ -43,7 +44,10 @@ __all__ = [
     "UrControllerConfig",
     "UrFaultPolicy",
     "WashConfig",
+    "BACKENDS",
     "apply_overrides",
+    "backend_reading",
+    "register_backend",
     "config_leaves",
     "default_config_path",
     "load_config",
@@ -201,27 +205,94 @@ class UrConfig(_Model):
     faults: UrFaultPolicy = Field(default_factory=UrFaultPolicy)
 
 
-class RobotConfig(_Model):
+_Fields = TypeVar("_Fields", bound=type[_Model])
+
+BACKENDS: dict[str, dict[str, type[_Model]]] = {}
+"""Config section -> backend name -> the class of the fields only that backend reads (:func:`register_backend`)."""
+
+
+def register_backend(section: str, name: str) -> Callable[[_Fields], _Fields]:
+    """Register the decorated class as the fields backend ``name`` of ``section`` reads (LeRobot's
+    ``register_subclass``). The section's model inherits every registered class of its section, so the
+    YAML stays flat (``camera.device``); a test holds the two together."""
+
+    def register(cls: _Fields) -> _Fields:
+        known = BACKENDS.setdefault(section, {})
+        if name in known:
+            raise ValueError(f"{section}.backend {name!r} registered twice: {known[name].__name__}, {cls.__name__}")
+        known[name] = cls
+        return cls
+
+    return register
+
+
+def backend_reading(section: str, key: str) -> str | None:
+    """The backend that alone reads ``section.key`` (``camera``, ``device`` -> ``opencv``); None: all do."""
+    for name, fields in BACKENDS.get(section, {}).items():
+        if key in fields.model_fields:
+            return name
+    return None
+
+
+@register_backend("robot", "sim")
+class SimRobotFields(_Model):
+    """``robot.backend: sim`` — the pybullet twin's arm (and the twin's time)."""
+
+    speed_scale: float = Field(default=1.0, gt=0, le=1000, description=">1 runs motions faster")
+
+
+@register_backend("robot", "ur")
+class UrRobotFields(_Model):
+    """``robot.backend: ur`` — a UR10e over ur-rtde."""
+
+    ur: UrConfig = Field(default_factory=UrConfig)
+
+
+class RobotConfig(SimRobotFields, UrRobotFields):
+    """The arm: ``backend`` picks the worker's implementation; fields only one backend reads are its
+    registered class's (:data:`BACKENDS`)."""
+
     backend: Literal["sim", "ur"] = Field(default="sim", description="sim: the pybullet twin; ur: a UR10e (robot.ur)")
     speed_fraction: float = Field(default=0.5, gt=0, le=1, description="of the UR10e joint speed limits (sim and ur)")
-    ur: UrConfig = Field(default_factory=UrConfig)
-    speed_scale: float = Field(default=1.0, gt=0, le=1000, description="sim: >1 runs motions faster")
     settle_s: float = Field(default=0.2, ge=0, le=10, description="wait after a move before it is reported done")
     joint_state_hz: float = Field(default=10.0, gt=0, le=500, description="rate the robot worker publishes JointState")
-    plan_timeout_s: float = Field(default=3.0, gt=0, le=60, description="sim: RRTConnect budget per move")
-    collision_margin_m: float = Field(default=0.005, ge=0, le=0.1, description="sim: clearance around the arm")
+    # read by both planned backends (cellctl.workers.robot._planned), not only the sim
+    plan_timeout_s: float = Field(default=3.0, gt=0, le=60, description="RRTConnect budget per move")
+    collision_margin_m: float = Field(default=0.005, ge=0, le=0.1, description="clearance around the arm")
     hand_eye: Path | None = Field(
         default=None,
         description="T_flange_cam JSON from `cellctl calibrate hand-eye`; None: the nominal mount (robot_model)",
     )
 
 
-class CameraConfig(_Model):
+@register_backend("camera", "sim")
+class SimCameraFields(_Model):
+    """``camera.backend: sim`` — the twin's renderer."""
+
+    noise_sigma: float = Field(default=2.0, ge=0, le=50, description="sensor noise, 8-bit grey levels")
+
+
+@register_backend("camera", "opencv")
+class OpenCvCameraFields(_Model):
+    """``camera.backend: opencv`` — a device or stream through OpenCV."""
+
+    device: str = Field(default="0", description="device index or stream URL")
+
+
+@register_backend("camera", "folder")
+class FolderCameraFields(_Model):
+    """``camera.backend: folder`` — replays images from a folder."""
+
+    folder: Path | None = Field(default=None, description="directory of images to replay")
+
+
+class CameraConfig(SimCameraFields, OpenCvCameraFields, FolderCameraFields):
+    """The camera: ``backend`` picks the worker's implementation; fields only one backend reads are its
+    registered class's (:data:`BACKENDS`)."""
+
     backend: Literal["sim", "opencv", "folder"] = Field(
         default="sim", description="sim: the twin's renderer; opencv: a device or stream; folder: replay images"
     )
-    device: str = Field(default="0", description="opencv: device index or stream URL")
-    folder: Path | None = Field(default=None, description="folder: directory of images to replay")
     width: int = Field(default=1280, gt=0, description="image width, px")
     height: int = Field(default=720, gt=0, description="image height, px")
     format: Literal["png", "jpeg"] = Field(default="png", description="image encoding on the wire")
@@ -229,7 +300,6 @@ class CameraConfig(_Model):
     fy: float | None = Field(default=None, gt=0, description="px; None: same as fx")
     cx: float | None = Field(default=None, description="px; None: image centre")
     cy: float | None = Field(default=None, description="px; None: image centre")
-    noise_sigma: float = Field(default=2.0, ge=0, le=50, description="sim: sensor noise, 8-bit grey levels")
     max_image_pixels: int = Field(
         default=MAX_IMAGE_PIXELS,
         ge=MIN_IMAGE_SIDE * MIN_IMAGE_SIDE,
@@ -496,11 +566,22 @@ class UrControllerConfig(_Model):
     stop_decel: float = Field(default=10.0, gt=0, le=40, description="safety stops' deceleration, rad/s²")
 
 
-class BaseConfig(_Model):
+@register_backend("base", "sim")
+class SimBaseFields(_Model):
+    """``base.backend: sim`` — the twin parks the base (no fields of its own)."""
+
+
+@register_backend("base", "manual")
+class ManualBaseFields(_Model):
+    """``base.backend: manual`` — an operator or the PLC parks the base and confirms."""
+
+    confirm_timeout_s: float = Field(default=300.0, gt=0, le=3600, description="wait for the confirmation")
+
+
+class BaseConfig(SimBaseFields, ManualBaseFields):
     """The mobile base: ``sim`` (the twin parks it) or ``manual`` (an operator/PLC parks and confirms)."""
 
     backend: Literal["sim", "manual"] = Field(default="sim", description="sim: the twin parks it; manual: confirmed")
-    confirm_timeout_s: float = Field(default=300.0, gt=0, le=3600, description="manual: wait for the confirmation")
     # An AMR docking on its markers repeats to a few mm; its map pose is what carries the bin pose to a
     # station that cannot see the board (bin_pose_source base_odometry), so its error bounds the cycle's there.
     localisation_error_m: float = Field(
@@ -731,8 +812,11 @@ def _section_model(annotation: Any) -> type[BaseModel] | None:
     return None
 
 
-def config_leaves(model: type[BaseModel] | None = None, prefix: str = "") -> list[tuple[str, Any, str]]:
-    """Every settable leaf of the cell config: ``(dotted key, default, description)``, in file order.
+def config_leaves(
+    model: type[BaseModel] | None = None, prefix: str = "", backend: str | None = None
+) -> list[tuple[str, Any, str]]:
+    """Every settable leaf of the cell config: ``(dotted key, default, description)``, in model order; the
+    description of a leaf only one backend reads starts with that backend (``opencv: …``, from :data:`BACKENDS`).
 
     What ``cellctl schema --config`` prints; a test holds every leaf to a description.
     """
@@ -740,10 +824,12 @@ def config_leaves(model: type[BaseModel] | None = None, prefix: str = "") -> lis
     for name, field in (model or CellConfig).model_fields.items():
         if field.exclude:
             continue
+        owner = backend or (backend_reading(prefix.rstrip("."), name) if prefix.count(".") == 1 else None)
         section = _section_model(field.annotation)
         if section is not None:
-            rows += config_leaves(section, f"{prefix}{name}.")
+            rows += config_leaves(section, f"{prefix}{name}.", owner)
         else:
             default = field.get_default(call_default_factory=True)
-            rows.append((f"{prefix}{name}", default, field.description or ""))
+            text = field.description or ""
+            rows.append((f"{prefix}{name}", default, f"{owner}: {text}" if owner and text else text))
     return rows

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import typing
+
 import pytest
 
 from cellctl.cli import main
-from cellctl.config import config_leaves
+from cellctl.config import BACKENDS, CellConfig, backend_reading, config_leaves, register_backend
 
 from .test_import_graph import _imports
 
@@ -39,3 +41,26 @@ def test_schema_config_prints_a_description_for_every_leaf(capsys: pytest.Captur
     assert not undescribed, undescribed
     printed = {line.partition(" = ")[0] for line in lines}
     assert {"camera.device", "robot.ur.faults.monitor_hz", "nozzle.lance_radius_m", "sim.seed"} <= printed
+
+
+def test_each_backend_registers_the_fields_only_it_reads_and_its_section_inherits_them() -> None:
+    sections = {name: f.annotation for name, f in CellConfig.model_fields.items()}
+    assert set(BACKENDS) == {"robot", "camera", "base"}
+    for section, backends in BACKENDS.items():
+        model = sections[section]
+        assert set(typing.get_args(model.model_fields["backend"].annotation)) == set(backends), section
+        owned: list[str] = []
+        for name, fields in backends.items():
+            assert issubclass(model, fields), f"{model.__name__} does not inherit {section}.backend {name!r}"
+            owned += list(fields.model_fields)
+        assert len(owned) == len(set(owned)), f"{section}: a field registered by two backends: {owned}"
+    assert backend_reading("camera", "device") == "opencv" and backend_reading("camera", "width") is None
+    with pytest.raises(ValueError, match="registered twice"):
+        register_backend("camera", "opencv")(BACKENDS["camera"]["opencv"])
+
+
+def test_the_schema_names_the_backend_of_a_backend_field(capsys: pytest.CaptureFixture[str]) -> None:
+    main(["schema", "--config"])
+    lines = dict(line.split(" = ", 1) for line in capsys.readouterr().out.splitlines())
+    assert lines["camera.device"].endswith("# opencv: device index or stream URL")
+    assert "# ur: " in lines["robot.ur.faults.monitor_hz"] and "# manual: " in lines["base.confirm_timeout_s"]
