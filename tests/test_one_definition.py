@@ -23,6 +23,7 @@ CONCEPTS = {
     "surface name type": (r"^Surface\s*=", "surface.py"),
     "face tags": (r"^(EXTERNAL|INTERNAL)\s*=", "surface.py"),
     # a config record that rejects unknown keys (was four private ``_Model`` copies)
+    "FaultReport": (r"^class FaultReport\b", "messages.py"),  # a fault-injection case's result is FaultCaseResult
     "strict config model base": (r"^class (_Model|\w*ConfigModel)\(BaseModel\)", "strict_model.py"),
 }
 

@@ -40,7 +40,7 @@ from cellctl.config import CellConfig
 from cellctl.errors import CellError
 from cellctl.messages import Event, RobotState, RobotStateRequest
 
-__all__ = ["FAULTS", "FaultCase", "FaultInjector", "FaultReport", "WorkerControl", "bench_faults"]
+__all__ = ["FAULTS", "FaultCase", "FaultInjector", "FaultCaseResult", "WorkerControl", "bench_faults"]
 
 FAULTS = {"kill": signal.SIGKILL, "freeze": signal.SIGSTOP}
 SAFE_STATES = ("Aborted", "Held", "Stopped")
@@ -67,7 +67,7 @@ class FaultCase:
 
 
 @dataclass
-class FaultReport:
+class FaultCaseResult:
     """What happened in one case; ``problems`` empty means the cell behaved."""
 
     case: FaultCase
@@ -164,17 +164,17 @@ class FaultInjector:
     def close(self) -> None:
         self._events.close()
 
-    def run(self, case: FaultCase, attempts: int = 3) -> FaultReport:
+    def run(self, case: FaultCase, attempts: int = 3) -> FaultCaseResult:
         """Inject one fault; retried when the cycle passed the step before the signal landed."""
-        rep = FaultReport(case)
+        rep = FaultCaseResult(case)
         for _ in range(attempts):
             rep = self._run_once(case)
             if rep.injected_in is not None:
                 break
         return rep
 
-    def _run_once(self, case: FaultCase) -> FaultReport:
-        rep = FaultReport(case)
+    def _run_once(self, case: FaultCase) -> FaultCaseResult:
+        rep = FaultCaseResult(case)
         plc, sig = self.plc, FAULTS[case.fault]
         plc.to_idle()
         plc.drain()
@@ -208,7 +208,7 @@ class FaultInjector:
         self._recover(rep, q_safe)
         return rep
 
-    def _observe(self, rep: FaultReport, t_sig_ns: int, t_sig: float) -> list[float] | None:
+    def _observe(self, rep: FaultCaseResult, t_sig_ns: int, t_sig: float) -> list[float] | None:
         """Detection, safe state, record, motion after detection; returns the arm's joints at rest.
 
         A fault in a worker the rest of the cycle does not use may be noticed only after the
@@ -278,7 +278,7 @@ class FaultInjector:
             return None
         return list(st.joints)
 
-    def _recover(self, rep: FaultReport, q_safe: list[float] | None) -> None:
+    def _recover(self, rep: FaultCaseResult, q_safe: list[float] | None) -> None:
         plc, case = self.plc, rep.case
         t0 = time.monotonic()
         if case.fault == "kill":
@@ -336,7 +336,7 @@ def bench_faults(opts: BenchOptions) -> dict[str, Any]:
     """
     from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
 
-    reports: list[FaultReport] = []
+    reports: list[FaultCaseResult] = []
     with running_sim_cell(opts, "faults", FAST_SIM) as run:
         cfg = run.cfg
         cases = [FaultCase(r, f, s) for r in cfg.supervisor.spawn_workers for f in FAULTS for s in BENCH_STEPS]
