@@ -48,8 +48,13 @@ class ReferenceJudge:
     """
 
     def __init__(self, models_dir: Path, detectors: dict[str, Any], max_pixels: int) -> None:
+        import cv2
+
         from cellctl.classify.reference import ReferenceFusion, fusion_path
 
+        # at the 128 px work size OpenCV's thread hand-offs cost more than they save on a shared
+        # 2-core host (ECC 17 -> 11 ms at load 30: cellctl.classify.reference_bench.latency)
+        cv2.setNumThreads(1)
         self.detectors: dict[str, Any] = {}
         self.fusions: dict[str, ReferenceFusion] = {}
         self.problems: dict[str, str] = {}
