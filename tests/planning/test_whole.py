@@ -256,7 +256,7 @@ def test_fork_map_runs_in_process_inside_a_daemonic_worker(monkeypatch):
 
 
 def test_the_floor_adds_the_best_viewpoints_until_it_is_reached():
-    from cellctl.planning.whole import _fill_to_floor
+    from cellctl.planning.whole.chains import _fill_to_floor
 
     C = np.zeros((6, 4), dtype=bool)
     C[[0, 1], 0] = C[[2, 3], 1] = C[[4], 2] = C[[5], 3] = True
@@ -345,7 +345,7 @@ def test_a_station_that_cannot_see_the_board_says_so(robot):
     from cellctl.geometry.catalog import load_catalog
     from cellctl.geometry.transforms import invert
     from cellctl.planning.collision import PlanningWorld
-    from cellctl.planning.whole import _identification
+    from cellctl.planning.whole.evaluation import _identification
     from cellctl.sim.motion import STEP_RAD
 
     cfg = load_config()
@@ -411,7 +411,8 @@ def test_whole_record_and_station_plans_read_back_the_same(whole, tmp_path):
 
 def test_refinement_takes_the_turn_of_a_joint_nearest_the_tour_neighbour(box, robot, T_bin_base):
     from cellctl.planning.collision import PlanningWorld
-    from cellctl.planning.whole import TimingModel, _refine_configurations
+    from cellctl.planning.whole import TimingModel
+    from cellctl.planning.whole.timing import _refine_configurations
     from cellctl.sim.motion import STEP_RAD
 
     world = PlanningWorld(box, robot, T_bin_base)
@@ -438,7 +439,8 @@ def test_a_second_tour_runs_over_the_refined_configurations_given(box, robot, T_
     from types import SimpleNamespace
 
     from cellctl.planning.collision import PlanningWorld
-    from cellctl.planning.whole import TimingModel, _timed_tour
+    from cellctl.planning.whole import TimingModel
+    from cellctl.planning.whole.timing import _timed_tour
     from cellctl.sim.motion import STEP_RAD
 
     world = PlanningWorld(box, robot, T_bin_base)

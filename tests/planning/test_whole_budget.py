@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cellctl.planning.whole import WholeParams, _detour, plan_whole, wrap_window
+from cellctl.planning.whole import WholeParams, plan_whole, wrap_window
+from cellctl.planning.whole.timing import _detour
 from tests.planning.test_whole import FAST, STATIONS, _every_viewpoint_connected
 
 FLOORS = {"external": 75.0, "internal": 55.0}  # below what the box plan sees (84 / 63 % of the bounds)
@@ -115,7 +116,8 @@ class _Free:
 
 
 def test_a_tour_on_the_wrong_2pi_turn_is_shifted_as_a_whole_the_same_arm_and_never_slower(robot):
-    from cellctl.planning.whole import TimingModel, _shift_tour
+    from cellctl.planning.whole import TimingModel
+    from cellctl.planning.whole.timing import _shift_tour
 
     timing = TimingModel()
     rng = np.random.default_rng(5)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cellctl.planning.whole import _readd_chains
+from cellctl.planning.whole.chains import _readd_chains
 
 # chains home: 5 -> 4 -> 3 -> home, 7 -> 6 -> home, 2 -> home
 PARENT = np.array([-1, -1, -1, -1, 3, 4, -1, 6], dtype=np.int64)
