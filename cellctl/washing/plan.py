@@ -854,10 +854,10 @@ def _face_points(mesh: BinMesh, spacing: float) -> _FacePoints:
     ids = np.concatenate([ids, np.repeat(ids[:, :1], n_extra, axis=1)], axis=1)
     pos = np.concatenate([pos, np.repeat(pos[:, :1], n_extra, axis=1)], axis=1)
     nxt = int(ids.max()) + 1
-    for f, P in extra.items():
-        ids[f, 4 : 4 + len(P)] = np.arange(nxt, nxt + len(P))
-        pos[f, 4 : 4 + len(P)] = P
-        real[f, 4 : 4 + len(P)] = True
+    for face, P in extra.items():  # not ``f``: above it is a numpy index, here a dict key (mypy)
+        ids[face, 4 : 4 + len(P)] = np.arange(nxt, nxt + len(P))
+        pos[face, 4 : 4 + len(P)] = P
+        real[face, 4 : 4 + len(P)] = True
         nxt += len(P)
     return _FacePoints(ids, pos, real)
 
