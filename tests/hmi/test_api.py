@@ -328,7 +328,7 @@ def test_hmi_commands_carry_the_hmis_stamp_and_the_supervisor_checks_it(cell, hm
     client.wait_state("Idle")
     # an HMI whose clock is an hour behind: its otherwise valid Stop is refused as stale, nothing moves
     hour_ago = (dt.datetime.now(dt.UTC) - dt.timedelta(hours=1)).isoformat()
-    monkeypatch.setattr("cellctl.hmi.server.now_iso", lambda: hour_ago)
+    monkeypatch.setattr("cellctl.hmi.routes.cell.now_iso", lambda: hour_ago)
     r = client.cmd("stop")
     assert r.status == 409 and "s old" in r.json()["error"], r.body
     assert seen[-1]["stamp"] == hour_ago and cell.supervisor.top_state == "Idle"
