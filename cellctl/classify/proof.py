@@ -505,7 +505,11 @@ def _site(det: Any, surface: str, sizes: ProofSizes, seeds: dict, wd: Path, say:
     for k in sizes.enroll:
         say(f"proof {surface}: site: enrolling {k} clean images")
         try:
-            enrolled = enroll_detector(det, enrol_paths[:k], surface, seed=seeds["site_enroll"], progress=say)
+            # the synthetic-dirt refusal is lifted to measure what it refuses; the record says whether
+            # `cellctl detector enroll` (MAX_SYNTHETIC_MISS) would have refused this file
+            enrolled = enroll_detector(
+                det, enrol_paths[:k], surface, seed=seeds["site_enroll"], progress=say, max_synthetic_miss=1.0
+            )
         except ClassifierError as err:
             res["enrolled"][str(k)] = {"refused": str(err)}
             continue
@@ -519,10 +523,24 @@ def _site(det: Any, surface: str, sizes: ProofSizes, seeds: dict, wd: Path, say:
             "model_id": enrolled.model_id,
             "threshold": round(float(enrolled.threshold), 6),
             "held_out_false_dirty": card.get("false_dirty"),
+            "enrollment_method": card.get("method"),
+            "card_held_out": card.get("held_out"),
+            "cli_refuses": _cli_refuses(card),
             "figures": rate_figures(pk, y, enrolled.threshold),
             "false_clean_by_family": _by_family(pk, y, fams, enrolled.threshold),
         }
     return res
+
+
+def _cli_refuses(card: dict[str, Any]) -> str | None:
+    """Why ``cellctl detector enroll`` would refuse this enrollment (its synthetic-dirt rule), or None."""
+    from cellctl.classify.enroll import MAX_SYNTHETIC_MISS
+
+    h = card.get("held_out") or {}
+    n, missed = int(h.get("synthetic_dirty", 0)), int(h.get("synthetic_missed", 0))
+    if n and missed > MAX_SYNTHETIC_MISS * n:
+        return f"synthetic dirt missed {missed}/{n} (more than {MAX_SYNTHETIC_MISS:.0%})"
+    return None
 
 
 def merge_into(path: Path, new: dict[str, Any]) -> dict[str, Any]:
