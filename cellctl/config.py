@@ -431,6 +431,11 @@ class ClassifierConfig(_Model):
     )
     verdict: VerdictConfig = Field(default_factory=VerdictConfig)
     relook: RelookConfig = Field(default_factory=RelookConfig)
+    references: bool = Field(
+        default=True,
+        description="judge each view of a commissioned plan against its reference (issue 34); false: the detector "
+        "alone, as before commissioning (docs/classifier/reference.md has the measured trade-off)",
+    )
     mask_cabin: list[Surface] = Field(
         default_factory=lambda: ["internal"],
         description="surfaces whose views have the pixels off the bin (the cabin past the rim) filled before "

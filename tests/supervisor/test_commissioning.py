@@ -255,3 +255,23 @@ def test_replay_verify_of_commissioning_adds_no_set(cfg, cell, plc, tmp_path) ->
         assert report.ok, report.differences
     # the replayed commissioning wrote its set into a scratch folder, never beside the cell's plan cache
     assert [v for v, _ in set_versions(reference_root(cfg), "case_study")] == [1]
+
+
+class TestReferencesOff:
+    """``classifier.references: false``: a commissioned plan's views go without their references."""
+
+    @pytest.fixture
+    def cfg(self, tmp_path, port):
+        from cellctl.config import load_config
+        from tests.conftest import cfg_overrides
+
+        return load_config(None, [*cfg_overrides(tmp_path, port), "classifier.references=false"])
+
+    def test_views_are_judged_by_the_detector_alone(self, cfg, cell, plc) -> None:  # noqa: F811
+        with CommissionCell(cfg):
+            _to_maintenance(plc)
+            res = _cycle(plc, "commission")
+            after = _cycle(plc)
+        assert res.commission is not None and res.commission.references == 3
+        assert after.decision_path == {"external": "enrolled"} and after.reference_version is None
+        assert [(v.decided_by, v.reference_reason) for v in after.viewpoints] == [(None, None)] * 3

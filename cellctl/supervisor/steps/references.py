@@ -94,10 +94,13 @@ def reference_query(ctx: CycleContext, viewpoint: int, T_base_cam: np.ndarray) -
     the newest set holding the plan scanned now, both cameras in the bin frame of their own cycle,
     and the viewed plane from the mesh at the reference pose. None when the plan has no set, the
     set has no reference for this viewpoint (refused while commissioning) or a pose, the intrinsics
-    or the mesh's plane is missing: the detector decides alone (:func:`reference_state` says why).
+    or the mesh's plane is missing, or ``classifier.references`` is off: the detector decides alone
+    (:func:`reference_state` says why).
     """
     plan = ctx.plan
     if plan is None or ctx.bin_type is None or ctx.T_base_bin is None or ctx.catalog is None:
+        return None
+    if not ctx.cfg.classifier.references:  # switched off: the detector alone, as before commissioning
         return None
     ref = lookup_reference(reference_root(ctx.cfg), ctx.bin_type, plan.plan_id or "unnamed", viewpoint)
     if ref is None or ref.T_bin_cam is None or ref.intrinsics is None:
@@ -131,7 +134,7 @@ def reference_query(ctx: CycleContext, viewpoint: int, T_base_cam: np.ndarray) -
 def reference_state(ctx: CycleContext) -> str | None:
     """For a view sent without a reference: ``no_reference`` when the plan scanned now has a set
     (the viewpoint has none in it), None when it has none (the plan was never commissioned)."""
-    if ctx.plan is None or ctx.bin_type is None:
+    if ctx.plan is None or ctx.bin_type is None or not ctx.cfg.classifier.references:
         return None
     found = latest_set(reference_root(ctx.cfg), ctx.bin_type, ctx.plan.plan_id or "unnamed")
     return "no_reference" if found is not None else None
