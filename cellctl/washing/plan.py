@@ -343,8 +343,8 @@ def plan_wash(
     rays = RayCaster(mesh.vertices, mesh.faces)
     # demand is counted on points, each face's centroid and corners (and more inside a face too
     # long for them): a face is washed when all of them have been under the jet, whichever sweeps
-    # put them there
-    fp = _face_points(mesh, nozzle.line_spacing_m)
+    # put them there; every part of a face within a spot's radius of a point, so spots at its points cover it
+    fp = _face_points(mesh, nozzle.footprint_m / 2)
     fpts = fp.ids
     need = np.zeros(int(fpts.max()) + 1, np.int64)
     need[fpts[targets].reshape(-1)] = nozzle.required_passes
