@@ -134,7 +134,7 @@ def test_the_residue_pass_covers_faces_the_first_pass_left_short(bin_case) -> No
 def test_the_cpu_rate_predicts_a_station_from_the_measured_ones() -> None:
     """The plan's CPU ceiling: the first station always runs, a next one only when the CPU spent
     plus its waypoints at the rate measured on the stations so far fits."""
-    from cellctl.washing.plan import _CpuRate
+    from cellctl.washing.plan.budget import _CpuRate
 
     r = _CpuRate(8.5)
     assert r.fits(10_000, 0.0)  # nothing measured: the plan's first station always runs
