@@ -345,6 +345,10 @@ class WashConfig(_Model):
     )
 
 
+def _per_surface(external: float, internal: float) -> dict[Surface, float]:
+    return {"external": external, "internal": internal}
+
+
 class VerdictConfig(_Model):
     """How a cycle's per-face dirt evidence becomes the bin verdict (docs/classifier/inspect.md)."""
 
@@ -386,7 +390,7 @@ class VerdictConfig(_Model):
     # (34 % of the case study) or a hopper the arm cannot look into (44 % internal) is `incomplete`
     # (docs/decisions.md, "Whole bin by default")
     min_seen_fraction: dict[Surface, Annotated[float, Field(ge=0, le=1)]] = Field(
-        default_factory=lambda: {"external": 0.6, "internal": 0.6},
+        default_factory=lambda: _per_surface(0.6, 0.6),
         description="per surface, the share of its area the cycle must have seen for `clean`; below it a cycle "
         "that saw no dirt ends `incomplete` (0 / absent: no minimum)",
     )
@@ -437,7 +441,7 @@ class ClassifierConfig(_Model):
         "alone, as before commissioning (docs/classifier/reference.md has the measured trade-off)",
     )
     mask_cabin: list[Surface] = Field(
-        default_factory=lambda: ["internal"],
+        default_factory=lambda: list[Surface](["internal"]),
         description="surfaces whose views have the pixels off the bin (the cabin past the rim) filled before "
         "classification: the internal model learned the cavity, and called the lit cabin past the rim dirty",
     )
@@ -532,7 +536,7 @@ class WholeBinConfig(_Model):
         "needs them (the selection makes up what they saw) or always (all)",
     )
     min_bound_pct: dict[Surface, Annotated[float, Field(ge=0, le=100)]] = Field(
-        default_factory=lambda: {"external": 91.0, "internal": 86.0},
+        default_factory=lambda: _per_surface(91.0, 86.0),
         description="per surface, % of its upper bound the selection must see: below it viewpoints are added past "
         "view_min_gain_pct (0 / absent: no floor)",
     )

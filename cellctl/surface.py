@@ -44,5 +44,5 @@ def check_surface(value: object, error: type[CellError] = CellError, what: str =
         what: how the message names the value (``"start param surface"``).
     """
     if isinstance(value, str) and value in SURFACES:
-        return value  # type: ignore[return-value]  # narrowed by the membership test
+        return value  # narrowed by the membership test
     raise error(f"{what} {value!r} is unknown; expected one of {list(SURFACES)}")
