@@ -249,7 +249,7 @@ def _commission(plc: Any, n: int, timeout: float) -> Row:
     if ack.accepted:
         params = {"mode": "commission"}
         ack = plc.send(
-            Command(command="start", user=COMMISSIONER, params=params, request_id=plc._next_id(), stamp=now_iso())
+            Command(command="start", user=COMMISSIONER, params=params, request_id=plc.next_id(), stamp=now_iso())
         )
     if not ack.accepted:
         row.note = f"commissioning refused: {ack.reason}"

@@ -22,7 +22,7 @@ import numpy as np
 from cellctl.bus import keys, topics
 from cellctl.config import CellConfig
 from cellctl.hmi.config import FoxgloveConfig
-from cellctl.hmi.link import CellLink
+from cellctl.hmi.link import CellView
 from cellctl.recording import foxglove as fx
 from cellctl.recording.replay import RecordedMessage
 
@@ -73,7 +73,7 @@ class FoxgloveLive:
         link: the HMI's bus link; the arm joints are subscribed through it.
     """
 
-    def __init__(self, cfg: CellConfig, fcfg: FoxgloveConfig, link: CellLink) -> None:
+    def __init__(self, cfg: CellConfig, fcfg: FoxgloveConfig, link: CellView) -> None:
         import foxglove
 
         self._fg = foxglove

@@ -1,9 +1,9 @@
 """The HMI's Zenoh link to the cell: last Status, events, alarms, results, and commands by query.
 
-A plain client of the wire contract (like any PLC): it subscribes to ``status``, ``events`` and
-``result``, and sends each Command as a query on ``cmd`` so the Ack comes back as its reply.
-Zenoh callbacks only decode and store under a lock (they never block). A background thread
-opens the session, and opens it again when the daemon has been silent for a while, so an HMI
+A plain client of the wire contract (like any PLC) through the one :class:`~cellctl.bus.plc_client.CellLink`:
+it subscribes to ``status``, ``events`` and ``result``, and sends each Command as a query on ``cmd`` so the
+Ack comes back as its reply. Callbacks only decode and store under a lock (they never block). The link's
+thread opens the session, and opens it again when the daemon has been silent for ``reopen_s``, so an HMI
 started before the daemon, or one whose daemon restarted, recovers by itself.
 """
 
@@ -17,13 +17,13 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
-from cellctl.bus import keys
-from cellctl.bus.codec import decode_as, encode
+from cellctl.bus.codec import decode_as
+from cellctl.bus.plc_client import CellLink, RequestIds
 from cellctl.config import CellConfig
-from cellctl.errors import CellError, WorkerTimeout, WorkerUnavailable
+from cellctl.errors import CellError
 from cellctl.messages import Ack, Command, CycleResult, Event, Status, now_iso
 
-__all__ = ["Alarm", "CellLink", "LoggedEvent"]
+__all__ = ["Alarm", "CellView", "LoggedEvent"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -60,17 +60,17 @@ class Alarm:
         return {k: v for k, v in self.__dict__.items() if k != "key"}
 
 
-def _decode(model: type, sample: Any) -> Any:
-    """The sample as ``model``, or None (logged) if it does not decode: a bad message is dropped, never raised."""
+def _decode(model: type, payload: bytes) -> Any:
+    """The payload as ``model``, or None (logged) if it does not decode: a bad message is dropped, never raised."""
     try:
-        return decode_as(model, sample.payload.to_bytes())
+        return decode_as(model, payload)
     except CellError as err:
         log.warning("undecodable %s ignored: %s", model.__name__, err)
         return None
 
 
-class CellLink:
-    """Everything the HMI knows about the cell from the bus; thread-safe.
+class CellView:
+    """Everything the HMI knows about the cell from the bus (through the one :class:`CellLink`); thread-safe.
 
     Args:
         cfg: the cell config (endpoints, cell id, principal on a secured bus).
@@ -85,107 +85,54 @@ class CellLink:
         self.stale_s = stale_s
         self.reopen_s = reopen_s
         self._lock = threading.Lock()
-        self._session: Any = None
-        self._subs: list[Any] = []
         self._status: Status | None = None
         self._status_at = 0.0
         self._open_error: str | None = "not connected yet"
         self._events: deque[LoggedEvent] = deque(maxlen=events_kept)
         self._alarms: dict[int, Alarm] = {}
         self._seq = itertools.count(1)
-        self._req = itertools.count(1)
+        self._ids = RequestIds("hmi", token=lambda: time.strftime("%Y%m%dT%H%M%S"), sep=":")
         self.last_result: CycleResult | None = None
         self.version = 0
         """Bumped on every change the pages show (server-sent events poll it)."""
-        self._extra: list[tuple[str, Any]] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._keep_open, name="hmi-link", daemon=True)
-        self._thread.start()
+        self.bus = CellLink(
+            cfg, [self.cell], self._sink, reopen_s=reopen_s, down_reason=self._down_reason, thread_name="hmi-link"
+        )
+        self.bus.start()
 
     # --- the session ------------------------------------------------------------------------
 
-    def _keep_open(self) -> None:
-        while not self._stop.is_set():
-            if self._session is None:
-                self._open()
-            elif time.monotonic() - self._status_at > self.reopen_s:
-                self._probe()
-            self._stop.wait(1.0)
+    def _down_reason(self, err: CellError) -> str:
+        # The page gets the endpoints and the hint, not Zenoh's text (it names source files);
+        # the log keeps the whole message.
+        hint = str(err).rsplit(" (", 1)[-1].rstrip(")") if str(err).endswith(")") else "is the daemon running?"
+        return f"no daemon reachable at {', '.join(self.cfg.bus.connect)} ({hint}); retrying"
 
-    def _open(self) -> None:
-        from cellctl.bus.session import open_session
-
-        try:
-            s = open_session(self.cfg, "client")
-        except CellError as err:
-            # The page gets the endpoints and the hint, not Zenoh's text (it names source files);
-            # the log keeps the whole message.
-            hint = str(err).rsplit(" (", 1)[-1].rstrip(")") if str(err).endswith(")") else "is the daemon running?"
-            short = f"no daemon reachable at {', '.join(self.cfg.bus.connect)} ({hint}); retrying"
+    def _sink(self, kind: str, cell: str, data: Any) -> None:
+        if kind == "link":
             with self._lock:
-                if self._open_error != short:
-                    log.warning("HMI: %s (retrying every second)", err)
-                self._open_error = short
-            return
-        c = self.cell
-        subs = [
-            s.declare_subscriber(keys.status(c), self._on_status),
-            s.declare_subscriber(keys.events(c), self._on_event),
-            s.declare_subscriber(keys.result(c), self._on_result),
-            *(s.declare_subscriber(key, cb) for key, cb in list(self._extra)),
-        ]
-        with self._lock:
-            self._session, self._subs, self._open_error = s, subs, None
-            self.version += 1
-        self._probe()
+                changed = self._open_error != data
+                self._open_error = data
+                if changed or data is None:
+                    self.version += 1
+        elif kind == "status":
+            self._on_status(data)
+        elif kind == "event":
+            self._on_event(data)
+        elif kind == "result":
+            self._on_result(data)
 
     def add_subscriber(self, key: str, callback: Any) -> None:
         """Also subscribe ``callback`` to ``key`` (now, and on every reconnect); it must not block."""
-        with self._lock:
-            self._extra.append((key, callback))
-            s = self._session
-            if s is not None:
-                self._subs.append(s.declare_subscriber(key, callback))
-
-    def _probe(self) -> None:
-        """Ask for the Status; after a long silence with no answer, start over with a new session."""
-        s = self._session
-        try:
-            replies = list(s.get(keys.status(self.cell), timeout=1.0))
-            if replies and replies[0].ok is not None:
-                self._on_status(replies[0].ok)
-                return
-        except Exception as err:  # a closed or broken session raises zenoh's own error
-            log.debug("status probe failed: %s", err)
-        if time.monotonic() - self._status_at > self.reopen_s:
-            self._close_session()
-
-    def _close_session(self) -> None:
-        with self._lock:
-            s, subs = self._session, self._subs
-            self._session, self._subs = None, []
-            self._open_error = "the daemon stopped answering; reconnecting"
-            self.version += 1
-        for sub in subs:
-            try:
-                sub.undeclare()
-            except Exception:  # the session may be gone already
-                pass
-        if s is not None:
-            try:
-                s.close()
-            except Exception:
-                pass
+        self.bus.add_subscriber(key, callback)
 
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-        self._close_session()
+        self.bus.close()
 
     # --- callbacks (Zenoh threads: decode, store, return) ------------------------------------
 
-    def _on_status(self, sample: Any) -> None:
-        st = _decode(Status, sample)
+    def _on_status(self, payload: bytes) -> None:
+        st = _decode(Status, payload)
         if st is None:
             return
         with self._lock:
@@ -196,8 +143,8 @@ class CellLink:
                 if st.last_error and (prev is None or prev.last_error != st.last_error):
                     self._alarm_locked("error", f"{st.state}: {st.last_error}", st.cycle_id, now_iso(), st.last_error)
 
-    def _on_event(self, sample: Any) -> None:
-        ev = _decode(Event, sample)
+    def _on_event(self, payload: bytes) -> None:
+        ev = _decode(Event, payload)
         if ev is None:
             return
         with self._lock:
@@ -206,8 +153,8 @@ class CellLink:
                 self._alarm_locked(ev.level, ev.text, ev.cycle_id, ev.stamp)
             self.version += 1
 
-    def _on_result(self, sample: Any) -> None:
-        res = _decode(CycleResult, sample)
+    def _on_result(self, payload: bytes) -> None:
+        res = _decode(CycleResult, payload)
         if res is None:
             return
         with self._lock:
@@ -235,7 +182,7 @@ class CellLink:
         with self._lock:
             st, at, err = self._status, self._status_at, self._open_error
         age = time.monotonic() - at if st is not None else None
-        reachable = st is not None and age is not None and age <= self.stale_s and self._session is not None
+        reachable = st is not None and age is not None and age <= self.stale_s and self.bus.connected
         out: dict[str, Any] = {"reachable": reachable, "age_s": None if age is None else round(age, 3)}
         if not reachable:
             silent = "yet" if age is None else f"for {age:.0f} s"
@@ -287,21 +234,7 @@ class CellLink:
             WorkerUnavailable: no session, or nobody serves the cmd key (daemon down).
             WorkerTimeout: the daemon did not answer in ``timeout`` s.
         """
-        s = self._session
-        if s is None:
-            raise WorkerUnavailable(f"cell unreachable: {self._open_error}")
-        try:
-            replies = list(s.get(keys.cmd(self.cell), payload=encode(cmd), timeout=timeout))
-        except Exception as err:  # a session closed under us
-            raise WorkerUnavailable(f"cell unreachable: {err}") from err
-        if not replies:
-            from cellctl.bus.security import acl_hint
-
-            k = keys.cmd(self.cell)
-            raise WorkerUnavailable(f"cell unreachable: no daemon serves {k!r}" + acl_hint(self.cfg.bus, k))
-        if replies[0].ok is None:
-            raise WorkerTimeout(f"the daemon did not answer {cmd.request_id!r} within {timeout:g} s")
-        return decode_as(Ack, replies[0].ok.payload.to_bytes())
+        return self.bus.send(self.cell, cmd, timeout)
 
     def next_request_id(self, user: str) -> str:
-        return f"hmi:{user}:{time.strftime('%Y%m%dT%H%M%S')}-{next(self._req)}"
+        return self._ids.next(f"hmi:{user}")

@@ -2,7 +2,7 @@
 
 Layout of the process (``cellctl hmi``)::
 
-    CellLink     Zenoh client: Status, events → alarms, results; commands by query → Ack
+    CellView     Zenoh client: Status, events → alarms, results; commands by query → Ack
     LiveWatcher  tails the running cycle's MCAP (images, per-view verdicts, k/N) at 4 Hz
     CycleRecords read-only index, logs, dirt maps, audit
     FastAPI app  pages (static HTML + one JS file), /api/*, /api/stream (SSE), /openapi.json
@@ -30,7 +30,7 @@ from cellctl.config import CellConfig
 from cellctl.errors import CellError
 from cellctl.hmi.auth import SessionStore
 from cellctl.hmi.config import HmiConfig
-from cellctl.hmi.link import CellLink
+from cellctl.hmi.link import CellView
 from cellctl.hmi.live import LiveCycle, McapTail
 from cellctl.hmi.records import CycleRecords, NotFound
 from cellctl.hmi.review import Review
@@ -65,7 +65,7 @@ class LiveWatcher:
     """
 
     def __init__(
-        self, link: CellLink, records: CycleRecords, period_s: float = 0.25, on_message: Callable | None = None
+        self, link: CellView, records: CycleRecords, period_s: float = 0.25, on_message: Callable | None = None
     ) -> None:
         self.link, self.records, self.period_s = link, records, period_s
         self.on_message = on_message
@@ -140,7 +140,7 @@ class Hmi:
 
     def __init__(self, cfg: CellConfig, hcfg: HmiConfig, clock: Callable[[], float] = time.monotonic) -> None:
         self.cfg, self.hcfg = cfg, hcfg
-        self.link = CellLink(cfg, hcfg.stale_s, hcfg.events_kept, reopen_s=max(3 * hcfg.stale_s, 2.0))
+        self.link = CellView(cfg, hcfg.stale_s, hcfg.events_kept, reopen_s=max(3 * hcfg.stale_s, 2.0))
         self.records = CycleRecords(cfg)
         self.review = Review(cfg, self.records)
         self.foxglove: Any = None

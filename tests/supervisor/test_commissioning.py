@@ -76,7 +76,7 @@ class CommissionCell(FakeCell):
 
 def _start(plc, mode: str | None = None, user: str | None = USER):  # noqa: F811
     params = {"mode": mode} if mode else {}
-    return plc.send(Command(command="start", user=user, params=params, request_id=plc._next_id(), stamp=now_iso()))
+    return plc.send(Command(command="start", user=user, params=params, request_id=plc.next_id(), stamp=now_iso()))
 
 
 def _cycle(plc, mode: str | None = None, user: str | None = USER, timeout: float = 30):  # noqa: F811

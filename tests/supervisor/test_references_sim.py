@@ -32,7 +32,7 @@ def _commission(plc, timeout: float):
     ack = plc.unit_mode("maintenance", user=USER)
     assert ack.accepted, ack.reason
     plc.drain()
-    cmd = Command(command="start", user=USER, params={"mode": "commission"}, request_id=plc._next_id(), stamp=now_iso())
+    cmd = Command(command="start", user=USER, params={"mode": "commission"}, request_id=plc.next_id(), stamp=now_iso())
     ack = plc.send(cmd)
     assert ack.accepted, ack.reason
     res = plc.results.get(timeout=timeout)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import asyncio
 import contextvars
 import datetime as _dt
-import itertools
 import logging
 import secrets
 import threading
@@ -35,11 +34,11 @@ from pydantic import ValidationError
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as
 from cellctl.bus.opcua_cert import APPLICATION_URI
+from cellctl.bus.plc_client import CellLink, RequestIds
 from cellctl.bus.security import PASSWORDS_FILE, PRINCIPALS
 from cellctl.config import CellConfig
 from cellctl.errors import CellError, ConfigError, ProtocolError, WorkerTimeout, WorkerUnavailable
 from cellctl.gateway.opcua.config import OpcuaConfig
-from cellctl.gateway.opcua.link import CellLink
 from cellctl.gateway.opcua.space import (
     BASE_PARKED_METHOD,
     CELLCTL_NS,
@@ -291,9 +290,8 @@ class OpcuaGateway:
         self._down: dict[str, str | None] = {}
         self._link_reason: str | None = "connecting to the cell bus"
         self._locks: dict[str, asyncio.Lock] = {}
-        self._seq = itertools.count(1)
         # request ids unique across this gateway's restarts: the daemon refuses an id it acted on (600 s window)
-        self._boot = secrets.token_hex(3)
+        self._ids = RequestIds("opcua")
         self._pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="opcua-cmd")
         self._loop: asyncio.AbstractEventLoop | None = None
         self._inbox: asyncio.Queue[tuple[str, str, Any]] | None = None
@@ -532,7 +530,7 @@ class OpcuaGateway:
                 if value:
                     params[path.rsplit("/", 1)[1].lower()] = value
         try:
-            rid = f"opcua-{self._boot}-{next(self._seq)}"
+            rid = self._ids.next()
             # stamped on the gateway's clock: the supervisor refuses a stale or replayed copy (replay_guard)
             cmd = Command(request_id=rid, user=f"opcua:{name}"[:64], params=params, stamp=now_iso(), **fields)
         except ValidationError as err:
@@ -546,7 +544,7 @@ class OpcuaGateway:
                 answer.set_result(res)
 
         try:
-            self._link.command(
+            self._link.send_async(
                 cell, cmd, self.cfg.command_timeout_s, lambda res: loop.call_soon_threadsafe(settle, res)
             )
             res = await answer
@@ -708,7 +706,14 @@ class OpcuaGateway:
         """
         self._loop = asyncio.get_running_loop()
         self._inbox = asyncio.Queue()
-        self._link = CellLink(self.cell_cfg, self.cells, self._sink, self.cfg.reconnect_s)
+        self._link = CellLink(
+            self.cell_cfg,
+            self.cells,
+            self._sink,
+            reconnect_s=self.cfg.reconnect_s,
+            liveliness=True,
+            thread_name="opcua-zenoh-link",
+        )
         self.server = await self._make_server()
         try:
             await self.server.start()
