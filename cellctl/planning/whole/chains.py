@@ -11,7 +11,7 @@ chains back (:func:`_readd_chains`).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -117,7 +117,7 @@ def _needed_and_made_up(
     """
     from cellctl.planning.select import greedy_area
 
-    target = C[:, every_chain].any(axis=1)  # what visiting every chain sees
+    target = cast(NDArray[np.bool_], C[:, every_chain].any(axis=1))  # what visiting every chain sees
     cols = close(selected)
     n_needed = len(cols)
     for _ in range(rounds):

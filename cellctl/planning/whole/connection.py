@@ -157,14 +157,14 @@ def connect(
                 if len(ms) == 0:
                     break
                 got = _join(world, Qc[ms], nodes_q, nodes_ids, max_step)
-                for m, g in zip(ms, got, strict=True):
-                    if g == -2 or (accept is not None and not accept(int(vi[m]), Qc[m])):
+                for mi, g in zip(ms, got, strict=True):
+                    if g == -2 or (accept is not None and not accept(int(vi[mi]), Qc[mi])):
                         continue
-                    k = int(own[m])
-                    T[k], q[k], roll[k], index[k] = vp.T[vi[m]] @ _rz(float(rc[m])), Qc[m], rc[m], vi[m]
-                    parent[k] = g
+                    ki = int(own[mi])
+                    T[ki], q[ki], roll[ki], index[ki] = vp.T[vi[mi]] @ _rz(float(rc[mi])), Qc[mi], rc[mi], vi[mi]
+                    parent[ki] = g
                     replaced += 1
-                    open_.discard(k)
+                    open_.discard(ki)
         grow()
     sel = np.flatnonzero(parent != -2)
     remap = np.full(n, -1, dtype=np.int64)

@@ -11,7 +11,7 @@ their seen faces (:func:`cellctl.planning.stations.choose_stations`) and visited
 from __future__ import annotations
 
 from functools import partial
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,7 +29,12 @@ __all__ = ["evaluate_and_choose", "note_reachable"]
 
 
 def _identification(
-    bin_type: BinType | None, world: PlanningWorld, robot: RobotModel, T_base_bin: NDArray[np.float64], q_home, step
+    bin_type: BinType | None,
+    world: PlanningWorld,
+    robot: RobotModel,
+    T_base_bin: NDArray[np.float64],
+    q_home: NDArray[np.float64],
+    step: float,
 ) -> tuple[tuple[NDArray[np.float64], NDArray[np.float64]] | None, str | None]:
     """The first observation pose (looking at the board) the arm reaches from home by a straight free motion."""
     if bin_type is None:
@@ -163,7 +168,8 @@ def evaluate(ws: WholeState, c: Candidate, thin: int = 1) -> StationEval:
         found = pl.Reachability(con.reached, found.planner_queries, found.rrtconnect_fallbacks)
         vis = pl.measure(s, found.reached, st)
         ev.filt[surf], ev.found[surf], ev.vis[surf] = f_s, found, vis
-        ev.seen[surf] = vis.C.any(axis=1) if vis.C.shape[1] else np.zeros(len(s.surf_faces), dtype=bool)
+        seen = vis.C.any(axis=1) if vis.C.shape[1] else np.zeros(len(s.surf_faces), dtype=bool)
+        ev.seen[surf] = cast(NDArray[np.bool_], seen)
     return ev
 
 

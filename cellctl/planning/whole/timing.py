@@ -45,7 +45,7 @@ def _timed_tour(
     tuck: bool = True,
     q_sel: NDArray[np.float64] | None = None,
     init: NDArray[np.int64] | None = None,
-) -> tuple[NDArray[np.int64], NDArray[np.float64], list[NDArray[np.float64]], list[float], int, int]:
+) -> tuple[NDArray[np.int64], NDArray[np.float64], list[NDArray[np.float64]], list[float], int, int, NDArray[np.int64]]:
     """Order ``[start, *Q[sel]]`` by motion time; every move straight or via home along the chains.
 
     ``tuck``: the arm goes home after this tour (False: another surface's tour follows from its
@@ -302,7 +302,7 @@ def _alternatives(
     for j in _WRAPPABLE:
         turned = [np.c_[A[:, :j], A[:, j] + k * 2 * np.pi, A[:, j + 1 :]] for A in out for k in (-1, 1)]
         out += turned
-    A = np.concatenate(out)
+    A: NDArray[np.float64] = np.concatenate(out)
     A = A[np.all((A >= robot.q_min - 1e-9) & (A <= robot.q_max + 1e-9), axis=1)]
     A = A[np.abs(A - q).max(axis=1) > 1e-6]
     if len(A) == 0:
@@ -533,4 +533,5 @@ def _half_turned(robot: RobotModel, Q0: NDArray[np.float64], Q1: NDArray[np.floa
     if len(Q0) == 0:
         return np.zeros(0, dtype=bool)
     x0, x1 = robot.fk_cam(Q0)[:, :3, 0], robot.fk_cam(Q1)[:, :3, 0]
-    return np.einsum("ij,ij->i", x0, x1) < 0.0
+    turned: NDArray[np.bool_] = np.einsum("ij,ij->i", x0, x1) < 0.0
+    return turned
