@@ -56,6 +56,7 @@ from cellctl.classify.inspect_bench import (
     classifier_view,
     point_on_face,
 )
+from cellctl.classify.reference_pairs import BIN_POSE_ERROR, rigid_error
 
 __all__ = [
     "ARMS",
@@ -74,8 +75,6 @@ KINDS = ("clean", "one_spot", "many_spots", "family")
 DECAL_FAMILIES = ("film", "streak", "droplet", "fibre", "fingerprint", "soot", "tarnish")
 PARKING_ERROR = (10.0, 0.5)
 """mm (horizontal, random direction) and degrees (yaw, random sign) the bin is parked off, every cycle."""
-BIN_POSE_ERROR = (2.5, 0.3)
-"""Largest error (mm, degrees) of the measured bin pose the plan is adjusted to (uniform magnitude)."""
 ARMS = ("references", "detector")
 CELL_LIGHTS = (0.0, 0.0, 0.0)
 """Light offset (m) of every render: the cabin's lights are part of the cell and do not move between the
@@ -178,20 +177,6 @@ def _apply_decal(
     return np.clip(out * 255 + 0.5, 0, 255).astype(np.uint8)
 
 
-def _rigid(rng: np.random.Generator, mm: float, deg: float, uniform: bool) -> np.ndarray:
-    """A rigid transform: ``uniform`` — magnitudes U(0, mm), U(0, deg) about/along random axes; else the
-    parking error — ``mm`` along a random horizontal direction and ``±deg`` of yaw."""
-    from cellctl.geometry.transforms import rotation_about, transform_from
-
-    if uniform:
-        t, ax = rng.normal(size=3), rng.normal(size=3)
-        t = t / np.linalg.norm(t) * rng.uniform(0, mm) / 1000.0
-        return transform_from(rotation_about(ax / np.linalg.norm(ax), np.radians(rng.uniform(0, deg))), t)
-    a = rng.uniform(0, 2 * np.pi)
-    t = np.array([np.cos(a), np.sin(a), 0.0]) * mm / 1000.0
-    return transform_from(rotation_about((0, 0, 1), np.radians(deg * rng.choice([-1.0, 1.0]))), t)
-
-
 class _Scene:
     """The bench's bin, plans, renderer and models (built once per run)."""
 
@@ -281,8 +266,8 @@ def commission(sc: _Scene, seed: int) -> dict[str, dict[int, Any]]:
     from cellctl.sim.ground_truth import PowderField
 
     rng = np.random.default_rng([seed, 1789])
-    T_world_bin = sc.T_world_bin0 @ _rigid(rng, *PARKING_ERROR, uniform=False)
-    E = _rigid(rng, *BIN_POSE_ERROR, uniform=True)
+    T_world_bin = sc.T_world_bin0 @ rigid_error(rng, *PARKING_ERROR, uniform=False)
+    E = rigid_error(rng, *BIN_POSE_ERROR, uniform=True)
     rp = _render_params(rng)
     clean = PowderField.sample(sc.mesh, 0.0, seed)
     refs: dict[str, dict[int, Any]] = {}
@@ -334,8 +319,8 @@ def _cycle(sc: _Scene, refs: dict, opts: BenchOptions, i: int, lat: dict[str, li
     det, fusion = sc.dets[surface], sc.fusions[surface]
     seen = np.unique(np.concatenate([np.asarray(vp.faces, np.int64) for vp in plan.viewpoints]))
     field, decal, gt, family, pseed = _contamination(sc, kind, i, seen, surface, rng)
-    T_world_bin = sc.T_world_bin0 @ _rigid(rng, *PARKING_ERROR, uniform=False)
-    E = _rigid(rng, *BIN_POSE_ERROR, uniform=True)
+    T_world_bin = sc.T_world_bin0 @ rigid_error(rng, *PARKING_ERROR, uniform=False)
+    E = rigid_error(rng, *BIN_POSE_ERROR, uniform=True)
     rp = _render_params(rng)
     rc = sc.cfg.classifier.relook
     renders: dict[tuple, np.ndarray] = {}

@@ -44,7 +44,15 @@ from cellctl.classify.sample import MIN_CONTRAST, label_from_mask
 from cellctl.classify.shifted import HELD_OUT_FAMILIES
 from cellctl.errors import ClassifierError
 
-__all__ = ["DEMO_PARKING_ERROR", "Pair", "make_pair_source", "mirror_overlay", "perturb"]
+__all__ = [
+    "BIN_POSE_ERROR",
+    "DEMO_PARKING_ERROR",
+    "Pair",
+    "make_pair_source",
+    "mirror_overlay",
+    "perturb",
+    "rigid_error",
+]
 
 DEMO_PARKING_ERROR = (10.0, 0.5)
 """Translation (mm) and rotation (degrees) of the new view's camera against the reference's: the
@@ -95,6 +103,58 @@ def perturb(T: NDArray[np.float64], mm: float, deg: float, rng: np.random.Genera
     ax = rng.normal(size=3)
     D = transform_from(rotation_about(ax / np.linalg.norm(ax), np.radians(deg)), u / np.linalg.norm(u) * mm / 1000.0)
     return np.asarray(T, np.float64) @ D
+
+
+BIN_POSE_ERROR = (2.5, 0.3)
+"""Largest error (mm, degrees) of the measured bin pose a cycle's plan is adjusted to (uniform magnitude)."""
+CYCLE_LIGHT_SCALE = (0.8, 1.2)
+"""Light level of a cycle (and of the commissioning one), drawn independently: the cabin's lamps age and
+the hall's daylight changes; the lamps do not move (the cell's fixed lights)."""
+CYCLE_EXPOSURE = (0.8, 1.2)
+
+
+def rigid_error(rng: np.random.Generator, mm: float, deg: float, uniform: bool) -> NDArray[np.float64]:
+    """``uniform``: magnitudes U(0, mm), U(0, deg) along/about random axes (a pose measurement's error);
+    else a parking error: ``mm`` along a random horizontal direction and ``±deg`` of yaw (bin frame)."""
+    from cellctl.geometry.transforms import rotation_about, transform_from
+
+    if uniform:
+        t, ax = rng.normal(size=3), rng.normal(size=3)
+        t = t / np.linalg.norm(t) * rng.uniform(0, mm) / 1000.0
+        return transform_from(rotation_about(ax / np.linalg.norm(ax), np.radians(rng.uniform(0, deg))), t)
+    a = rng.uniform(0, 2 * np.pi)
+    t = np.array([np.cos(a), np.sin(a), 0.0]) * mm / 1000.0
+    return transform_from(rotation_about((0, 0, 1), np.radians(deg * rng.choice([-1.0, 1.0]))), t)
+
+
+def _cycle_poses(T_plan: NDArray[np.float64], park: tuple[float, float], rng: np.random.Generator) -> tuple:
+    """Reference and new view of one planned viewpoint as a commissioned cycle takes them.
+
+    Each is taken with the bin parked off by ``park`` in the cabin and the camera at the plan in the
+    *measured* bin frame, which is off by up to :data:`BIN_POSE_ERROR`: the camera truly stands at
+    ``E @ T_plan`` in the bin frame. Returns ``(T_ref, T_new, T_wb_ref, T_wb_new, T_ref_true,
+    T_new_true)``: the poses the comparison is told (both the plan — the cycle knows only measured
+    poses), the bin's two cabin poses and the cameras' true poses in the bin frame.
+    """
+    out = []
+    for _ in range(2):
+        P = rigid_error(rng, park[0], park[1], uniform=False)
+        E = rigid_error(rng, *BIN_POSE_ERROR, uniform=True)
+        out.append((P, E @ T_plan))
+    (P_r, T_r), (P_n, T_n) = out
+    return T_plan, T_plan, P_r, P_n, T_r, T_n
+
+
+def _cycle_params(rng: np.random.Generator) -> Any:
+    """One view's appearance in a cycle: exposure, light level, sensor noise; lights fixed in the cabin."""
+    from cellctl.sim.render import RenderParams
+
+    return RenderParams(
+        exposure=float(rng.uniform(*CYCLE_EXPOSURE)),
+        light_scale=float(rng.uniform(*CYCLE_LIGHT_SCALE)),
+        light_offset=(0.0, 0.0, 0.0),
+        noise_sigma=float(rng.uniform(1.0, 3.0)),
+    )
 
 
 def _ray_segment_distance(
@@ -214,8 +274,14 @@ def _new_optics(rng: np.random.Generator) -> Optics:
     )
 
 
-def make_pair_source(surface: str, config: Any = None, mirror: bool = True) -> Callable[..., Pair | None]:
+def make_pair_source(
+    surface: str, config: Any = None, mirror: bool = True, cycle: bool = True
+) -> Callable[..., Pair | None]:
     """A ``draw(rng, dirty, held_out=False, delta=DEMO_PARKING_ERROR) -> Pair | None`` of twin pairs.
+
+    ``cycle`` (default) draws a pair the way a commissioned cycle sees it (:func:`_cycle_poses`,
+    :func:`_cycle_params`): ``delta`` is the bin's parking error; else (the first fit, kept for
+    the mirror sweep) the camera moves by ``delta`` against a bin that stays put under the lights.
 
     ``None`` = an ambiguous dirty draw or a view that shows too little of the surface (draw again).
     ``held_out`` picks the shifted generator's families (measurement only).
@@ -225,6 +291,7 @@ def make_pair_source(surface: str, config: Any = None, mirror: bool = True) -> C
     from cellctl.geometry.camera import D435_COLOR
     from cellctl.geometry.catalog import load_catalog
     from cellctl.sim.render import RenderParams, SimRenderer
+    from cellctl.sim.scene import Scenario
     from cellctl.surface import FACE_TAG, check_surface
 
     cfg = config if config is not None else load_config()
@@ -243,9 +310,17 @@ def make_pair_source(surface: str, config: Any = None, mirror: bool = True) -> C
     if not bins:
         raise ClassifierError(f"no bin type in the catalog has {surface} faces")
     names = sorted(bins)
+    nominal = {n: Scenario(bin_type=n).T_world_bin(catalog.get(n)) for n in names}
 
-    def render(name: str, T: NDArray, P: Any, dirty: bool, amount: float, seed: int, over: bool) -> Any:
-        out = renderer.render_bin_view(name, T, intr, dirty=dirty, powder_amount=amount, seed=seed, params=P)
+    def render(
+        name: str, T: NDArray, P: Any, dirty: bool, amount: float, seed: int, over: bool, T_wb: NDArray | None = None
+    ) -> Any:
+        if T_wb is None:
+            out = renderer.render_bin_view(name, T, intr, dirty=dirty, powder_amount=amount, seed=seed, params=P)
+        else:
+            # the bin parked at T_wb in the cabin (render_bin_view stands it at the nominal pose)
+            field_ = renderer.powder(name, dirty, amount, seed)
+            out = renderer._render(name, T_wb, None, None, T_wb @ T, intr, P, seed, field_, True)
         rgb = out.rgb
         if over and mirror and surface == "internal":
             mesh, _, _, caster, _ = bins[name]
@@ -268,18 +343,30 @@ def make_pair_source(surface: str, config: Any = None, mirror: bool = True) -> C
                 return None
             k = int(rng.choice(mine))
             target, normal = field_.centres[k], field_.normals[k]
-        T_ref = _view(surface, mesh, faces, w, hole_r, rng, target, normal)
-        T_new = perturb(T_ref, delta[0], delta[1], rng)
-        light = tuple(float(v) for v in rng.uniform([-0.3, -0.3, -0.2], [0.3, 0.3, 0.2]))
-        e, ls = float(rng.uniform(0.8, 1.2)), float(rng.uniform(0.85, 1.15))
-        P_ref = RenderParams(exposure=e, light_scale=ls, light_offset=light, noise_sigma=float(rng.uniform(0.5, 2.5)))
-        P_new = RenderParams(
-            exposure=e * float(rng.uniform(0.8, 1.25)),
-            light_scale=ls * float(rng.uniform(0.95, 1.05)),
-            light_offset=light,
-            noise_sigma=float(rng.uniform(0.5, 2.5)),
-        )
-        ref_out, ref = render(name, T_ref, P_ref, False, 0.0, int(rng.integers(2**31)), True)
+        T_plan = _view(surface, mesh, faces, w, hole_r, rng, target, normal)
+        if cycle:
+            # both the commissioning and the cycle park the bin off (under the cell's fixed lights, so
+            # highlights slide over the steel) and reach the plan in the *measured* bin frame
+            poses = _cycle_poses(T_plan, delta, rng)
+            T_ref, T_new, park_ref, park_new, T_ref_true, T_new_true = poses
+            T_wb_ref, T_wb_new = nominal[name] @ park_ref, nominal[name] @ park_new
+            P_ref, P_new = _cycle_params(rng), _cycle_params(rng)
+        else:
+            T_ref, T_new = T_plan, perturb(T_plan, delta[0], delta[1], rng)
+            T_wb_ref = T_wb_new = None
+            T_ref_true, T_new_true = T_ref, T_new
+            light = tuple(float(v) for v in rng.uniform([-0.3, -0.3, -0.2], [0.3, 0.3, 0.2]))
+            e, ls = float(rng.uniform(0.8, 1.2)), float(rng.uniform(0.85, 1.15))
+            P_ref = RenderParams(
+                exposure=e, light_scale=ls, light_offset=light, noise_sigma=float(rng.uniform(0.5, 2.5))
+            )
+            P_new = RenderParams(
+                exposure=e * float(rng.uniform(0.8, 1.25)),
+                light_scale=ls * float(rng.uniform(0.95, 1.05)),
+                light_offset=light,
+                noise_sigma=float(rng.uniform(0.5, 2.5)),
+            )
+        ref_out, ref = render(name, T_ref_true, P_ref, False, 0.0, int(rng.integers(2**31)), True, T_wb_ref)
         if float((ref_out.surface == tag).mean()) < 0.5:
             return None
         try:
@@ -287,17 +374,23 @@ def make_pair_source(surface: str, config: Any = None, mirror: bool = True) -> C
         except ClassifierError:
             return None
         nseed = int(rng.integers(2**31))
-        new_out, new_clean = render(name, T_new, P_new, False, 0.0, nseed, True)
+        new_out, new_clean = render(name, T_new_true, P_new, False, 0.0, nseed, True, T_wb_new)
         opt = _new_optics(rng)
         on_surface = new_out.surface == tag
-        info: dict[str, Any] = {"bin": name, "surface": surface, "delta_mm": delta[0], "delta_deg": delta[1]}
+        info: dict[str, Any] = {
+            "bin": name,
+            "surface": surface,
+            "delta_mm": delta[0],
+            "delta_deg": delta[1],
+            "cycle": cycle,
+        }
         if not dirty:
             new = optics(new_clean.astype(np.float32) / 255.0, opt)
             return Pair(
                 ref, new, np.zeros(new.shape[:2], np.float32), 0, T_ref, T_new, K, plane, {**info, "family": "none"}
             )
         if twin_powder:
-            pow_out, pow_rgb = render(name, T_new, P_new, True, amount, nseed, True)
+            pow_out, pow_rgb = render(name, T_new_true, P_new, True, amount, nseed, True, T_wb_new)
             vis = pow_out.powder_mask & (
                 np.abs(pow_rgb.astype(np.int16) - new_clean.astype(np.int16)).max(2) >= MIN_CONTRAST
             )
