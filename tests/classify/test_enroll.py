@@ -95,6 +95,7 @@ def test_threshold_comes_from_every_image_left_out_and_the_card_says_so(
     assert held["expected_false_dirty"] == pytest.approx(1 / 25, abs=1e-4)
     assert held["false_dirty_upper95"] == pytest.approx(1 - 0.05 ** (1 / 24), abs=1e-4)  # Clopper-Pearson, 0 of 24
     assert det.threshold > held["max_clean_p_dirty"] - 1e-5 and det.threshold <= 0.95
+    assert held["max_clean_image"].startswith("a/v0") and held["max_clean_image"].endswith(".png")
     assert card["bank"]["size"] == card["bank"]["site_patches"] == 2048
     # the site's statistics replace the training patches' (the head reads raw features: unchanged)
     assert not np.allclose(det.bank.mean.numpy(), shipped_external.bank.mean.numpy())
