@@ -19,7 +19,7 @@ import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
@@ -27,7 +27,10 @@ from mcap.stream_reader import StreamReader
 from cellctl.bus import topics
 from cellctl.errors import RecordingError
 
-__all__ = ["RecordedCycle", "RecordedMessage", "read_cycle", "republish", "verify"]
+if TYPE_CHECKING:
+    from cellctl.messages import CycleResult
+
+__all__ = ["RecordedCycle", "RecordedMessage", "read_cycle", "recorded_as_sent", "republish", "verify"]
 
 log = logging.getLogger(__name__)
 log.addHandler(logging.NullHandler())
@@ -237,6 +240,22 @@ def _reference_relative(msg: dict[str, Any]) -> dict[str, Any]:
         return msg
     cut = {k: str(msg.get(k, "")).rpartition("/references/")[2] for k in ("images", "out")}
     return {**msg, **cut}
+
+
+def recorded_as_sent(recorded: CycleResult, replayed: CycleResult) -> CycleResult:
+    """The recorded CycleResult as the replay's subscriber would have received it.
+
+    The replay reads the replayed result off the bus, where a result past the wire's size comes cut
+    (``viewpoints_omitted``; the MCAP keeps every view), so a recorded result that was whole there is
+    cut by the same rule before the two are compared.
+    """
+    from cellctl.bus.codec import decode_as
+    from cellctl.messages import CycleResult
+    from cellctl.supervisor.publisher import fit_to_wire
+
+    if replayed.viewpoints_omitted and not recorded.viewpoints_omitted:
+        return decode_as(CycleResult, fit_to_wire(recorded))
+    return recorded
 
 
 def _strip(obj: Any) -> Any:
@@ -454,7 +473,7 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     if not interrupted and replayed is not None:
         # The recorded result read by today's model: fields added since (still v1) take their
         # defaults, so a log recorded before them compares on what it holds.
-        want = _strip(json.loads(CycleResult.model_validate(results[-1]).model_dump_json()))
+        want = _strip(json.loads(recorded_as_sent(CycleResult.model_validate(results[-1]), replayed).model_dump_json()))
         got = _strip(json.loads(replayed.model_dump_json()))
         for k in _GATE_FIELDS:  # a log from before the coverage gate holds none: today's replay fills them
             if results[-1].get(k) is None:
