@@ -135,10 +135,10 @@ def dilate(
         if seen_clean is not None and seen_clean[f]:
             continue
         for a, b in ((0, 1), (1, 2), (2, 0)):
-            nb = dirty_edges.get(_edge(fv[f, a], fv[f, b]))
-            if nb is None or mesh.surface[nb] != mesh.surface[f]:
+            g = dirty_edges.get(_edge(fv[f, a], fv[f, b]))
+            if g is None or mesh.surface[g] != mesh.surface[f]:
                 continue
-            dot = float(mesh.normals[nb] @ mesh.normals[f])
+            dot = float(mesh.normals[g] @ mesh.normals[f])
             if -1e-6 < dot < cos_sharp:
                 out[f] = True
                 break
