@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from cellctl.geometry.catalog import BinMesh
 
-__all__ = ["FACET_DEG", "Facet", "dirty_from_map", "facets_of", "dilate", "face_adjacency", "seen_clean_from_map"]
+__all__ = ["FACET_DEG", "Facet", "dirty_from_map", "facets_of", "dilate", "face_adjacency"]
 
 FACET_DEG = 25.0
 """Largest normal spread within one raster facet."""
@@ -47,38 +47,12 @@ def dirty_from_map(dirt_map: dict[str, Any], n_faces: int, threshold: float) -> 
     return out, "seen_dirty"
 
 
-def seen_clean_from_map(dirt_map: dict[str, Any], n_faces: int, threshold: float) -> NDArray[np.bool_] | None:
-    """Faces a view saw and found below ``threshold``; None when the map does not say (a
-    ``seen_dirty``-only map: any other face may be unseen)."""
-    from cellctl.classify.heatmap import face_probabilities
-
-    p = face_probabilities(dirt_map, n_faces)
-    if p is not None:
-        return np.isfinite(p) & (p < threshold)
-    ids = dirt_map.get("seen_clean")
-    if ids is None:
-        return None
-    out = np.zeros(n_faces, bool)
-    ids = np.asarray(ids, np.int64)
-    out[ids[(ids >= 0) & (ids < n_faces)]] = True
-    return out
-
-
-def _welded_corners(mesh: BinMesh) -> NDArray[np.int64]:
-    """(F, 3) each face's corners as vertex ids welded by position (meshes repeat vertices along sharp edges)."""
-    key = np.round(mesh.vertices / 1e-5).astype(np.int64)
-    _, weld = np.unique(key, axis=0, return_inverse=True)
-    return np.asarray(weld.reshape(-1)[mesh.faces], np.int64)
-
-
-def _edge(a: Any, b: Any) -> tuple[int, int]:
-    return (int(a), int(b)) if int(a) < int(b) else (int(b), int(a))
-
-
 def face_adjacency(mesh: BinMesh) -> list[NDArray[np.int64]]:
     """Per face, the faces sharing a vertex position with it (welded by position: meshes may
     repeat vertices along sharp edges)."""
-    fv = _welded_corners(mesh)
+    key = np.round(mesh.vertices / 1e-5).astype(np.int64)
+    _, weld = np.unique(key, axis=0, return_inverse=True)
+    fv = weld.reshape(-1)[mesh.faces]
     n_v = int(fv.max()) + 1
     order = np.argsort(fv.reshape(-1), kind="stable")
     owner = np.repeat(np.arange(len(fv)), 3)[order]
@@ -87,25 +61,10 @@ def face_adjacency(mesh: BinMesh) -> list[NDArray[np.int64]]:
     return [np.unique(np.concatenate([vert_faces[v] for v in tri])) for tri in fv]
 
 
-def dilate(
-    mesh: BinMesh, faces: NDArray[np.bool_], margin_m: float, seen_clean: NDArray[np.bool_] | None = None
-) -> NDArray[np.bool_]:
-    """``faces`` plus every face of the same surface, facing within 90° (inclusive) of one of them,
-    that lies within ``margin_m`` of one of them: its centroid, measured from a dirty face's
-    centroid or a corner (the powder runs past a triangle's edge, not to the middle of its
-    neighbour) — or, across a sharp edge (normals more than :data:`FACET_DEG` and up to 90° apart),
-    every face sharing that edge with a dirty face, unless a view saw it clean (``seen_clean``;
-    None: nothing known).
-
-    Why the sharp edge is different: on a near-flat neighbour the jet washing the dirty face
-    overflows its edge anyway, but across a corner (a leg's or a rib's side, 90° on) it meets the
-    neighbour beyond the incidence limit, so powder past that edge is washed only if the
-    neighbour is a target itself. And a view cannot tell the two apart: its heat-map patch
-    straddles the edge, and where the neighbour is unseen the whole patch lands on the seen face
-    (demo story 3: a clump on a leg's unseen -x side read as its -y side, washed three rounds at
-    an incidence that never reached it). A long sliver's centroid lies far from the edge it shares,
-    hence the edge, not the distance.
-    """
+def dilate(mesh: BinMesh, faces: NDArray[np.bool_], margin_m: float) -> NDArray[np.bool_]:
+    """``faces`` plus every face of the same surface, facing within 90° of one of them, whose
+    centroid lies within ``margin_m`` of one of them (of its centroid or a corner: the powder
+    runs past a triangle's edge, not to the middle of its neighbour)."""
     out = faces.copy()
     if margin_m <= 0 or not faces.any():
         return out
@@ -116,32 +75,12 @@ def dilate(
     tree = cKDTree(np.concatenate([mesh.centroids[src, None], tri], axis=1).reshape(-1, 3))
     owner = np.repeat(src, 4)
     near = tree.query_ball_point(mesh.centroids, r=margin_m)
-    fv = _welded_corners(mesh)
-    dirty_edges: dict[tuple[int, int], int] = {}
-    for g in src:
-        for a, b in ((0, 1), (1, 2), (2, 0)):
-            dirty_edges[_edge(fv[g, a], fv[g, b])] = int(g)
-    cos_sharp = np.cos(np.deg2rad(FACET_DEG))
     for f, js in enumerate(near):
-        if out[f]:
+        if out[f] or not js:
             continue
-        if js:
-            s = owner[np.asarray(js)]
-            # within 90° inclusive: a box's corner is exactly 90° (its dot product rounds either side of 0)
-            same = (mesh.surface[s] == mesh.surface[f]) & (mesh.normals[s] @ mesh.normals[f] > -1e-6)
-            if same.any():
-                out[f] = True
-                continue
-        if seen_clean is not None and seen_clean[f]:
-            continue
-        for a, b in ((0, 1), (1, 2), (2, 0)):
-            g = dirty_edges.get(_edge(fv[f, a], fv[f, b]))
-            if g is None or mesh.surface[g] != mesh.surface[f]:
-                continue
-            dot = float(mesh.normals[g] @ mesh.normals[f])
-            if -1e-6 < dot < cos_sharp:
-                out[f] = True
-                break
+        s = owner[np.asarray(js)]
+        same = (mesh.surface[s] == mesh.surface[f]) & (mesh.normals[s] @ mesh.normals[f] > 0)
+        out[f] = bool(same.any())
     return out
 
 

@@ -23,7 +23,7 @@ from cellctl.washing.plan.budget import _Budget, _CpuRate
 from cellctl.washing.plan.records import MAX_REACH_M, Sweep, Unwashable, WashParams, WashPlan, _empty
 from cellctl.washing.plan.seeds import _face_points, _FacePoints, _Line, _raster, _residue_lines
 from cellctl.washing.plan.station import _add, _Seen, _station
-from cellctl.washing.targets import Facet, dilate, dirty_from_map, face_adjacency, facets_of, seen_clean_from_map
+from cellctl.washing.targets import Facet, dilate, dirty_from_map, face_adjacency, facets_of
 
 __all__ = ["plan_wash"]
 
@@ -101,8 +101,7 @@ def plan_wash(
     dirty, source = dirty_from_map(dirt_map, mesh.n_faces, p.threshold)
     if not dirty.any():
         return _empty(mesh, nozzle, poses, q0, "the dirt map has no dirty face: nothing to wash", dirty, dirty, source)
-    clean = seen_clean_from_map(dirt_map, mesh.n_faces, p.threshold)
-    ws = _targets(mesh, nozzle, robot, p, poses, q0, cpu0, dirty, source, t, clean)
+    ws = _targets(mesh, nozzle, robot, p, poses, q0, cpu0, dirty, source, t)
     _first_pass(ws)
     if ws.need.any() and p.residue_rolls > 0:
         _residue_pass(ws)
@@ -120,13 +119,12 @@ def _targets(
     dirty: NDArray[np.bool_],
     source: str | None,
     t: float,
-    seen_clean: NDArray[np.bool_] | None = None,
 ) -> _WashState:
     """The plan's state: the dirty faces dilated to targets, their facets and raster lines, the demand
     (``required_passes`` on every point of every target face), the collision world built once."""
     from cellctl.planning.raycast import RayCaster
 
-    targets = dilate(mesh, dirty, p.margin_m, seen_clean)
+    targets = dilate(mesh, dirty, p.margin_m)
     adj = face_adjacency(mesh)
     facets = facets_of(mesh, targets, adj)
     lines = [ln for k, fc in enumerate(facets) for ln in _raster(mesh, fc, k, nozzle.line_spacing_m)]
