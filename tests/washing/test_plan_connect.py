@@ -100,8 +100,9 @@ def test_every_sweep_of_the_first_round_is_joined_to_home(setup) -> None:
 
 def test_the_powder_on_the_sliver_is_washed_by_the_sweeps_the_arm_can_get_to(setup) -> None:
     """The sweeps of the round-3 plan that are joined to home, run in the twin over the demo's powder,
-    wash the clump's edge on the sliver (its demand points now lie along the face, not only at its
-    centroid and corners, and the residue pass tries every station whose flange reaches)."""
+    leave under a fifth of the clump's edge on the sliver (sampled where the clump lies on the face).
+    Before the demand points lay along long faces, the one sweep aimed at the face's centroid and
+    corners; this checks the powder, not where the sweeps aim."""
     from dataclasses import replace
 
     from cellctl.sim.ground_truth import PowderField
