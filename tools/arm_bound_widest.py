@@ -32,7 +32,7 @@ COARSE_STEP_RAD = 0.02  # the whole planner's connection check step (cellctl.pla
 
 
 def main(argv: list[str] | None = None) -> int:
-    from cellctl.bench_options import BenchOptions
+    from cellctl.bench.options import BenchOptions
     from cellctl.geometry.camera import CameraModel
     from cellctl.geometry.family import family_mesh
     from cellctl.geometry.robot_model import _quiet_stdout

@@ -22,13 +22,13 @@ import numpy as np
 
 
 def main(argv: list[str] | None = None) -> int:
-    from cellctl.bench_options import BenchOptions
+    from cellctl.bench.options import BenchOptions
+    from cellctl.bench.planning.family import parse_family
     from cellctl.geometry.camera import CameraModel
     from cellctl.geometry.family import family_mesh
     from cellctl.geometry.transforms import invert
     from cellctl.planning import pipeline as pl
     from cellctl.planning.collision import PlanningWorld
-    from cellctl.planning.family_bench import parse_family
     from cellctl.planning.plan import PlanParams
     from cellctl.planning.raycast import RayCaster
     from cellctl.planning.robot import default_robot_model

@@ -30,7 +30,7 @@ What differs after alignment is what is new. The stages, each a function over ty
    mirrored arm, camera and cabin no longer line up with the reference.
 
 The fused weights live in ``<models_dir>/<surface>.reference.json`` (:data:`FUSION_FORMAT`), fitted
-by ``cellctl bench reference`` (:mod:`cellctl.classify.reference_bench`, on generated pairs);
+by ``cellctl bench reference`` (:mod:`cellctl.bench.classify.reference`, on generated pairs);
 measurements are in ``docs/classifier/reference.md``.
 
 Light: numpy + OpenCV at import; the detector (torch) is passed in.

@@ -1,7 +1,7 @@
 """``cellctl bench <what>``: measurements that print one JSON object on stdout.
 
 Each bench is a library function ``module:function`` taking a typed
-:class:`~cellctl.bench_options.BenchOptions` and returning a dict; this module only turns the
+:class:`~cellctl.bench.options.BenchOptions` and returning a dict; this module only turns the
 flags into those options. Progress goes to stderr.
 """
 
@@ -13,26 +13,30 @@ import json
 import sys
 from pathlib import Path
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 from cellctl.cli import add_config_arguments
 
-# name -> (module:function, help). Add yours here.
+# name -> (module:function, help): the bench lives in cellctl/bench/<name>.py (or a folder of its concept).
+# Add yours here.
 BENCHES: dict[str, tuple[str, str]] = {
-    "bus": ("cellctl.bus.bench:bench_bus", "command→ack and status latency on loopback"),
-    "cycle": ("cellctl.supervisor.bench:bench_cycle", "supervisor overhead per viewpoint, cycle time, cycles/hour"),
-    "classify": ("cellctl.classify.bench:bench_classify", "classifier latency/throughput/accuracy per variant"),
+    "bus": ("cellctl.bench.bus:bench_bus", "command→ack and status latency on loopback"),
+    "cycle": ("cellctl.bench.cycle:bench_cycle", "supervisor overhead per viewpoint, cycle time, cycles/hour"),
+    "classify": (
+        "cellctl.bench.classify.variants:bench_classify",
+        "classifier latency/throughput/accuracy per variant",
+    ),
     "reference": (
-        "cellctl.classify.reference_bench:bench_reference",
+        "cellctl.bench.classify.reference:bench_reference",
         "reference views: fit + measure the change-vs-reference decision on twin pairs, mirror tolerance, latency",
     ),
-    "pose": ("cellctl.vision.bench:bench_pose", "ChArUco bin-pose accuracy vs ground truth at 0.5-2 m"),
-    "sim": ("cellctl.sim.bench:bench_sim", "twin: IK per pose, collision check per configuration, render per frame"),
+    "pose": ("cellctl.bench.pose:bench_pose", "ChArUco bin-pose accuracy vs ground truth at 0.5-2 m"),
+    "sim": ("cellctl.bench.sim:bench_sim", "twin: IK per pose, collision check per configuration, render per frame"),
     "plan": (
-        "cellctl.planning.bench:bench_plan",
+        "cellctl.bench.planning.plans:bench_plan",
         "planner: fast vs paper mode, case-study bin, p_SP 10/40 (--n: paper RRT* budget in 0.1 s)",
     ),
     "whole-bin": (
-        "cellctl.planning.bench:bench_whole_bin",
+        "cellctl.bench.planning.plans:bench_whole_bin",
         "whole-bin plans: catalog bins + foreign meshes (--family: the shape family), stations, coverage per "
         "surface, cycle time (--n seeds)",
     ),
@@ -46,24 +50,24 @@ BENCHES: dict[str, tuple[str, str]] = {
         "sim cycles back to back (--n cycles): cycles/hour, RSS, open files",
     ),
     "inspect": (
-        "cellctl.classify.inspect_bench:bench_inspect",
+        "cellctl.bench.classify.inspect:bench_inspect",
         "bin verdict + per-face dirt map vs ground truth over seeded sim cycles (--cycles N)",
     ),
-    "hmi": ("cellctl.hmi.bench:bench_hmi", "GET /api/status p50/p99 of a separate HMI process while sim cycles run"),
+    "hmi": ("cellctl.bench.hmi:bench_hmi", "GET /api/status p50/p99 of a separate HMI process while sim cycles run"),
     "cluster": (
         "cellctl.reliability.cluster:bench_cluster",
         "3 cells, planner pool, PLC host in network namespaces: cycles, jobs, 1 vs 2 workers, link faults (root)",
     ),
     "opcua": (
-        "cellctl.gateway.opcua.bench:bench_opcua",
+        "cellctl.bench.opcua:bench_opcua",
         "command -> StateCurrent through the OPC UA gateway beside raw Zenoh (--n rounds)",
     ),
     "ur": (
-        "cellctl.workers.robot.bench:bench_ur",
+        "cellctl.bench.ur:bench_ur",
         "UR backend vs the emulated controller: protective stop → safe state, supervisor loss → stopped, tracking",
     ),
     "wash": (
-        "cellctl.washing.bench:bench_wash",
+        "cellctl.bench.wash:bench_wash",
         "wash-and-verify rounds on seeded dirty twin bins: dirty area covered, rounds, saving (--cycles N)",
     ),
 }
@@ -117,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     opts = options_from_args(args)
     target = BENCHES[args.what][0]
     if args.what == "inspect" and (opts.commissioned or opts.merge):  # with and without commissioned references
-        target = "cellctl.classify.inspect_commissioned:bench_inspect_commissioned"
+        target = "cellctl.bench.classify.inspect_commissioned:bench_inspect_commissioned"
     mod, fn = target.split(":")
     result = getattr(importlib.import_module(mod), fn)(opts)
     text = json.dumps(result, indent=2)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 from cellctl.errors import CellError, ConfigError
 from cellctl.reliability.netns import Host, Plant, netns_unavailable
 from cellctl.reliability.sim_cell import FAST_SIM

@@ -31,7 +31,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 from cellctl.bus import keys, topics
 from cellctl.bus.codec import decode_as
 from cellctl.bus.plc_client import PlcClient

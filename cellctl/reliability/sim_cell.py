@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 from cellctl.bus.plc_client import PlcClient
 from cellctl.config import CellConfig, load_config, output_overrides
 from cellctl.errors import CellError

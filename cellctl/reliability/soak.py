@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 
 __all__ = ["ResourceSampler", "bench_soak", "growth", "refused_viewpoints"]
 

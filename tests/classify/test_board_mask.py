@@ -82,7 +82,7 @@ def test_a_board_seen_from_behind_its_plane_is_not_filled(renderer: SimRenderer,
 def test_the_bench_masks_views_as_the_scanning_step(renderer: SimRenderer) -> None:
     """``bench inspect`` hands the detector what ``classifier_input`` would: the cabin past the rim
     filled only for the surfaces of ``classifier.mask_cabin`` (internal by default)."""
-    from cellctl.classify.inspect_bench import classifier_view
+    from cellctl.bench.classify.inspect import classifier_view
     from cellctl.supervisor.steps.scanning import mask_cabin
 
     bt = renderer.catalog.get("case_study")

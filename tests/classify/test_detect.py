@@ -490,7 +490,7 @@ def test_worker_and_cli_answer_with_the_detector(contam: Path, tmp_path: Path, c
 
 
 def test_bench_inspect_scores_collected_cycles_against_the_truth() -> None:
-    from cellctl.classify.inspect_bench import score_cycles
+    from cellctl.bench.classify.inspect import score_cycles
     from cellctl.config import VerdictConfig
 
     mesh = _square_mesh()

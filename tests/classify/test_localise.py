@@ -123,7 +123,7 @@ def test_fuse_config_follows_the_verdict_config_and_refuses_an_unknown_projectio
 
 
 def test_the_bench_truth_finds_a_small_clump_between_the_ten_old_sample_points() -> None:
-    from cellctl.classify.inspect_bench import TRUTH_GRID, _dirty_faces, _dirty_faces_10pt
+    from cellctl.bench.classify.inspect import TRUTH_GRID, _dirty_faces, _dirty_faces_10pt
     from cellctl.sim.ground_truth import PowderField
 
     # one 20 cm triangle; the clump (8 mm) sits on the dense grid point farthest from the old ten

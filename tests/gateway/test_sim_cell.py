@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 from cellctl.bus.session import private_bus_overrides
 from cellctl.gateway.opcua import OpcuaGateway
 from tests.gateway.conftest import make_gw_cfg, wait_until

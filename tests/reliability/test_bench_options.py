@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 from cellctl.cli import build_parser
 from cellctl.cli.bench import BENCHES, options_from_args
 from cellctl.errors import ConfigError

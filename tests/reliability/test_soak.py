@@ -41,7 +41,7 @@ def test_too_few_samples_give_no_verdict() -> None:
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 def test_short_soak_of_the_sim_cell_completes_every_cycle_without_leaking_descriptors(port: int) -> None:
-    from cellctl.bench_options import BenchOptions
+    from cellctl.bench.options import BenchOptions
     from cellctl.reliability.soak import bench_soak
 
     ep = f'["tcp/127.0.0.1:{port}"]'

@@ -50,8 +50,8 @@ def test_sim_render_unknown_bin_is_a_clear_error(tmp_path: Path, capsys: pytest.
 
 @pytest.mark.slow
 def test_bench_sim_reports_the_three_figures() -> None:
-    from cellctl.bench_options import BenchOptions
-    from cellctl.sim.bench import bench_sim
+    from cellctl.bench.options import BenchOptions
+    from cellctl.bench.sim import bench_sim
 
     r = bench_sim(BenchOptions(n=200, seed=0))
     assert r["ik_fk_roundtrip_max_m"] < 1e-6

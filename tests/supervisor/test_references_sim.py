@@ -15,7 +15,7 @@ import math
 
 import pytest
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 from cellctl.bus import keys
 from cellctl.bus.rpc import request
 from cellctl.bus.session import private_bus_overrides

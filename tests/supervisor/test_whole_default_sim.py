@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 from cellctl.bus.session import private_bus_overrides
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(2400)]  # a whole-bin plan and cycle on 2 shared cores

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import yaml
 
+from cellctl.bench.pose import measure
 from cellctl.cli import main
 from cellctl.cli.vision import parse_camera_pose, parse_intrinsics
 from cellctl.errors import CellError
 from cellctl.geometry.transforms import pose_error, transform_from_pose
-from cellctl.vision.bench import measure
 from cellctl.vision.render import render_boards, view_of_board
 
 from .scenes import INTR, SPEC_B, T_BIN_BOARD

@@ -47,10 +47,10 @@ def test_an_oblique_jet_washes_its_stretched_footprint_within_the_incidence_limi
 def test_the_bench_dirt_map_from_ground_truth_marks_the_twins_dirty_faces() -> None:
     """bench wash plans from face_p = largest opacity at centroid/corners: at the 0.5 threshold
     exactly the faces the twin calls dirty, before and after a wash."""
+    from cellctl.bench.wash import gt_dirt_map
     from cellctl.classify.heatmap import face_probabilities
     from cellctl.config import load_config
     from cellctl.geometry.catalog import load_catalog, read_bin_mesh
-    from cellctl.washing.bench import gt_dirt_map
 
     cfg = load_config()
     cat = load_catalog(cfg.path(cfg.catalog), cfg.root)

@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from cellctl.bench_options import BenchOptions
+from cellctl.bench.options import BenchOptions
 from cellctl.reliability.fuzz.contract import FuzzTarget
 from cellctl.reliability.fuzz.generators import CommandFuzzer
 

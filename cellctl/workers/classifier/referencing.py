@@ -53,7 +53,7 @@ class ReferenceJudge:
         from cellctl.classify.reference import ReferenceFusion, fusion_path
 
         # at the 128 px work size OpenCV's thread hand-offs cost more than they save on a shared
-        # 2-core host (ECC 17 -> 11 ms at load 30: cellctl.classify.reference_bench.latency)
+        # 2-core host (ECC 17 -> 11 ms at load 30: cellctl.bench.classify.reference.latency)
         cv2.setNumThreads(1)
         self.detectors: dict[str, Any] = {}
         self.fusions: dict[str, ReferenceFusion] = {}
