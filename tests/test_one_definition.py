@@ -22,8 +22,9 @@ CONCEPTS = {
     "surface list": (r"^\s*SURFACES\s*[:=]", "surface.py"),
     "surface name type": (r"^Surface\s*=", "surface.py"),
     "face tags": (r"^(EXTERNAL|INTERNAL)\s*=", "surface.py"),
+    # a fault-injection case's result is FaultCaseResult
+    "FaultReport": (r"^class FaultReport\b", "messages/status.py"),
     # a config record that rejects unknown keys (was four private ``_Model`` copies)
-    "FaultReport": (r"^class FaultReport\b", "messages.py"),  # a fault-injection case's result is FaultCaseResult
     "strict config model base": (r"^class (_Model|\w*ConfigModel)\(BaseModel\)", "strict_model.py"),
     # a client of the cell's PLC command/status contract (was three: bus, gateway, HMI; CellLink twice)
     "PLC contract client": (r"^class (CellLink|\w*PlcClient|\w*ContractClient|RequestIds)\b", "bus/plc_client.py"),
