@@ -7,7 +7,7 @@ import pytest
 
 from cellctl.errors import RobotError
 from cellctl.motion import UR10E, UR10E_JOINT_ACCEL, JointLimits, time_parametrize
-from cellctl.workers.robot._ur import path_deviation
+from cellctl.workers.robot.ur import path_deviation
 
 
 def _path(seed: int = 0, k: int = 4) -> np.ndarray:

@@ -314,19 +314,19 @@ def test_clear_fault_waits_for_the_interrupted_motion_to_end(robot, emu) -> None
 def test_calls_queued_behind_a_wedged_call_never_run() -> None:
     """Once an interface is given up, what was queued behind the wedged call is dropped: run later on
     the old interface, ur-rtde would reconnect it and restart the control program under a fresh one."""
-    from cellctl.workers.robot._ur import _CallThread, _Wedged
+    from cellctl.workers.robot.ur._calls import CallThread, Wedged
 
-    calls = _CallThread("test-calls")
+    calls = CallThread("test-calls")
     release, ran = threading.Event(), []
     errors: list[Exception] = []
 
     def queued() -> None:
         try:
             calls.call(10.0, lambda: ran.append("queued"))
-        except _Wedged as err:
+        except Wedged as err:
             errors.append(err)
 
-    blocker = threading.Thread(target=lambda: pytest.raises(_Wedged, calls.call, 0.3, release.wait), daemon=True)
+    blocker = threading.Thread(target=lambda: pytest.raises(Wedged, calls.call, 0.3, release.wait), daemon=True)
     blocker.start()
     time.sleep(0.05)
     behind = threading.Thread(target=queued, daemon=True)
@@ -336,7 +336,7 @@ def test_calls_queued_behind_a_wedged_call_never_run() -> None:
     release.set()  # the wedged call returns at last
     behind.join(5)
     assert ran == [] and len(errors) == 1 and "given up" in str(errors[0])
-    with pytest.raises(_Wedged):
+    with pytest.raises(Wedged):
         calls.call(1.0, lambda: ran.append("after"))
     assert ran == []
 

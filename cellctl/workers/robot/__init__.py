@@ -79,7 +79,7 @@ def make_robot(cfg: CellConfig, backend: str | None = None, **kwargs: object) ->
 
         return SimRobot(cfg, **kwargs)  # type: ignore[arg-type]
     if name == "ur":
-        from cellctl.workers.robot._ur import UrRobot
+        from cellctl.workers.robot.ur import UrRobot
 
         return UrRobot(cfg, **kwargs)  # type: ignore[arg-type]
     raise ConfigError(f"robot backend {name!r} is unknown; expected one of {list(BACKENDS)}")
