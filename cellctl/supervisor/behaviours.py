@@ -133,9 +133,9 @@ class FinishCycle(Behaviour):
 
     def execute(self, run: StepRun, cell: BehaviourHost) -> None:
         ctx = cell.cycles.ctx
-        if ctx is not None and ctx.outcome is None:
-            ctx.outcome = CycleOutcome.aborted
-            ctx.reason = ctx.reason or "completed by command before the cycle ended"
+        if ctx is not None and ctx.result.outcome is None:
+            ctx.result.outcome = CycleOutcome.aborted
+            ctx.result.reason = ctx.result.reason or "completed by command before the cycle ended"
         cell.cycles.finalize(CycleOutcome.completed)
 
 

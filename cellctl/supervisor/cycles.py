@@ -143,9 +143,9 @@ class CycleKeeper:
         if ctx is None:
             return
         if failed:
-            ctx.outcome, ctx.reason = CycleOutcome.failed, reason
+            ctx.result.outcome, ctx.result.reason = CycleOutcome.failed, reason
         else:
-            ctx.reason = ctx.reason or reason
+            ctx.result.reason = ctx.result.reason or reason
 
     def expect_reason(self) -> None:
         """A worker was lost without its fault report yet (dispatcher): the close waits for it a moment."""
@@ -162,8 +162,8 @@ class CycleKeeper:
         closed one where it is still mutable, the results kept in memory (``"sealed"``: its log and index
         row are not; a warning event says so). None: no cycle still carries ``old``."""
         ctx = self.open_ctx
-        if ctx is not None and ctx.reason is old:
-            ctx.reason = new
+        if ctx is not None and ctx.result.reason is old:
+            ctx.result.reason = new
             return "open"
         for i, res in enumerate(self.results):
             # a result holds the reason's text (it went over the wire); the cycle id makes it this loss's
@@ -190,8 +190,8 @@ class CycleKeeper:
                 return None
             ctx.finished = True
         ctx.shutdown()
-        if ctx.references is not None:  # a commissioning cycle that ended before its set was claimed
-            ctx.references.discard()
+        if ctx.refs.writer is not None:  # a commissioning cycle that ended before its set was claimed
+            ctx.refs.writer.discard()
         res = assemble_result(ctx, default_outcome, reason)
         ctx.log.close(res)
         self.outbox.result(res)
@@ -226,10 +226,10 @@ class CycleKeeper:
         if ctx is None:
             return None
         self.stop_robot("supervisor shutdown")
-        ctx.outcome = ctx.outcome or CycleOutcome.aborted
-        ctx.reason = ctx.reason or f"supervisor shut down in {state}"
+        ctx.result.outcome = ctx.result.outcome or CycleOutcome.aborted
+        ctx.result.reason = ctx.result.reason or f"supervisor shut down in {state}"
         self.finalize(CycleOutcome.aborted)
-        return ctx.reason
+        return ctx.result.reason
 
     def reset(self) -> None:
         self.ctx = None

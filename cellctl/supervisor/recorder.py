@@ -146,28 +146,33 @@ class CycleRecorder(Recorder):
 
 def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: str | None = None) -> CycleResult:
     """The CycleResult of a finished cycle from its blackboard (the verdict only when completed)."""
-    outcome = ctx.outcome or default_outcome
-    plan = ctx.plan
-    whole = ctx.whole and bool(ctx.station_order)
+    outcome = ctx.result.outcome or default_outcome
+    plan = ctx.scan.plan
+    whole = ctx.whole and bool(ctx.stations.station_order)
     return CycleResult(
         cycle_id=ctx.cycle_id,
         outcome=outcome,
-        reason=ctx.reason or reason,
+        reason=ctx.result.reason or reason,
         bin=BinInfo(
-            type=ctx.bin_type, pose=PoseMsg.from_matrix(ctx.T_base_bin) if ctx.T_base_bin is not None else None
+            type=ctx.identity.bin_type,
+            pose=PoseMsg.from_matrix(ctx.identity.T_base_bin) if ctx.identity.T_base_bin is not None else None,
         ),
-        plan_id=ctx.whole_plan_id if whole else plan.plan_id if plan is not None else None,
+        plan_id=ctx.stations.whole_plan_id if whole else plan.plan_id if plan is not None else None,
         plan_adjusted=(
-            any(p.adjusted for p in ctx.plans.values()) if whole and ctx.plans else plan.adjusted if plan else None
+            any(p.adjusted for p in ctx.stations.plans.values())
+            if whole and ctx.stations.plans
+            else plan.adjusted
+            if plan
+            else None
         ),
-        planner_job_id=ctx.planner_job_id,
-        decision_path=ctx.decision_path,  # type: ignore[arg-type]
-        reference_version=ctx.reference_version,
-        commission=ctx.commission,
-        verdict=ctx.verdict if outcome == CycleOutcome.completed else None,
-        viewpoints=ctx.viewpoints,
-        coverage=ctx.coverage,
-        dirt_map=ctx.dirt_map,
+        planner_job_id=ctx.scan.planner_job_id,
+        decision_path=ctx.refs.decision_path,  # type: ignore[arg-type]
+        reference_version=ctx.refs.reference_version,
+        commission=ctx.refs.commission,
+        verdict=ctx.result.verdict if outcome == CycleOutcome.completed else None,
+        viewpoints=ctx.scan.viewpoints,
+        coverage=ctx.result.coverage,
+        dirt_map=ctx.result.dirt_map,
         log=ctx.log_rel,
         timing={
             "steps_s": {k: round(v, 4) for k, v in ctx.step_seconds.items()},
@@ -175,49 +180,49 @@ def assemble_result(ctx: CycleContext, default_outcome: CycleOutcome, reason: st
             "rpc_count": ctx.rpc_count,
         },
         started=ctx.started,
-        wash=ctx.wash,
-        whole_plan_id=ctx.whole_plan_id if whole else None,
-        coverage_by_surface=ctx.coverage_by_surface,
+        wash=ctx.wash.result,
+        whole_plan_id=ctx.stations.whole_plan_id if whole else None,
+        coverage_by_surface=ctx.result.coverage_by_surface,
         min_seen_fraction=(
             {k: v for k, v in ctx.cfg.classifier.verdict.min_seen_fraction.items()}
-            if outcome == CycleOutcome.completed and ctx.verdict is not None
+            if outcome == CycleOutcome.completed and ctx.result.verdict is not None
             else None
         ),
         stations=station_results(ctx) if whole else None,
-        modelled_cycle_s=ctx.modelled_cycle_s if whole else None,
+        modelled_cycle_s=ctx.stations.modelled_cycle_s if whole else None,
         classifier_models=classifier_models(ctx),
     )
 
 
 def classifier_models(ctx: CycleContext) -> list[str] | None:
     """The model ids that decided the cycle's views, re-inspections included (shipped or enrolled)."""
-    ids = {v.model_id for v in [*ctx.viewpoints, *ctx.wash_views] if v.model_id}
+    ids = {v.model_id for v in [*ctx.scan.viewpoints, *ctx.wash.views] if v.model_id}
     return sorted(ids) or None
 
 
 def station_results(ctx: CycleContext) -> list[StationResult]:
     """What the whole-bin cycle did at each station of its visiting order (also those it never reached)."""
-    by_rank = {s.station: s for s in ctx.stations or []}
+    by_rank = {s.station: s for s in ctx.stations.planned or []}
     out = []
-    for pos, rank in enumerate(ctx.station_order):
+    for pos, rank in enumerate(ctx.stations.station_order):
         st = by_rank[rank]
-        plans = {surf: p for (k, surf), p in ctx.plans.items() if k == rank and surf is not None}
-        views = [v for v in ctx.viewpoints if v.station == rank and v.relook_of is None]
-        reason = ctx.station_notes.get(rank)
-        if reason is None and pos > ctx.station_index:
+        plans = {surf: p for (k, surf), p in ctx.stations.plans.items() if k == rank and surf is not None}
+        views = [v for v in ctx.scan.viewpoints if v.station == rank and v.relook_of is None]
+        reason = ctx.stations.station_notes.get(rank)
+        if reason is None and pos > ctx.stations.station_index:
             reason = "not reached: the cycle ended before this station"
-        elif reason is None and pos == ctx.station_index and len(plans) < len(st.plans) and ctx.finished:
-            reason = "the cycle ended at this station" + (f": {ctx.reason}" if ctx.reason else "")
+        elif reason is None and pos == ctx.stations.station_index and len(plans) < len(st.plans) and ctx.finished:
+            reason = "the cycle ended at this station" + (f": {ctx.result.reason}" if ctx.result.reason else "")
         out.append(
             StationResult(
                 station=rank,
                 base_pose=st.base_pose,
-                bin_pose_source=ctx.pose_source.get(rank),  # type: ignore[arg-type]
+                bin_pose_source=ctx.stations.pose_source.get(rank),  # type: ignore[arg-type]
                 plan_ids={s: p.plan_id for s, p in plans.items() if p.plan_id},
                 adjusted={s: p.adjusted for s, p in plans.items()},
                 viewpoints={s: len(p.viewpoints) for s, p in plans.items()},
                 refused={s: sum(1 for v in views if v.surface == s and v.error is not None) for s in plans},
-                coverage={s: ctx.station_coverage.get((rank, s)) for s in plans},
+                coverage={s: ctx.stations.station_coverage.get((rank, s)) for s in plans},
                 reason=reason,
             )
         )

@@ -19,6 +19,7 @@ from cellctl.messages import (
     PoseMsg,
     ViewpointResult,
 )
+from cellctl.supervisor.context.scan import Scan
 from cellctl.supervisor.steps.classifying import Classifying
 from cellctl.supervisor.steps.reporting import view_evidence
 from tests.fakes.workers import CAM_POSE, INTRINSICS, _png
@@ -65,9 +66,11 @@ def _ctx(cfg, max_views: int):
     ctx = context(
         cfg,
         log=ListRecorder(),
-        viewpoints=[ViewpointResult(index=0, camera_pose=CAM_POSE), ViewpointResult(index=1, camera_pose=CAM_POSE)],
+        scan=Scan(
+            viewpoints=[ViewpointResult(index=0, camera_pose=CAM_POSE), ViewpointResult(index=1, camera_pose=CAM_POSE)]
+        ),
     )
-    ctx.classifications = {0: _done(_reply("clean", 0.05)), 1: _done(_reply("dirty", 0.55, uncertain=True))}
+    ctx.scan.classifications = {0: _done(_reply("clean", 0.05)), 1: _done(_reply("dirty", 0.55, uncertain=True))}
     return ctx
 
 
@@ -80,22 +83,22 @@ def test_an_uncertain_view_is_relooked_from_a_nearby_pose_and_heat_maps_are_reco
     }
     run = ScriptedRun(ctx, script)
     assert Classifying()(run) == "succeeded"
-    assert len(ctx.viewpoints) == 3
-    again = ctx.viewpoints[2]
+    assert len(ctx.scan.viewpoints) == 3
+    again = ctx.scan.viewpoints[2]
     assert again.relook_of == 1 and again.index == 1 and again.label == "dirty" and not again.uncertain
     moves = [m for r, op, m in run.calls if (r, op) == ("robot", "move")]
     assert len(moves) == 1 and moves[0].camera_pose is not None and moves[0].joints is None
     d = np.linalg.norm(moves[0].camera_pose.matrix()[:3, 3] - CAM_POSE.matrix()[:3, 3])
     assert 0.01 < d < 0.2  # nearby, not the same pose
     assert [t for t, _ in ctx.log.records].count(topics.HEATMAP) == 3
-    assert ctx.verdict == "dirty" and any("1 re-looks" in text for _, text in run.events)
+    assert ctx.result.verdict == "dirty" and any("1 re-looks" in text for _, text in run.events)
 
 
 def test_relook_off_asks_the_robot_nothing(cfg) -> None:
     ctx = _ctx(cfg, 0)
     run = ScriptedRun(ctx, {})
     assert Classifying()(run) == "succeeded"
-    assert run.calls == [] and len(ctx.viewpoints) == 2 and ctx.viewpoints[1].uncertain
+    assert run.calls == [] and len(ctx.scan.viewpoints) == 2 and ctx.scan.viewpoints[1].uncertain
 
 
 def test_view_evidence_uses_the_reached_pose_in_the_bin_frame() -> None:

@@ -131,7 +131,7 @@ def test_a_cycle_result_and_its_log_name_the_models_that_decided(tmp_path: Path)
         ClassifyReply(label="dirty", p_dirty=0.9, model_id="external-enrolled-0123456789ab"),
         ClassifyReply(label="clean", p_dirty=0.2, model_id="internal-detect-253d95cac5d8"),
     ]
-    ctx.viewpoints = [with_reply(ViewpointResult(index=i), r) for i, r in enumerate(replies)]
+    ctx.scan.viewpoints = [with_reply(ViewpointResult(index=i), r) for i, r in enumerate(replies)]
     result = assemble_result(ctx, CycleOutcome.completed)
     assert result.classifier_models == ["external-enrolled-0123456789ab", "internal-detect-253d95cac5d8"]
     assert [v.model_id for v in result.viewpoints] == [r.model_id for r in replies]

@@ -19,6 +19,8 @@ from cellctl.supervisor.admin import AdminBook
 from cellctl.supervisor.behaviours import BEHAVIOUR_CLASSES, BEHAVIOURS, FinishCycle, OpenCycle, behaviour
 from cellctl.supervisor.commands import Accepted, check_command, recorded_command
 from cellctl.supervisor.context import INITIAL_CONTEXT, Cancelled
+from cellctl.supervisor.context.identity import Identity
+from cellctl.supervisor.context.result import Result
 from cellctl.supervisor.cycles import CycleKeeper
 from cellctl.supervisor.definition import StepIO, load_cycle
 from cellctl.supervisor.events import StepDone
@@ -204,9 +206,9 @@ def test_cycle_recorder_writes_the_row_first_and_a_readable_mcap(cfg, tmp_path: 
     now = dt.datetime(2026, 1, 2, 3, 4, 5, 6000, tzinfo=dt.UTC)
     rec = CycleRecorder(cfg, idx, "c-1", now, "evaluate")
     assert idx.get("c-1").outcome is None and rec.rel.endswith("2026-01-02/c-1.mcap")
-    ctx = context(cfg, log=rec, log_rel=rec.rel, bin_type="case_study")
-    ctx.outcome = CycleOutcome.completed
-    ctx.verdict = "clean"
+    ctx = context(cfg, log=rec, log_rel=rec.rel, identity=Identity(bin_type="case_study"))
+    ctx.result.outcome = CycleOutcome.completed
+    ctx.result.verdict = "clean"
     res = assemble_result(ctx, CycleOutcome.aborted)
     assert res.outcome == "completed" and res.verdict == "clean" and res.log == rec.rel
     rec.close(res)
@@ -219,7 +221,7 @@ def test_cycle_recorder_writes_the_row_first_and_a_readable_mcap(cfg, tmp_path: 
 
 
 def test_the_verdict_is_kept_only_for_a_completed_cycle(cfg) -> None:
-    ctx = context(cfg, verdict="dirty")
+    ctx = context(cfg, result=Result(verdict="dirty"))
     assert assemble_result(ctx, CycleOutcome.aborted).verdict is None
 
 
@@ -385,7 +387,7 @@ def test_loader_refuses_a_read_written_on_only_one_path(tmp_path: Path) -> None:
         " failed: {exit: abort}}}\n"
         "  scanning: {step: scanning, on: {succeeded: {exit: complete}, failed: {exit: abort}}}\n"
     )
-    with pytest.raises(ConfigError, match=r"states.scanning: step 'scanning' reads \['plan'\]"):
+    with pytest.raises(ConfigError, match=r"states.scanning: step 'scanning' reads \['scan.plan'\]"):
         load_cycle(_cycle_yaml(tmp_path, text), outcomes, STEP_IO, INITIAL_CONTEXT)
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from cellctl.messages import CaptureReply, ClassifyReply, MoveReply, PoseMsg, StationInfo, ViewpointResult
+from cellctl.supervisor.context.scan import Scan
 from cellctl.supervisor.steps.classifying import Classifying
 from tests.fakes.workers import CAM_POSE, INTRINSICS, _png
 from tests.supervisor._scripted import ScriptedRun, context
@@ -24,14 +25,14 @@ def _ctx(cfg, whole: bool):
     where = {"station": 0, "surface": "external"} if whole else {}
     ctx = context(
         cfg,
-        viewpoints=[ViewpointResult(index=i, camera_pose=CAM_POSE, **where) for i in range(3)],
+        scan=Scan(viewpoints=[ViewpointResult(index=i, camera_pose=CAM_POSE, **where) for i in range(3)]),
     )
     if whole:
-        ctx.stations = [
+        ctx.stations.planned = [
             StationInfo(station=0, base_pose=PoseMsg.from_matrix(CAM_POSE.matrix(), "bin"), plans={"external": "p"})
         ]
-        ctx.station_order = [0]
-    ctx.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.8), 2: _done("clean", 0.1)}
+        ctx.stations.station_order = [0]
+    ctx.scan.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.8), 2: _done("clean", 0.1)}
     return ctx
 
 
@@ -56,30 +57,30 @@ def test_a_whole_bin_cycle_re_looks_once_at_a_certain_dirty_view(cfg, relook, ve
     ctx = _ctx(cfg, whole=True)
     run = _run(ctx, relook)
     assert Classifying()(run) == "succeeded"
-    again = [v for v in ctx.viewpoints if v.relook_of is not None]
+    again = [v for v in ctx.scan.viewpoints if v.relook_of is not None]
     assert [(v.index, v.relook_of, v.station, v.surface) for v in again][:1] == [(1, 1, 0, "external")]
-    assert ctx.verdict == verdict
+    assert ctx.result.verdict == verdict
 
 
 def test_a_single_station_cycle_keeps_a_certain_dirty_view_without_a_re_look(cfg) -> None:
     ctx = _ctx(cfg, whole=False)
     run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.08, model_id="m"))
     assert Classifying()(run) == "succeeded"
-    assert run.calls == [] and ctx.verdict == "dirty"
+    assert run.calls == [] and ctx.result.verdict == "dirty"
     cfg.classifier.relook.confirm_dirty = "on"  # on: single-station cycles confirm too
     ctx = _ctx(cfg, whole=False)
     run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.08, model_id="m"))
     assert Classifying()(run) == "succeeded"
-    assert ctx.verdict == "clean" and len(ctx.viewpoints) == 4
+    assert ctx.result.verdict == "clean" and len(ctx.scan.viewpoints) == 4
 
 
 def test_once_a_dirty_view_is_confirmed_no_further_one_is_re_looked(cfg) -> None:
     ctx = _ctx(cfg, whole=True)
-    ctx.classifications = {0: _done("dirty", 0.9), 1: _done("dirty", 0.8), 2: _done("dirty", 0.85)}
+    ctx.scan.classifications = {0: _done("dirty", 0.9), 1: _done("dirty", 0.8), 2: _done("dirty", 0.85)}
     run = _run(ctx, ClassifyReply(label="dirty", p_dirty=0.9, model_id="m"))
     assert Classifying()(run) == "succeeded"
-    assert [v.relook_of for v in ctx.viewpoints if v.relook_of is not None] == [1]  # the least sure, then stop
-    assert ctx.verdict == "dirty"
+    assert [v.relook_of for v in ctx.scan.viewpoints if v.relook_of is not None] == [1]  # the least sure, then stop
+    assert ctx.result.verdict == "dirty"
 
 
 def _scan_run(ctx, move) -> ScriptedRun:
@@ -99,12 +100,12 @@ def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None
 
     cfg.planner.whole.enabled = True
     ctx = context(cfg)
-    ctx.stations = [
+    ctx.stations.planned = [
         StationInfo(station=0, base_pose=PoseMsg.from_matrix(CAM_POSE.matrix(), "bin"), plans={"external": "p"})
     ]
-    ctx.station_order = [0]
+    ctx.stations.station_order = [0]
     vps = [PlannedViewpoint(index=i, camera_pose=CAM_POSE, joints=[0.1 * i] * 6, faces=[i]) for i in range(2)]
-    ctx.plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=10)
+    ctx.scan.plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=10)
 
     def move(req):
         if req.joints == [0.1] * 6:
@@ -113,7 +114,7 @@ def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None
 
     run = _scan_run(ctx, move)
     assert Scanning()(run) == "succeeded"
-    assert [v.error for v in ctx.viewpoints] == [None, None]
+    assert [v.error for v in ctx.scan.viewpoints] == [None, None]
     moves = [m for r, op, m in run.calls if (r, op) == ("robot", "move")]
     assert [m.joints is None for m in moves] == [False, False, True]  # viewpoint 1 again, by its camera pose
     assert any("reached by its camera pose" in t for _, t in run.events)
@@ -122,15 +123,19 @@ def test_a_whole_bin_scan_retries_refused_joints_by_the_camera_pose(cfg) -> None
 def test_in_a_whole_bin_cycle_an_uncertain_view_and_its_re_look_are_fused_by_their_mean(cfg) -> None:
     ctx = _ctx(cfg, whole=True)
     # the demo's case: uncertain dirty at p 0.78, a certain-clean re-look at p 0.002 (nearest-the-mean: a tie)
-    ctx.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.78, uncertain=True), 2: _done("clean", 0.1)}
+    ctx.scan.classifications = {
+        0: _done("clean", 0.05),
+        1: _done("dirty", 0.78, uncertain=True),
+        2: _done("clean", 0.1),
+    }
     run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.002, model_id="m"))
     assert Classifying()(run) == "succeeded"
-    assert ctx.verdict == "clean"
+    assert ctx.result.verdict == "clean"
     ctx = _ctx(cfg, whole=True)
-    ctx.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.9, uncertain=True), 2: _done("clean", 0.1)}
+    ctx.scan.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.9, uncertain=True), 2: _done("clean", 0.1)}
     run = _run(ctx, ClassifyReply(label="clean", p_dirty=0.45, uncertain=True, model_id="m"))
     assert Classifying()(run) == "succeeded"
-    assert ctx.verdict == "dirty"  # mean logit 1.0 above the threshold estimate 0
+    assert ctx.result.verdict == "dirty"  # mean logit 1.0 above the threshold estimate 0
 
 
 @pytest.mark.parametrize("first", ["dirty", "uncertain"])
@@ -140,7 +145,7 @@ def test_a_refused_re_look_pose_is_followed_by_the_next_one(cfg, first) -> None:
 
     ctx = _ctx(cfg, whole=True)
     if first == "uncertain":
-        ctx.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.6, True), 2: _done("clean", 0.1)}
+        ctx.scan.classifications = {0: _done("clean", 0.05), 1: _done("dirty", 0.6, True), 2: _done("clean", 0.1)}
     cfg.classifier.relook.max_views = 1
     refused = 0
 
@@ -156,9 +161,9 @@ def test_a_refused_re_look_pose_is_followed_by_the_next_one(cfg, first) -> None:
     assert Classifying()(run) == "succeeded"
     poses = [m.camera_pose.matrix() for r, op, m in run.calls if (r, op) == ("robot", "move")]
     assert len(poses) == 3 and not np.allclose(poses[0], poses[1]) and not np.allclose(poses[1], poses[2])
-    relooks = [v for v in ctx.viewpoints if v.relook_of == 1]
+    relooks = [v for v in ctx.scan.viewpoints if v.relook_of == 1]
     assert [v.error is None for v in relooks] == [False, False, True]
-    assert ctx.verdict == "clean"  # the third pose's certain-clean view overrules (or outweighs) the first
+    assert ctx.result.verdict == "clean"  # the third pose's certain-clean view overrules (or outweighs) the first
 
 
 def test_a_view_whose_every_re_look_pose_is_refused_keeps_its_label(cfg) -> None:
@@ -173,7 +178,7 @@ def test_a_view_whose_every_re_look_pose_is_refused_keeps_its_label(cfg) -> None
     run.script[("robot", "move")] = move
     assert Classifying()(run) == "succeeded"
     assert len([1 for r, op, _ in run.calls if (r, op) == ("robot", "move")]) == 4  # the four swings, then stop
-    assert ctx.verdict == "dirty"
+    assert ctx.result.verdict == "dirty"
 
 
 def test_a_whole_bin_scan_tries_nearby_views_when_the_camera_pose_is_refused_too(cfg) -> None:
@@ -186,12 +191,12 @@ def test_a_whole_bin_scan_tries_nearby_views_when_the_camera_pose_is_refused_too
 
     cfg.planner.whole.enabled = True
     ctx = context(cfg)
-    ctx.stations = [
+    ctx.stations.planned = [
         StationInfo(station=0, base_pose=PoseMsg.from_matrix(CAM_POSE.matrix(), "bin"), plans={"internal": "p"})
     ]
-    ctx.station_order = [0]
+    ctx.stations.station_order = [0]
     vps = [PlannedViewpoint(index=0, camera_pose=CAM_POSE, joints=[0.1] * 6, faces=[0])]
-    ctx.plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=10)
+    ctx.scan.plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=10)
     reachable = nearby_views(CAM_POSE.matrix())[1]  # 20 mm further back
 
     def move(req):
@@ -201,7 +206,7 @@ def test_a_whole_bin_scan_tries_nearby_views_when_the_camera_pose_is_refused_too
 
     run = _scan_run(ctx, move)
     assert Scanning()(run) == "succeeded"
-    assert [v.error for v in ctx.viewpoints] == [None]
+    assert [v.error for v in ctx.scan.viewpoints] == [None]
     moves = [m for r, op, m in run.calls if (r, op) == ("robot", "move")]
     assert len(moves) == 4  # joints, camera pose, 10 mm back, 20 mm back (reached: no further try)
     assert any("20 mm further back" in t for _, t in run.events)

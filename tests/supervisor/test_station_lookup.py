@@ -11,6 +11,7 @@ from cellctl.messages import PlanLookupRequest, PoseMsg
 from cellctl.planning.planfile import write_document
 from cellctl.planning.whole import WHOLE_FORMAT
 from cellctl.sim.scene import observation_T_bin_cam
+from cellctl.supervisor.context.identity import Identity
 from cellctl.workers.planner import PlannerService
 
 BASES = [
@@ -112,7 +113,7 @@ def test_a_whole_plan_without_stations_fails_the_cycle_with_its_reason(svc, cfg)
     assert not r.hit and r.whole_plan_id == "w-empty" and r.stations == []
     assert r.reason == "whole-bin plan w-empty has no station: no candidate station sees the bin"
     cfg.planner.whole.enabled = True
-    ctx = context(cfg, bin_type="case_study", T_base_bin=invert(BASES[0]))
+    ctx = context(cfg, identity=Identity(bin_type="case_study", T_base_bin=invert(BASES[0])))
     run = ScriptedRun(ctx, {("planner", "lookup"): (r, None)})
     with pytest.raises(PlanningError, match="no candidate station sees the bin"):
         CheckingCache()(run)  # not a miss: replanning would find no station again

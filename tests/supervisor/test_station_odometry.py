@@ -97,32 +97,34 @@ def _blind_station() -> StationInfo:
 def test_identifying_carries_the_bin_through_the_reported_base_motion(cfg) -> None:
     ctx = context(cfg)
     st = _blind_station()
-    ctx.stations, ctx.station_order, ctx.bin_type = [st], [1], "case_study"
+    ctx.stations.planned, ctx.stations.station_order, ctx.identity.bin_type = [st], [1], "case_study"
     # measured earlier: the bin 1 m ahead of a base parked at the map's origin
-    ctx.T_map_bin = transform_from_xyz_rpy((1.0, 0.0, 0.0), (0, 0, 0.1))
+    ctx.stations.T_map_bin = transform_from_xyz_rpy((1.0, 0.0, 0.0), (0, 0, 0.1))
     T_map_base2 = transform_from_xyz_rpy((1.3, 1.1, 0.0), (0, 0, -np.pi / 2 + 0.02))
     run = ScriptedRun(ctx, {("robot", "approach"): (_reply(T_map_base2), None)})
     assert Approaching()(run) == "succeeded"
-    assert np.allclose(ctx.T_map_base, T_map_base2)
+    assert np.allclose(ctx.stations.T_map_base, T_map_base2)
     assert Identifying()(run) == "succeeded"
-    assert ctx.pose_source[1] == "base_odometry"
-    assert np.allclose(T_map_base2 @ ctx.T_base_bin, ctx.T_map_bin)  # the same bin, seen from the new park
-    assert not np.allclose(ctx.T_base_bin, invert(st.base_pose.matrix()))
+    assert ctx.stations.pose_source[1] == "base_odometry"
+    assert np.allclose(
+        T_map_base2 @ ctx.identity.T_base_bin, ctx.stations.T_map_bin
+    )  # the same bin, seen from the new park
+    assert not np.allclose(ctx.identity.T_base_bin, invert(st.base_pose.matrix()))
     assert any("carried from the last measured station" in t for _, t in run.events)
 
 
 def test_without_a_base_report_the_planned_station_pose_is_used(cfg) -> None:
     ctx = context(cfg)
     st = _blind_station()
-    ctx.stations, ctx.station_order, ctx.bin_type = [st], [1], "case_study"
-    ctx.T_map_bin = transform_from_xyz_rpy((1.0, 0.0, 0.0), (0, 0, 0))
-    ctx.T_map_base = np.eye(4)  # the previous park's report must not stand for this park's
+    ctx.stations.planned, ctx.stations.station_order, ctx.identity.bin_type = [st], [1], "case_study"
+    ctx.stations.T_map_bin = transform_from_xyz_rpy((1.0, 0.0, 0.0), (0, 0, 0))
+    ctx.stations.T_map_base = np.eye(4)  # the previous park's report must not stand for this park's
     run = ScriptedRun(ctx, {("robot", "approach"): (_reply(None), None)})
     assert Approaching()(run) == "succeeded"
-    assert ctx.T_map_base is None
+    assert ctx.stations.T_map_base is None
     assert Identifying()(run) == "succeeded"
-    assert ctx.pose_source[1] == "carried_over"
-    assert np.allclose(ctx.T_base_bin, invert(st.base_pose.matrix()))
+    assert ctx.stations.pose_source[1] == "carried_over"
+    assert np.allclose(ctx.identity.T_base_bin, invert(st.base_pose.matrix()))
 
 
 def test_a_measured_station_keeps_the_bin_in_the_map_frame(cfg, monkeypatch) -> None:
@@ -137,11 +139,11 @@ def test_a_measured_station_keeps_the_bin_in_the_map_frame(cfg, monkeypatch) -> 
 
     cfg.supervisor.identify_views = 1
     ctx = context(cfg)
-    ctx.approach = _reply(T_map_base)
-    ctx.T_map_base = T_map_base
+    ctx.identity.approach = _reply(T_map_base)
+    ctx.stations.T_map_base = T_map_base
     monkeypatch.setattr(Identifying, "_view", lambda self, run, T: Ident())
     assert Identifying()(ScriptedRun(ctx, {})) == "succeeded"
-    assert np.allclose(ctx.T_map_bin, T_map_base @ T_base_bin)
+    assert np.allclose(ctx.stations.T_map_bin, T_map_base @ T_base_bin)
 
 
 @pytest.mark.slow  # two whole-bin plans of a box: ~20 CPU s

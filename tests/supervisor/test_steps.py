@@ -20,7 +20,9 @@ from cellctl.messages import (
     StartParams,
     ViewpointResult,
 )
-from cellctl.supervisor.context import INITIAL_CONTEXT, Cancelled, CycleContext
+from cellctl.supervisor.context import BLACKBOARD, INITIAL_CONTEXT, Cancelled
+from cellctl.supervisor.context.identity import Identity
+from cellctl.supervisor.context.scan import Scan
 from cellctl.supervisor.steps import STEPS
 from cellctl.supervisor.steps.approaching import Approaching
 from cellctl.supervisor.steps.checking_cache import CheckingCache
@@ -52,7 +54,7 @@ def _done(reply: ClassifyReply) -> Future:
 
 
 def test_every_step_declares_fields_of_the_context() -> None:
-    fields = set(CycleContext.__dataclass_fields__)
+    fields = BLACKBOARD
     assert set(INITIAL_CONTEXT) <= fields
     for name, step in STEPS.items():
         assert set(step.READS) <= fields, name
@@ -63,18 +65,22 @@ def test_approaching_parks_first_then_only_moves_the_arm(cfg) -> None:
     ctx = context(cfg)
     run = ScriptedRun(ctx, {("robot", "approach"): (APPROACH, None)})
     assert Approaching()(run) == "succeeded"
-    assert ctx.approach == APPROACH and run.calls[0][2].park is True
-    ctx.observation_index = 1
+    assert ctx.identity.approach == APPROACH and run.calls[0][2].park is True
+    ctx.identity.observation_index = 1
     Approaching()(run)
     assert run.calls[1][2].park is False and run.calls[1][2].observation_index == 1
 
 
 def test_identifying_sets_the_bin_and_records_the_image(cfg) -> None:
     rec = ListRecorder()
-    ctx = context(cfg, log=rec, approach=APPROACH, identify=fake_identify)
+    ctx = context(cfg, log=rec, identity=Identity(approach=APPROACH), identify=fake_identify)
     run = ScriptedRun(ctx, {("camera", "capture"): CAPTURE})
     assert Identifying()(run) == "succeeded"
-    assert ctx.bin_type == "case_study" and ctx.T_base_bin is not None and ctx.T_base_bin.shape == (4, 4)
+    assert (
+        ctx.identity.bin_type == "case_study"
+        and ctx.identity.T_base_bin is not None
+        and ctx.identity.T_base_bin.shape == (4, 4)
+    )
     assert ("/camera/image", "foxglove.CompressedImage") in rec.records
     assert ("/bin/pose", "foxglove.PoseInFrame") in rec.records
 
@@ -84,19 +90,21 @@ def test_identifying_retries_from_the_next_pose_then_fails(cfg) -> None:
         raise IdentificationError("no board in view")
 
     cfg.supervisor.identify_attempts = 2
-    ctx = context(cfg, approach=APPROACH, identify=blind)
+    ctx = context(cfg, identity=Identity(approach=APPROACH), identify=blind)
     run = ScriptedRun(ctx, {("camera", "capture"): CAPTURE})
     assert Identifying()(run) == "retry"
-    assert ctx.observation_index == 1 and ctx.identify_attempts == 1
+    assert ctx.identity.observation_index == 1 and ctx.identity.identify_attempts == 1
     with pytest.raises(IdentificationError, match="not identified after 2 observation poses: no board in view"):
         Identifying()(run)
 
 
 def test_checking_cache_hit_miss_and_a_hit_without_viewpoints(cfg) -> None:
-    ctx = context(cfg, params=StartParams(surface="internal"), bin_type="case_study", T_base_bin=T_BIN)
+    ctx = context(
+        cfg, params=StartParams(surface="internal"), identity=Identity(bin_type="case_study", T_base_bin=T_BIN)
+    )
     run = ScriptedRun(ctx, {("planner", "lookup"): (_plan(), None)})
     assert CheckingCache()(run) == "hit"
-    assert ctx.plan is not None and ctx.plan.plan_id == "plan-1"
+    assert ctx.scan.plan is not None and ctx.scan.plan.plan_id == "plan-1"
     assert run.calls[0][2].surface == "internal"  # the Start param, not the config default
     run.script[("planner", "lookup")] = (PlanLookupReply(hit=False, reason="pose out of tolerance"), None)
     assert CheckingCache()(run) == "miss"
@@ -107,10 +115,10 @@ def test_checking_cache_hit_miss_and_a_hit_without_viewpoints(cfg) -> None:
 
 
 def test_replanning_submits_and_ends_with_replan_required(cfg) -> None:
-    ctx = context(cfg, bin_type="case_study", T_base_bin=T_BIN, approach=APPROACH)
+    ctx = context(cfg, identity=Identity(bin_type="case_study", T_base_bin=T_BIN, approach=APPROACH))
     run = ScriptedRun(ctx, {("planner", "jobs"): (PlanJobReply(job_id="job-7"), None)})
     assert Replanning()(run) == "submitted"
-    assert ctx.planner_job_id == "job-7" and ctx.outcome == CycleOutcome.replan_required
+    assert ctx.scan.planner_job_id == "job-7" and ctx.result.outcome == CycleOutcome.replan_required
     assert run.calls[0][2].q_start == [0.0] * 6  # the tour starts where the arm is
 
 
@@ -120,7 +128,7 @@ def test_scanning_visits_every_viewpoint_and_a_refused_one_costs_only_coverage(c
             raise WorkerFailed("viewpoint in collision", role="robot")
         return MoveReply(joints=req.joints, camera_pose=CAM_POSE), None
 
-    ctx = context(cfg, plan=_plan(3))
+    ctx = context(cfg, scan=Scan(plan=_plan(3)))
     run = ScriptedRun(
         ctx,
         {
@@ -131,10 +139,10 @@ def test_scanning_visits_every_viewpoint_and_a_refused_one_costs_only_coverage(c
     )
     try:
         assert Scanning()(run) == "succeeded"
-        assert [v.index for v in ctx.viewpoints] == [0, 1, 2]
-        assert ctx.viewpoints[1].error == "viewpoint in collision" and ctx.next_viewpoint == 3
-        assert sorted(ctx.classifications) == [0, 2]
-        assert ctx.classifications[0].result(timeout=5).label == "clean"
+        assert [v.index for v in ctx.scan.viewpoints] == [0, 1, 2]
+        assert ctx.scan.viewpoints[1].error == "viewpoint in collision" and ctx.scan.next_viewpoint == 3
+        assert sorted(ctx.scan.classifications) == [0, 2]
+        assert ctx.scan.classifications[0].result(timeout=5).label == "clean"
     finally:
         ctx.shutdown()
 
@@ -156,24 +164,24 @@ def test_scanning_fails_when_no_viewpoint_was_reached(cfg) -> None:
     def refuse(req):
         raise WorkerFailed("unreachable", role="robot")
 
-    ctx = context(cfg, plan=_plan(2))
+    ctx = context(cfg, scan=Scan(plan=_plan(2)))
     with pytest.raises(WorkerFailed, match="reached none of the 2 planned viewpoints"):
         Scanning()(ScriptedRun(ctx, {("robot", "move"): refuse}))
 
 
 def test_classifying_decides_dirty_if_any_viewpoint_is_dirty(cfg) -> None:
-    ctx = context(cfg, viewpoints=[ViewpointResult(index=0), ViewpointResult(index=1)])
-    ctx.classifications = {
+    ctx = context(cfg, scan=Scan(viewpoints=[ViewpointResult(index=0), ViewpointResult(index=1)]))
+    ctx.scan.classifications = {
         0: _done(ClassifyReply(label="clean", p_dirty=0.1, model_id="m")),
         1: _done(ClassifyReply(label="dirty", p_dirty=0.8, uncertain=True, model_id="m")),
     }
     assert Classifying()(ScriptedRun(ctx, {})) == "succeeded"
-    assert ctx.verdict == "dirty" and [v.label for v in ctx.viewpoints] == ["clean", "dirty"]
-    assert ctx.classifications == {}
+    assert ctx.result.verdict == "dirty" and [v.label for v in ctx.scan.viewpoints] == ["clean", "dirty"]
+    assert ctx.scan.classifications == {}
 
 
 def test_classifying_without_any_label_fails(cfg) -> None:
-    ctx = context(cfg, viewpoints=[ViewpointResult(index=0, error="unreachable")])
+    ctx = context(cfg, scan=Scan(viewpoints=[ViewpointResult(index=0, error="unreachable")]))
     with pytest.raises(ClassifierError, match="no viewpoint was classified"):
         Classifying()(ScriptedRun(ctx, {}))
 
@@ -184,11 +192,11 @@ def test_reporting_maps_dirt_and_coverage_and_completes(cfg) -> None:
         ViewpointResult(index=1, label="dirty"),
         ViewpointResult(index=2, error="x"),
     ]
-    ctx = context(cfg, plan=_plan(3), viewpoints=vps)
+    ctx = context(cfg, scan=Scan(plan=_plan(3), viewpoints=vps))
     assert Reporting()(ScriptedRun(ctx, {})) == "succeeded"
-    assert ctx.dirt_map == {"faces_total": 10, "seen_dirty": [2, 3], "seen_clean": [0, 1], "unseen_count": 6}
-    assert ctx.coverage == pytest.approx(0.4)
-    assert ctx.outcome == CycleOutcome.completed
+    assert ctx.result.dirt_map == {"faces_total": 10, "seen_dirty": [2, 3], "seen_clean": [0, 1], "unseen_count": 6}
+    assert ctx.result.coverage == pytest.approx(0.4)
+    assert ctx.result.outcome == CycleOutcome.completed
 
 
 def test_the_cabin_past_the_bin_is_filled_for_the_classifier_and_the_bin_is_not(cfg) -> None:
@@ -239,7 +247,7 @@ def test_only_the_configured_surfaces_get_the_cabin_mask(cfg) -> None:
     png = cv2.imencode(".png", np.random.default_rng(1).integers(0, 255, (48, 64, 3), dtype=np.uint8))[1].tobytes()
     board = mask_board(png, cat.get("case_study"), np.eye(4), T_cam, INTRINSICS)  # the board mask, always
     for surface, masked in (("internal", True), ("external", False)):
-        ctx = context(cfg, catalog=cat, bin_type="case_study", T_base_bin=np.eye(4))
+        ctx = context(cfg, catalog=cat, identity=Identity(bin_type="case_study", T_base_bin=np.eye(4)))
         ctx.params = ctx.params.model_copy(update={"surface": surface})
         image, fmt = classifier_input(ScriptedRun(ctx, {}), png, "png", T_cam, INTRINSICS)
         assert (image != board) == masked and fmt == "png", surface
@@ -265,7 +273,7 @@ def test_the_masks_decode_under_the_cells_pixel_budget(cfg) -> None:
     for budget, masked in ((n - 1, False), (n, True)):
         cfg.camera.max_image_pixels = budget
         for surface in ("external", "internal"):  # the board mask alone; board and cabin masks
-            ctx = context(cfg, catalog=cat, bin_type="case_study", T_base_bin=np.eye(4))
+            ctx = context(cfg, catalog=cat, identity=Identity(bin_type="case_study", T_base_bin=np.eye(4)))
             ctx.params = ctx.params.model_copy(update={"surface": surface})
             image, _ = classifier_input(ScriptedRun(ctx, {}), png, "png", T_cam, intr)
             assert (image is not png) == masked, (budget, surface)

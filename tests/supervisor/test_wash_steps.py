@@ -25,6 +25,10 @@ from cellctl.messages import (
 )
 from cellctl.sim.ground_truth import PowderField
 from cellctl.sim.scene import HOME_JOINTS, nominal_T_bin_base
+from cellctl.supervisor.context.identity import Identity
+from cellctl.supervisor.context.result import Result
+from cellctl.supervisor.context.scan import Scan
+from cellctl.supervisor.context.stations import Stations
 from cellctl.supervisor.steps.verifying import Verifying, imaged_faces, merge_dirt_maps
 from cellctl.supervisor.steps.washing import WashCheck, Washing, WashStation
 from cellctl.surface import EXTERNAL
@@ -69,7 +73,15 @@ def _ctx(cfg, case, dirty: np.ndarray | None, min_seen: float = 0.0, **kw):
         PlannedViewpoint(index=1, camera_pose=CAM_POSE, joints=[0.2] * 6, faces=far),
     ]
     plan = PlanLookupReply(hit=True, plan_id="p", viewpoints=vps, mesh_faces=mesh.n_faces)
-    return context(cfg, params=WASH, catalog=cat, bin_type="case_study", T_base_bin=T, dirt_map=dm, plan=plan, **kw)
+    return context(
+        cfg,
+        params=WASH,
+        catalog=cat,
+        identity=Identity(bin_type="case_study", T_base_bin=T),
+        result=Result(dirt_map=dm),
+        scan=Scan(plan=plan),
+        **kw,
+    )
 
 
 def _script(cfg, refuse_second: bool = False, label: str = "clean") -> dict:
@@ -99,7 +111,7 @@ def test_other_modes_pass_wash_check_untouched(cfg, case) -> None:
     ctx = _ctx(cfg, case, _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0)))
     ctx.mode = "evaluate"
     run = ScriptedRun(ctx, {})
-    assert WashCheck()(run) == "done" and run.calls == [] and ctx.wash is None
+    assert WashCheck()(run) == "done" and run.calls == [] and ctx.wash.result is None
 
 
 def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(cfg, case, tmp_path) -> None:
@@ -109,21 +121,21 @@ def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(
     ctx = _ctx(cfg, case, dirty, log=log)
     run = ScriptedRun(ctx, _script(cfg, refuse_second=True))
     assert WashCheck()(run) == "wash"
-    plan = ctx.wash_plan
+    plan = ctx.wash.plan
     assert plan.sweeps and not plan.unwashable and len(plan.dirty) == dirty.sum() and plan.reason is None
-    assert ctx.wash_queue == [None] and WashStation()(run) == "wash"  # single-station: no parking
+    assert ctx.wash.queue == [None] and WashStation()(run) == "wash"  # single-station: no parking
     assert Washing()(run) == "succeeded"
     washes = [m for r, o, m in run.calls if o == "wash"]
     assert len(washes) == len(plan.sweeps)  # one request per sweep: a Hold resumes at the next
     assert [len(w.sweeps) for w in washes] == [1] * len(washes)
     assert washes[0].sweeps[0].joints == plan.sweeps[0].joints and washes[0].sweeps[0].passes == 2
-    assert ctx.wash_run["sweeps_run"] == len(plan.sweeps) - 1 and len(ctx.wash_run["refused"]) == 1
-    assert WashStation()(run) == "verify" and ctx.verify_queue == [None]
+    assert ctx.wash.run["sweeps_run"] == len(plan.sweeps) - 1 and len(ctx.wash.run["refused"]) == 1
+    assert WashStation()(run) == "verify" and ctx.wash.verify_queue == [None]
     assert Verifying()(run) == "succeeded"
     moves = [m for r, o, m in run.calls if o == "move"]
     assert [list(m.joints) for m in moves] == [[0.1] * 6]  # only the viewpoint that sees the washed faces
-    assert [v.wash_round for v in ctx.wash_views] == [1] and ctx.viewpoints == []
-    (rec,) = ctx.wash_rounds
+    assert [v.wash_round for v in ctx.wash.views] == [1] and ctx.scan.viewpoints == []
+    (rec,) = ctx.wash.rounds
     assert rec.dirty_faces_before == dirty.sum() and rec.dirty_faces_after == 0
     assert rec.sweeps_run == len(plan.sweeps) - 1 and rec.sweeps_refused and rec.reinspected_views == 1
     assert rec.pictures == ["r1_before.png", "r1_path.png", "r1_after.png"]
@@ -131,8 +143,8 @@ def test_a_dirty_spot_is_washed_re_inspected_and_ends_clean_with_three_pictures(
         assert (tmp_path / "c-1.wash" / p).stat().st_size > 10_000
     assert ("/wash/plan", "cellctl.WashPlan") in log.records and ("/wash/round", "cellctl.WashRound") in log.records
     assert WashCheck()(run) == "done"
-    assert ctx.verdict == "clean" and ctx.wash.verdict == "clean" and len(ctx.wash.rounds) == 1
-    assert ctx.wash.remaining_faces == []
+    assert ctx.result.verdict == "clean" and ctx.wash.result.verdict == "clean" and len(ctx.wash.result.rounds) == 1
+    assert ctx.wash.result.remaining_faces == []
 
 
 def test_dirt_no_nozzle_pose_reaches_ends_dirty_as_unwashable_without_motion(cfg, case) -> None:
@@ -141,22 +153,22 @@ def test_dirt_no_nozzle_pose_reaches_ends_dirty_as_unwashable_without_motion(cfg
     run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done"
     assert [o for _, o, _ in run.calls] == ["state", "wash_plan"]  # no wash, no move
-    assert ctx.verdict == "dirty" and ctx.wash.verdict == "dirty"
-    assert ctx.wash.reason.startswith("unwashable: no nozzle pose reaches any dirty region")
-    assert ctx.wash.unwashable and ctx.wash.remaining_faces == np.flatnonzero(dirty).tolist()
+    assert ctx.result.verdict == "dirty" and ctx.wash.result.verdict == "dirty"
+    assert ctx.wash.result.reason.startswith("unwashable: no nozzle pose reaches any dirty region")
+    assert ctx.wash.result.unwashable and ctx.wash.result.remaining_faces == np.flatnonzero(dirty).tolist()
 
 
 def test_no_dirt_map_is_a_reason_and_no_motion(cfg, case) -> None:
     ctx = _ctx(cfg, case, None)
     run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done" and run.calls == []
-    assert ctx.wash.verdict is None and "no dirt map" in ctx.wash.reason
+    assert ctx.wash.result.verdict is None and "no dirt map" in ctx.wash.result.reason
 
 
 def test_dirt_left_after_the_last_round_ends_dirty(cfg, case) -> None:
     dirty = _dirty(case[1], (0.2, -0.37, -0.15), (0, -1.0, 0))
     ctx = _ctx(cfg, case, dirty)
-    ctx.wash_rounds = [
+    ctx.wash.rounds = [
         WashRound(
             round=k + 1,
             dirty_faces_before=1,
@@ -171,7 +183,11 @@ def test_dirt_left_after_the_last_round_ends_dirty(cfg, case) -> None:
     ]
     run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done" and run.calls == []
-    assert ctx.verdict == "dirty" and "after 3 wash round(s)" in ctx.wash.reason and len(ctx.wash.rounds) == 3
+    assert (
+        ctx.result.verdict == "dirty"
+        and "after 3 wash round(s)" in ctx.wash.result.reason
+        and len(ctx.wash.result.rounds) == 3
+    )
 
 
 def test_a_hold_during_a_sweep_is_not_a_refusal_and_resumes_there(cfg, case) -> None:
@@ -190,10 +206,10 @@ def test_a_hold_during_a_sweep_is_not_a_refusal_and_resumes_there(cfg, case) -> 
     script[("robot", "wash")] = held
     with pytest.raises(Cancelled):
         Washing()(run)
-    assert ctx.wash_next_sweep == 0 and ctx.wash_run["refused"] == []
+    assert ctx.wash.next_sweep == 0 and ctx.wash.run["refused"] == []
     resumed = ScriptedRun(ctx, _script(cfg))
     assert Washing()(resumed) == "succeeded"
-    assert ctx.wash_run["sweeps_run"] == len(ctx.wash_plan.sweeps)
+    assert ctx.wash.run["sweeps_run"] == len(ctx.wash.plan.sweeps)
 
 
 def test_merging_keeps_unseen_faces_and_replaces_seen_ones(case) -> None:
@@ -238,8 +254,9 @@ def _whole_ctx(cfg, case, dirty_a, dirty_b):
     dirty = dirty_a | dirty_b
     dm = {"seen_dirty": np.flatnonzero(dirty).tolist(), "seen_clean": []}
     return context(
-        cfg, params=WASH, catalog=cat, bin_type="case_study", T_base_bin=T_b, dirt_map=dm, plan=plans[(1, "external")],
-        stations=stations, station_order=[0, 1], station_index=2, bin_poses=dict(poses), plans=plans,
+        cfg, params=WASH, catalog=cat, identity=Identity(bin_type="case_study", T_base_bin=T_b),
+        result=Result(dirt_map=dm), scan=Scan(plan=plans[(1, "external")]),
+        stations=Stations(planned=stations, station_order=[0, 1], station_index=2, bin_poses=dict(poses), plans=plans),
     )  # fmt: skip
 
 
@@ -254,36 +271,36 @@ def test_a_whole_bin_round_washes_and_re_inspects_station_by_station_parking_aga
     assert WashCheck()(run) == "wash"
     # the round's plan covers both spots, each from its own station: the base's station first
     (req,) = [m for _, o, m in run.calls if o == "wash_plan"]
-    assert len(req.stations) == 2 and np.allclose(req.stations[0].matrix(), invert(ctx.bin_poses[1]))
-    assert ctx.wash_queue == [1, 0] and not ctx.wash_plan.unwashable
-    assert WashStation()(run) == "wash" and Washing()(run) == "succeeded" and ctx.wash_queue == [0]
-    n_first = ctx.wash_run["sweeps_run"]
-    assert n_first == len(ctx.wash_station_sweeps[1])
+    assert len(req.stations) == 2 and np.allclose(req.stations[0].matrix(), invert(ctx.stations.bin_poses[1]))
+    assert ctx.wash.queue == [1, 0] and not ctx.wash.plan.unwashable
+    assert WashStation()(run) == "wash" and Washing()(run) == "succeeded" and ctx.wash.queue == [0]
+    n_first = ctx.wash.run["sweeps_run"]
+    assert n_first == len(ctx.wash.station_sweeps[1])
     # station 0: park there; identifying measures the bin 1 cm and 0.5° off the scan's park
     assert WashStation()(run) == "park"
-    assert ctx.current_station().station == 0 and ctx.approach is None and ctx.wash_parked == 0
-    ctx.bin_poses[0] = transform_from_xyz_rpy((0.01, 0.0, 0.0), (0, 0, np.radians(0.5))) @ T_a
-    ctx.T_base_bin = ctx.bin_poses[0]
-    assert WashStation()(run) == "wash" and Washing()(run) == "succeeded" and ctx.wash_queue == []
+    assert ctx.stations.current_station().station == 0 and ctx.identity.approach is None and ctx.wash.parked == 0
+    ctx.stations.bin_poses[0] = transform_from_xyz_rpy((0.01, 0.0, 0.0), (0, 0, np.radians(0.5))) @ T_a
+    ctx.identity.T_base_bin = ctx.stations.bin_poses[0]
+    assert WashStation()(run) == "wash" and Washing()(run) == "succeeded" and ctx.wash.queue == []
     replans = [m for _, o, m in run.calls if o == "wash_plan"][1:]
-    assert len(replans) == 1 and np.allclose(replans[0].stations[0].matrix(), invert(ctx.bin_poses[0]))
+    assert len(replans) == 1 and np.allclose(replans[0].stations[0].matrix(), invert(ctx.stations.bin_poses[0]))
     assert set(replans[0].dirt_map["seen_dirty"]) >= set(np.flatnonzero(dirty_a).tolist())
-    assert ctx.wash_run["sweeps_run"] > n_first and ctx.wash_run["replanned"][0]["station"] == 0
+    assert ctx.wash.run["sweeps_run"] > n_first and ctx.wash.run["replanned"][0]["station"] == 0
     # re-inspection: station 0 first (the base stands there), its view carried into the new park
-    assert WashStation()(run) == "verify" and ctx.verify_queue == [0, 1]
+    assert WashStation()(run) == "verify" and ctx.wash.verify_queue == [0, 1]
     assert Verifying()(run) == "next"
     (m0,) = [m for _, o, m in run.calls if o == "move"]
     assert m0.joints is None and np.allclose(
-        m0.camera_pose.matrix(), ctx.bin_poses[0] @ invert(T_a) @ CAM_POSE.matrix(), atol=1e-6
+        m0.camera_pose.matrix(), ctx.stations.bin_poses[0] @ invert(T_a) @ CAM_POSE.matrix(), atol=1e-6
     )
-    assert WashStation()(run) == "park" and ctx.wash_parked == 1  # back to station 1 (its pose measured again)
+    assert WashStation()(run) == "park" and ctx.wash.parked == 1  # back to station 1 (its pose measured again)
     assert WashStation()(run) == "verify" and Verifying()(run) == "succeeded"
     moves = [m for _, o, m in run.calls if o == "move"]
     assert len(moves) == 2 and list(moves[1].joints) == [0.2] * 6  # station 1's park is unchanged: its joints
-    assert [(v.station, v.surface, v.wash_round) for v in ctx.wash_views] == [(0, "external", 1), (1, "external", 1)]
-    (rec,) = ctx.wash_rounds
+    assert [(v.station, v.surface, v.wash_round) for v in ctx.wash.views] == [(0, "external", 1), (1, "external", 1)]
+    (rec,) = ctx.wash.rounds
     assert rec.dirty_faces_before == (dirty_a | dirty_b).sum() and rec.dirty_faces_after == 0
-    assert WashCheck()(run) == "done" and ctx.wash.verdict == "clean"
+    assert WashCheck()(run) == "done" and ctx.wash.result.verdict == "clean"
 
 
 def test_a_later_round_plans_the_station_the_base_stands_at_at_the_pose_measured_at_this_park(cfg, case) -> None:
@@ -296,19 +313,21 @@ def test_a_later_round_plans_the_station_the_base_stands_at_at_the_pose_measured
     dirty_a = _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0))
     dirty_b = _dirty(mesh, (-0.2, 0.37, -0.15), (0, 1.0, 0))
     ctx = _whole_ctx(cfg, case, dirty_a, dirty_b)
-    ctx.wash_scan_poses = dict(ctx.bin_poses)
-    ctx.wash_parked = 1
+    ctx.wash.scan_poses = dict(ctx.stations.bin_poses)
+    ctx.wash.parked = 1
     done = {"sweeps_planned": 1, "sweeps_run": 1, "passes_run": 2, "washed_m2": 0.01, "covered_m2": 0.01}
-    ctx.wash_rounds = [WashRound(round=1, dirty_faces_before=9, dirty_m2_before=0.01, **done)]
-    scan_1 = ctx.bin_poses[1]
-    ctx.bin_poses[1] = transform_from_xyz_rpy((0.02, -0.01, 0.0), (0, 0, np.radians(1.0))) @ scan_1  # parked again
+    ctx.wash.rounds = [WashRound(round=1, dirty_faces_before=9, dirty_m2_before=0.01, **done)]
+    scan_1 = ctx.stations.bin_poses[1]
+    ctx.stations.bin_poses[1] = (
+        transform_from_xyz_rpy((0.02, -0.01, 0.0), (0, 0, np.radians(1.0))) @ scan_1
+    )  # parked again
     run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "wash"
     (req,) = [m for _, o, m in run.calls if o == "wash_plan"]
-    assert np.allclose(req.stations[0].matrix(), invert(ctx.bin_poses[1]))  # this park's pose
+    assert np.allclose(req.stations[0].matrix(), invert(ctx.stations.bin_poses[1]))  # this park's pose
     assert not np.allclose(req.stations[0].matrix(), invert(scan_1))
-    assert np.allclose(req.stations[1].matrix(), invert(ctx.wash_scan_poses[0]))
-    assert ctx.wash_queue[0] == 1 and WashStation()(run) == "wash"  # no parking: the base is there
+    assert np.allclose(req.stations[1].matrix(), invert(ctx.wash.scan_poses[0]))
+    assert ctx.wash.queue[0] == 1 and WashStation()(run) == "wash"  # no parking: the base is there
     assert Washing()(run) == "succeeded"
     assert [o for _, o, _ in run.calls].count("wash_plan") == 1  # its sweeps were planned at this park
 
@@ -321,8 +340,8 @@ def test_a_re_inspection_view_whose_carried_pose_is_refused_is_taken_from_its_pl
 
     _, mesh, T_a = case
     ctx = _whole_ctx(cfg, case, _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0)), np.zeros(mesh.n_faces, bool))
-    ctx.wash_scan_poses = dict(ctx.bin_poses)
-    ctx.bin_poses[0] = transform_from_xyz_rpy((0.02, 0.0, 0.0), (0, 0, np.radians(1.0))) @ T_a  # parked again
+    ctx.wash.scan_poses = dict(ctx.stations.bin_poses)
+    ctx.stations.bin_poses[0] = transform_from_xyz_rpy((0.02, 0.0, 0.0), (0, 0, np.radians(1.0))) @ T_a  # parked again
     script = _script(cfg)
 
     def move(req):
@@ -332,17 +351,17 @@ def test_a_re_inspection_view_whose_carried_pose_is_refused_is_taken_from_its_pl
 
     script[("robot", "move")] = move
     run = ScriptedRun(ctx, script)
-    (vp,) = ctx.plans[(0, "external")].viewpoints
+    (vp,) = ctx.stations.plans[(0, "external")].viewpoints
     Verifying._look(run, vp, 1, "external", 0)
     moves = [m for _, o, m in run.calls if o == "move"]
     assert [m.camera_pose is not None for m in moves] == [True, False] and list(moves[1].joints) == list(vp.joints)
-    (v,) = ctx.wash_views
+    (v,) = ctx.wash.views
     assert v.error is None and v.label == "clean" and (v.station, v.wash_round) == (0, 1)
     # both refused: one view with the error, as before
     script[("robot", "move")] = lambda req: (_ for _ in ()).throw(WorkerFailed("in collision"))
-    ctx.wash_views = []
+    ctx.wash.views = []
     Verifying._look(run, vp, 1, "external", 0)
-    (v,) = ctx.wash_views
+    (v,) = ctx.wash.views
     assert v.error == "in collision" and v.label is None
 
 
@@ -356,7 +375,7 @@ def test_a_dirty_view_is_laid_on_what_the_round_did_not_wash(cfg, case) -> None:
     before[[1, 2, 3]] = True
     washed = np.zeros(n, bool)
     washed[[1, 2]] = True
-    ctx.plan = PlanLookupReply(
+    ctx.scan.plan = PlanLookupReply(
         hit=True,
         plan_id="p",
         viewpoints=[
@@ -405,7 +424,7 @@ def test_a_dirty_view_whose_planned_faces_were_all_washed_marks_the_faces_its_im
     T_base_cam = T_base_bin @ _look_at(c + 0.4 * nrm, c)
     pose = PoseMsg.from_matrix(T_base_cam)
     listed = [1, 2]  # its plan's faces: elsewhere, all washed
-    ctx.plan = PlanLookupReply(
+    ctx.scan.plan = PlanLookupReply(
         hit=True,
         plan_id="p",
         viewpoints=[PlannedViewpoint(index=0, camera_pose=pose, joints=[0.1] * 6, faces=listed)],
@@ -452,7 +471,7 @@ def test_the_re_inspection_map_fuses_heat_maps_with_the_scans_projection(cfg, ca
         vc = cfg.classifier.verdict.model_copy(update={"projection": projection})
         c2 = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"verdict": vc})})
         ctx = _ctx(c2, case, np.zeros(n, bool))
-        ctx.plan = PlanLookupReply(
+        ctx.scan.plan = PlanLookupReply(
             hit=True,
             plan_id="p",
             viewpoints=[PlannedViewpoint(index=0, camera_pose=pose, joints=[0.1] * 6, faces=[leg])],
@@ -460,7 +479,7 @@ def test_the_re_inspection_map_fuses_heat_maps_with_the_scans_projection(cfg, ca
         )
         dm = Verifying._dirt_map(ctx, mesh, [v], np.zeros(n, bool), np.zeros(n, bool))
         ref = fuse_config(
-            view_evidence(ctx.plan, [v], T_base_bin),
+            view_evidence(ctx.scan.plan, [v], T_base_bin),
             mesh,
             CameraModel.from_config(c2.camera),
             vc,
@@ -478,7 +497,7 @@ def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) ->
     script = _script(cfg)
     run = ScriptedRun(ctx, script)
     assert WashCheck()(run) == "wash"
-    firsts = {tuple(sw.joints[0]) for sw in ctx.wash_plan.sweeps if len(sw.joints) > 1}
+    firsts = {tuple(sw.joints[0]) for sw in ctx.wash.plan.sweeps if len(sw.joints) > 1}
 
     def one_way(req):
         sw = req.sweeps[0]
@@ -488,8 +507,8 @@ def test_a_sweep_whose_start_has_no_path_is_run_from_its_other_end(cfg, case) ->
 
     script[("robot", "wash")] = one_way
     assert Washing()(run) == "succeeded"
-    n = len(ctx.wash_plan.sweeps)
-    assert ctx.wash_run["sweeps_run"] == n and ctx.wash_run["refused"] == []
+    n = len(ctx.wash.plan.sweeps)
+    assert ctx.wash.run["sweeps_run"] == n and ctx.wash.run["refused"] == []
     assert sum(1 for _, o, _ in run.calls if o == "wash") == n + len(firsts)
 
 
@@ -534,26 +553,26 @@ def test_a_dirty_re_inspection_view_a_certain_clean_re_look_overrules_ends_clean
     moves = [m for _, o, m in run.calls if o == "move"]
     assert len(moves) == 2 and moves[0].joints is not None and moves[1].camera_pose is not None
     assert not np.allclose(moves[1].camera_pose.matrix(), CAM_POSE.matrix())  # moved by the re-look swing
-    assert [(v.relook_of, v.label, v.wash_round) for v in ctx.wash_views] == [(None, "dirty", 1), (0, "clean", 1)]
-    (rec,) = ctx.wash_rounds
+    assert [(v.relook_of, v.label, v.wash_round) for v in ctx.wash.views] == [(None, "dirty", 1), (0, "clean", 1)]
+    (rec,) = ctx.wash.rounds
     assert rec.dirty_faces_after == 0 and rec.reinspected_views == 2
-    assert WashCheck()(run) == "done" and ctx.wash.verdict == "clean"
+    assert WashCheck()(run) == "done" and ctx.wash.result.verdict == "clean"
 
 
 def test_a_dirty_re_inspection_view_its_re_look_confirms_keeps_the_leftover_dirty(cfg, case) -> None:
     """Real dirt left after the wash is seen from the re-look pose too: the faces stay dirty and the
     loop washes again, and once the rounds are spent the bin ends ``dirty``, never clean."""
     ctx, run, dirty = _relook_run(cfg, case, ClassifyReply(label="dirty", p_dirty=0.85, model_id="m"))
-    (rec,) = ctx.wash_rounds
+    (rec,) = ctx.wash.rounds
     assert rec.dirty_faces_after == dirty.sum()  # every washed face the dirty view sees (none unwashed)
     assert WashCheck()(run) == "wash"  # round 2
     for _ in range(cfg.wash.max_rounds - 1):
         assert WashStation()(run) == "wash" and Washing()(run) == "succeeded"
         assert WashStation()(run) == "verify" and Verifying()(run) == "succeeded"
-        if len(ctx.wash_rounds) < cfg.wash.max_rounds:
+        if len(ctx.wash.rounds) < cfg.wash.max_rounds:
             assert WashCheck()(run) == "wash"
-    assert WashCheck()(run) == "done" and ctx.verdict == "dirty" and ctx.wash.verdict == "dirty"
-    assert ctx.wash.remaining_faces and "after 3 wash round(s)" in ctx.wash.reason
+    assert WashCheck()(run) == "done" and ctx.result.verdict == "dirty" and ctx.wash.result.verdict == "dirty"
+    assert ctx.wash.result.remaining_faces and "after 3 wash round(s)" in ctx.wash.result.reason
 
 
 def test_an_uncertain_re_inspection_view_is_re_looked_even_without_confirming(cfg, case) -> None:
@@ -572,17 +591,17 @@ def test_an_uncertain_re_inspection_view_is_re_looked_even_without_confirming(cf
     run = ScriptedRun(ctx, script)
     assert WashCheck()(run) == "wash" and WashStation()(run) == "wash" and Washing()(run) == "succeeded"
     assert WashStation()(run) == "verify" and Verifying()(run) == "succeeded"
-    assert [v.relook_of for v in ctx.wash_views] == [None, 0]
+    assert [v.relook_of for v in ctx.wash.views] == [None, 0]
     # decided like the scan's views (classifying.Classifying._view_labels), not by a rule of its own
     from cellctl.supervisor.steps.classifying import Classifying
 
-    (label,) = Classifying._view_labels(ctx.wash_views, False).values()
-    assert (ctx.wash_rounds[0].dirty_faces_after > 0) == (label == "dirty")
+    (label,) = Classifying._view_labels(ctx.wash.views, False).values()
+    assert (ctx.wash.rounds[0].dirty_faces_after > 0) == (label == "dirty")
     ctx2 = _ctx(cfg, case, _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0)))
     run2 = ScriptedRun(ctx2, _script(cfg, label="dirty"))  # certain dirty, not confirming: no re-look
     assert WashCheck()(run2) == "wash" and WashStation()(run2) == "wash" and Washing()(run2) == "succeeded"
     assert WashStation()(run2) == "verify" and Verifying()(run2) == "succeeded"
-    assert [v.relook_of for v in ctx2.wash_views] == [None] and ctx2.wash_rounds[0].dirty_faces_after > 0
+    assert [v.relook_of for v in ctx2.wash.views] == [None] and ctx2.wash.rounds[0].dirty_faces_after > 0
 
 
 def test_clean_needs_the_configured_share_of_the_bin_seen(cfg, case) -> None:
@@ -596,34 +615,43 @@ def test_clean_needs_the_configured_share_of_the_bin_seen(cfg, case) -> None:
     k = int(np.searchsorted(np.cumsum(a[order]) / a.sum(), 0.5)) + 1
     half = sorted(order[:k].tolist())  # just over half the bin's area
     ctx = _ctx(cfg, case, np.zeros(n, bool), min_seen=0.6)
-    ctx.dirt_map = {"seen_dirty": [], "seen_clean": half}
+    ctx.result.dirt_map = {"seen_dirty": [], "seen_clean": half}
     run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done" and run.calls == []
-    assert ctx.verdict == "incomplete" and ctx.wash.verdict == "incomplete" and ctx.reason == ctx.wash.reason
-    assert ctx.wash.reason.startswith("unverified")
-    assert 0.5 <= ctx.wash.seen_fraction < 0.6 and ctx.wash.min_seen_fraction == 0.6
-    assert f"{ctx.wash.seen_fraction:.0%}" in ctx.wash.reason
+    assert (
+        ctx.result.verdict == "incomplete"
+        and ctx.wash.result.verdict == "incomplete"
+        and ctx.result.reason == ctx.wash.result.reason
+    )
+    assert ctx.wash.result.reason.startswith("unverified")
+    assert 0.5 <= ctx.wash.result.seen_fraction < 0.6 and ctx.wash.result.min_seen_fraction == 0.6
+    assert f"{ctx.wash.result.seen_fraction:.0%}" in ctx.wash.result.reason
     ctx = _ctx(cfg, case, np.zeros(n, bool), min_seen=0.5)
-    ctx.dirt_map = {"seen_dirty": [], "seen_clean": half}
+    ctx.result.dirt_map = {"seen_dirty": [], "seen_clean": half}
     run = ScriptedRun(ctx, _script(cfg))
     assert WashCheck()(run) == "done"
-    assert ctx.verdict == "clean" and ctx.wash.verdict == "clean" and ctx.wash.reason is None
-    assert ctx.wash.seen_fraction >= 0.5
-    seen = ctx.coverage_by_surface
+    assert ctx.result.verdict == "clean" and ctx.wash.result.verdict == "clean" and ctx.wash.result.reason is None
+    assert ctx.wash.result.seen_fraction >= 0.5
+    seen = ctx.result.coverage_by_surface
     assert set(seen) == {"external", "internal"} and all(0 < f < 1 for f in seen.values())
     # the same map against a per-surface minimum above what it saw of the internal surface
     ctx = _ctx(cfg, case, np.zeros(n, bool), min_seen=0.5)
     vc = cfg.classifier.verdict.model_copy(update={"min_seen_fraction": {"internal": seen["internal"] + 0.01}})
     ctx.cfg = ctx.cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"verdict": vc})})
-    ctx.dirt_map = {"seen_dirty": [], "seen_clean": half}
+    ctx.result.dirt_map = {"seen_dirty": [], "seen_clean": half}
     assert WashCheck()(ScriptedRun(ctx, _script(cfg))) == "done"
-    assert ctx.verdict == "incomplete" and ctx.wash.verdict == "incomplete"
-    assert ctx.wash.reason.startswith("incomplete: no dirt seen, but internal") and "external" not in ctx.wash.reason
+    assert ctx.result.verdict == "incomplete" and ctx.wash.result.verdict == "incomplete"
+    assert (
+        ctx.wash.result.reason.startswith("incomplete: no dirt seen, but internal")
+        and "external" not in ctx.wash.result.reason
+    )
     # a heat-map dirt map: seen is where a face has a probability
     p = np.full(n, np.nan)
     p[half] = 0.01
     ctx = _ctx(cfg, case, np.zeros(n, bool), min_seen=0.6)
     from cellctl.classify.heatmap import FaceMap
 
-    ctx.dirt_map = FaceMap(p=np.nan_to_num(p), seen=~np.isnan(p), dirty=np.zeros(n, bool), dirty_area_m2=0.0).as_json()
-    assert WashCheck()(ScriptedRun(ctx, _script(cfg))) == "done" and ctx.wash.reason.startswith("unverified")
+    ctx.result.dirt_map = FaceMap(
+        p=np.nan_to_num(p), seen=~np.isnan(p), dirty=np.zeros(n, bool), dirty_area_m2=0.0
+    ).as_json()
+    assert WashCheck()(ScriptedRun(ctx, _script(cfg))) == "done" and ctx.wash.result.reason.startswith("unverified")

@@ -62,11 +62,11 @@ def test_a_whole_bin_wash_cycle_result_fits_the_wire(cfg, case) -> None:  # noqa
     dirty_a = _dirty(mesh, (0.2, -0.37, -0.15), (0, -1.0, 0))
     dirty_b = _dirty(mesh, (-0.2, 0.37, -0.15), (0, 1.0, 0))
     ctx = _whole_ctx(cfg, case, dirty_a, dirty_b)
-    ctx.viewpoints = _scan_views(120)
+    ctx.scan.viewpoints = _scan_views(120)
     seen = np.ones(mesh.n_faces, bool)
     d = dirty_a | dirty_b
     p = np.where(d, 0.9, np.random.default_rng(1).uniform(0, 0.3, mesh.n_faces))
-    ctx.dirt_map = FaceMap(p=p, seen=seen, dirty=d, dirty_area_m2=float(mesh.areas[d].sum())).as_json()
+    ctx.result.dirt_map = FaceMap(p=p, seen=seen, dirty=d, dirty_area_m2=float(mesh.areas[d].sum())).as_json()
     script = _script(cfg, label="dirty")
     n = {"wash": 0}
 
@@ -91,15 +91,15 @@ def test_a_whole_bin_wash_cycle_result_fits_the_wire(cfg, case) -> None:  # noqa
         elif state == "wash_station":
             out = WashStation()(run)
             if out == "park":
-                ctx.T_base_bin = ctx.bin_poses[ctx.wash_parked]
+                ctx.identity.T_base_bin = ctx.stations.bin_poses[ctx.wash.parked]
             state = {"wash": "washing", "park": "wash_station", "verify": "verifying"}[out]
         elif state == "washing":
             assert Washing()(run) == "succeeded"
             state = "wash_station"
         else:
             state = "wash_check" if Verifying()(run) == "succeeded" else "wash_station"
-    assert out == "done" and len(ctx.wash.rounds) == cfg.wash.max_rounds and ctx.wash.verdict == "dirty"
-    assert all(r.sweeps_refused for r in ctx.wash.rounds)
+    assert out == "done" and len(ctx.wash.result.rounds) == cfg.wash.max_rounds and ctx.wash.result.verdict == "dirty"
+    assert all(r.sweeps_refused for r in ctx.wash.result.rounds)
     res = assemble_result(ctx, CycleOutcome.completed)
     data = fit_to_wire(res)
     assert len(data) <= MAX_PAYLOAD_BYTES, f"{len(data)} bytes (whole: {len(encode(res))})"

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 
 def approach_request(run: StepRun, observation_index: int, park: bool) -> ApproachRequest:
     """The ApproachRequest for the station the cycle is at (the nominal park when there is none)."""
-    st = run.ctx.current_station()
+    st = run.ctx.stations.current_station()
     if st is None:
         return ApproachRequest(observation_index=observation_index, park=park)
     return ApproachRequest(
@@ -52,25 +52,26 @@ class Approaching(Step):
     NAME = "approaching"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "park beside the bin (at the station, first attempt) and move to observation pose k"
-    READS = ("observation_index",)
-    WRITES = ("approach", "T_map_base")
+    READS = ("identity.observation_index",)
+    WRITES = ("identity.approach", "stations.T_map_base")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        first = ctx.approach is None
-        st = ctx.current_station()
+        first = ctx.identity.approach is None
+        st = ctx.stations.current_station()
         if first and st is not None:
             run.event(
                 "info",
-                f"station {ctx.station_index + 1}/{len(ctx.station_order)} (plan station {st.station}): parking",
+                f"station {ctx.stations.station_index + 1}/{len(ctx.stations.station_order)} "
+                f"(plan station {st.station}): parking",
             )
         if first and ctx.base is not None:
             self._park_base(run, st.station if st is not None else 0)
-        req = approach_request(run, ctx.observation_index, first)
+        req = approach_request(run, ctx.identity.observation_index, first)
         reply, _ = run.call("robot", "approach", req, ApproachReply)
-        ctx.approach = reply
+        ctx.identity.approach = reply
         if first:  # a new park: only this park's report may carry a pose to it
-            ctx.T_map_base = reported_base_pose(reply, ctx.base)
+            ctx.stations.T_map_base = reported_base_pose(reply, ctx.base)
         return "succeeded"
 
     @staticmethod

@@ -19,14 +19,14 @@ class CheckingCache(Step):
     NAME = "checking_cache"
     OUTCOMES = ("hit", "miss", "move", "failed")
     DESCRIPTION = "plan-cache lookup + tolerance check + viewpoint adjustment (in the planner worker)"
-    READS = ("bin_type", "T_base_bin", "params", "mode")
-    WRITES = ("plan", "approach")
+    READS = ("identity.bin_type", "identity.T_base_bin")
+    WRITES = ("scan.plan", "identity.approach")
 
     def _lookup(self, run: StepRun) -> PlanLookupReply:
         ctx = run.ctx
         req = PlanLookupRequest(
-            bin_type=ctx.bin_type or "",
-            bin_pose=PoseMsg.from_matrix(ctx.T_base_bin),
+            bin_type=ctx.identity.bin_type or "",
+            bin_pose=PoseMsg.from_matrix(ctx.identity.T_base_bin),
             surface=ctx.surface,
             # data collection visits every reachable viewpoint, not only the tour
             all_reachable=ctx.mode == "collect",
@@ -42,18 +42,18 @@ class CheckingCache(Step):
         if ctx.whole and reply.whole_plan_id is not None and not reply.stations:
             # the whole-bin planner found no station for this bin: replanning would find none again
             raise PlanningError(reply.reason or f"whole-bin plan {reply.whole_plan_id} has no station")
-        if ctx.whole and ctx.stations is None and reply.stations:
+        if ctx.whole and ctx.stations.planned is None and reply.stations:
             ranks = [s.station for s in reply.stations]
-            ctx.stations = reply.stations
-            ctx.whole_plan_id = reply.whole_plan_id
-            ctx.modelled_cycle_s = reply.cycle_time_s
+            ctx.stations.planned = reply.stations
+            ctx.stations.whole_plan_id = reply.whole_plan_id
+            ctx.stations.modelled_cycle_s = reply.cycle_time_s
             if not reply.hit or reply.station is None:
-                ctx.station_order, ctx.station_index, ctx.surface_index = ranks, 0, 0
-                st = ctx.current_station()
+                ctx.stations.station_order, ctx.stations.station_index, ctx.stations.surface_index = ranks, 0, 0
+                st = ctx.stations.current_station()
                 assert st is not None
-                ctx.approach = None  # park again, at the station
-                ctx.observation_index = st.observation_index or 0
-                ctx.identify_attempts = 0
+                ctx.identity.approach = None  # park again, at the station
+                ctx.identity.observation_index = st.observation_index or 0
+                ctx.identity.identify_attempts = 0
                 run.event(
                     "info",
                     f"parked at no station of whole-bin plan {reply.whole_plan_id} ({reply.reason}); "
@@ -61,9 +61,13 @@ class CheckingCache(Step):
                 )
                 return "move"
             k = ranks.index(reply.station)
-            ctx.station_order, ctx.station_index, ctx.surface_index = ranks[k:] + ranks[:k], 0, 0
-            ctx.bin_poses[reply.station] = ctx.T_base_bin
-            ctx.pose_source[reply.station] = "measured"
+            ctx.stations.station_order, ctx.stations.station_index, ctx.stations.surface_index = (
+                ranks[k:] + ranks[:k],
+                0,
+                0,
+            )
+            ctx.stations.bin_poses[reply.station] = ctx.identity.T_base_bin
+            ctx.stations.pose_source[reply.station] = "measured"
             run.event(
                 "info",
                 f"whole-bin plan {reply.whole_plan_id}: {len(ranks)} stations, starting at station {reply.station}",
@@ -71,15 +75,15 @@ class CheckingCache(Step):
             if ctx.surface != asked:  # this station's first surface is not the one the first lookup asked for
                 reply = self._lookup(run)
         if not reply.hit:
-            here = ctx.current_station()
+            here = ctx.stations.current_station()
             where = f" at station {here.station} ({ctx.surface})" if here is not None else ""
             run.event("info", f"no usable plan{where}: {reply.reason}")
             return "miss"
         if not reply.viewpoints:
             raise PlanCacheError(f"planner answered lookup with a hit on plan {reply.plan_id!r} but no viewpoints")
-        ctx.plan = reply
-        st = ctx.current_station()
-        ctx.plans[(st.station if st is not None else None, ctx.surface if st is not None else None)] = reply
+        ctx.scan.plan = reply
+        st = ctx.stations.current_station()
+        ctx.stations.plans[(st.station if st is not None else None, ctx.surface if st is not None else None)] = reply
         note = " (viewpoints adjusted to the measured pose)" if reply.adjusted else ""
         where = f"station {st.station}, {ctx.surface}: " if st is not None else ""
         run.event("info", f"{where}plan {reply.plan_id} with {len(reply.viewpoints)} viewpoints{note}")

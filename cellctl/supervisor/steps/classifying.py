@@ -98,38 +98,38 @@ class Classifying(Step):
     NAME = "classifying"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "wait for classifications; re-look at uncertain viewpoints; verdict = dirty if any view is dirty"
-    READS = ("classifications", "viewpoints", "mode")
-    WRITES = ("viewpoints", "verdict")
+    READS = ("scan.classifications", "scan.viewpoints")
+    WRITES = ("scan.viewpoints", "result.verdict")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        timeout = ctx.cfg.supervisor.timeouts.classify * max(1, len(ctx.classifications))
-        for i, fut in sorted(ctx.classifications.items()):
+        timeout = ctx.cfg.supervisor.timeouts.classify * max(1, len(ctx.scan.classifications))
+        for i, fut in sorted(ctx.scan.classifications.items()):
             run.checkpoint()
             try:
                 reply = fut.result(timeout=timeout)
             except concurrent.futures.TimeoutError as err:
                 raise ClassifierError(
-                    f"classification of viewpoint {ctx.viewpoints[i].index} not back in {timeout:g} s"
+                    f"classification of viewpoint {ctx.scan.viewpoints[i].index} not back in {timeout:g} s"
                 ) from err
             except WorkerError as err:
-                ctx.viewpoints[i] = ctx.viewpoints[i].model_copy(update={"error": str(err)})
+                ctx.scan.viewpoints[i] = ctx.scan.viewpoints[i].model_copy(update={"error": str(err)})
                 raise
-            ctx.viewpoints[i] = with_reply(ctx.viewpoints[i], reply)
+            ctx.scan.viewpoints[i] = with_reply(ctx.scan.viewpoints[i], reply)
             record_heat(run, reply)
-        ctx.classifications.clear()
+        ctx.scan.classifications.clear()
         if ctx.mode == "collect":
-            ctx.verdict = None
+            ctx.result.verdict = None
             return "succeeded"
         n_relook = self._relook(run)
-        labels = self._view_labels(ctx.viewpoints, self._confirming(ctx))
+        labels = self._view_labels(ctx.scan.viewpoints, self._confirming(ctx))
         if not labels:
             raise ClassifierError("no viewpoint was classified")
-        ctx.verdict = "dirty" if "dirty" in labels.values() else "clean"
-        n_unc = sum(v.uncertain for v in ctx.viewpoints if v.relook_of is None)
+        ctx.result.verdict = "dirty" if "dirty" in labels.values() else "clean"
+        n_unc = sum(v.uncertain for v in ctx.scan.viewpoints if v.relook_of is None)
         run.event(
             "info",
-            f"verdict {ctx.verdict}: {list(labels.values()).count('dirty')}/{len(labels)} viewpoints dirty, "
+            f"verdict {ctx.result.verdict}: {list(labels.values()).count('dirty')}/{len(labels)} viewpoints dirty, "
             f"{n_unc} uncertain, {n_relook} re-looks",
         )
         return "succeeded"
@@ -198,18 +198,18 @@ class Classifying(Step):
         from cellctl.supervisor.steps.scanning import classifier_input, classify_image
 
         confirming = self._confirming(ctx)
-        st = ctx.current_station()
+        st = ctx.stations.current_station()
         # a re-look moves the arm by a camera pose in this base frame: only this station's views, this surface
         here = (st.station, ctx.surface) if st is not None else (None, None)
         done = 0
         tried: dict[tuple[int | None, str | None, int], int] = {}
-        seen = {view_key(w) for w in ctx.viewpoints if w.relook_of is not None and w.error is None}
+        seen = {view_key(w) for w in ctx.scan.viewpoints if w.relook_of is not None and w.error is None}
         while done < rc.max_views:
             # once one dirty view is confirmed the bin is dirty: more confirmations would only cost moves
-            confirm = confirming and not self._confirmed_dirty(ctx.viewpoints)
+            confirm = confirming and not self._confirmed_dirty(ctx.scan.viewpoints)
             pending = [
                 v
-                for v in ctx.viewpoints
+                for v in ctx.scan.viewpoints
                 # uncertain, or certain dirty and not yet confirmed (see module doc)
                 if (v.uncertain or (confirm and v.relook_of is None and v.label == "dirty" and view_key(v) not in seen))
                 and v.camera_pose is not None
@@ -219,7 +219,7 @@ class Classifying(Step):
                 # a refused re-look pose costs no budget, but each viewpoint has RELOOK_POSES of them
                 and tried.get(view_key(v), 0) < RELOOK_POSES
                 # the latest view of its viewpoint decides whether to look again (a refused move is no view)
-                and v is [w for w in ctx.viewpoints if view_key(w) == view_key(v) and w.error is None][-1]
+                and v is [w for w in ctx.scan.viewpoints if view_key(w) == view_key(v) and w.error is None][-1]
             ]
             if not pending:
                 break
@@ -227,7 +227,7 @@ class Classifying(Step):
             run.checkpoint()
             k = tried.get(view_key(v), 0)
             tried[view_key(v)] = k + 1
-            base = next(w for w in ctx.viewpoints if view_key(w) == view_key(v) and w.relook_of is None)
+            base = next(w for w in ctx.scan.viewpoints if view_key(w) == view_key(v) and w.relook_of is None)
             T = relook_pose(base.camera_pose.matrix(), k, rc.offset_m, rc.glance_deg, rc.depth_m)  # type: ignore[union-attr]
             try:
                 moved, _ = run.call(
@@ -237,7 +237,7 @@ class Classifying(Step):
                     MoveReply,
                 )
             except WorkerFailed as err:
-                ctx.viewpoints.append(
+                ctx.scan.viewpoints.append(
                     ViewpointResult(
                         index=v.index,
                         camera_pose=PoseMsg.from_matrix(T),
@@ -258,7 +258,7 @@ class Classifying(Step):
             img, fmt = classifier_input(run, data, cap.format, moved.camera_pose.matrix(), cap.intrinsics)
             reply = classify_image(run, v.index, img, fmt, ctx.surface)
             record_heat(run, reply)
-            ctx.viewpoints.append(
+            ctx.scan.viewpoints.append(
                 with_reply(
                     ViewpointResult(
                         index=v.index,

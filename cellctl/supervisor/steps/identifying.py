@@ -35,8 +35,15 @@ class Identifying(Step):
     NAME = "identifying"
     OUTCOMES = ("succeeded", "retry", "failed")
     DESCRIPTION = "ChArUco → bin type + T_base_bin; fuses several views if configured; retries from the next pose"
-    READS = ("approach", "observation_index", "identify_attempts")
-    WRITES = ("identify_attempts", "observation_index", "identification", "bin_type", "T_base_bin", "T_map_bin")
+    READS = ("identity.approach", "identity.observation_index", "identity.identify_attempts")
+    WRITES = (
+        "identity.identify_attempts",
+        "identity.observation_index",
+        "identity.identification",
+        "identity.bin_type",
+        "identity.T_base_bin",
+        "stations.T_map_bin",
+    )
 
     def _view(self, run: StepRun, T_base_cam: np.ndarray) -> Identification:
         ctx = run.ctx
@@ -59,26 +66,28 @@ class Identifying(Step):
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        assert ctx.approach is not None
-        st = ctx.current_station()
+        assert ctx.identity.approach is not None
+        st = ctx.stations.current_station()
         if st is not None and st.observation_index is None:
             return self._carry_over(run, st)
-        ctx.identify_attempts += 1
+        ctx.identity.identify_attempts += 1
         try:
-            ident = self._view(run, ctx.approach.camera_pose.matrix())
+            ident = self._view(run, ctx.identity.approach.camera_pose.matrix())
         except IdentificationError as err:
             attempts = ctx.cfg.supervisor.identify_attempts
-            if ctx.identify_attempts < attempts:
-                run.event("warning", f"not identified from observation pose {ctx.observation_index}: {err}; retrying")
+            if ctx.identity.identify_attempts < attempts:
+                run.event(
+                    "warning", f"not identified from observation pose {ctx.identity.observation_index}: {err}; retrying"
+                )
                 ctx.log.event(int(EventLevel.warning), f"not identified: {err}")
-                ctx.observation_index += 1
+                ctx.identity.observation_index += 1
                 return "retry"
             raise IdentificationError(f"bin not identified after {attempts} observation poses: {err}") from err
         views: list[Identification] = [ident]
         for k in range(1, ctx.cfg.supervisor.identify_views):
             # Extra views from the next observation poses; a view that fails is skipped, the
             # fused estimate uses the ones that worked.
-            idx = ctx.observation_index + k
+            idx = ctx.identity.observation_index + k
             try:
                 moved, _ = run.call("robot", "approach", approach_request(run, idx, False), ApproachReply)
                 views.append(self._view(run, moved.camera_pose.matrix()))
@@ -91,24 +100,25 @@ class Identifying(Step):
             ctx.log.write_json(topics.BIN_IDENTIFICATION_FUSED, "cellctl.FusedIdentification", fused.to_dict())
             bin_type, T_base_bin = fused.bin_type, np.asarray(fused.T_base_bin)
             note = f" from {len(fused.used)} fused views (±{fused.sigma_bin_origin_mm:.1f} mm)"
-            ctx.identification = fused
+            ctx.identity.identification = fused
         else:
             bin_type, T_base_bin = ident.bin_type, np.asarray(ident.T_base_bin)
             note = ""
-            ctx.identification = ident
+            ctx.identity.identification = ident
         if T_base_bin.shape != (4, 4) or not np.isfinite(T_base_bin).all():
             raise IdentificationError(f"identification of bin {bin_type!r} gave no finite 4x4 pose")
-        if st is not None and ctx.bin_type is not None and bin_type != ctx.bin_type:
+        if st is not None and ctx.identity.bin_type is not None and bin_type != ctx.identity.bin_type:
             raise IdentificationError(
-                f"station {st.station} identified bin {bin_type!r}, but this cycle inspects bin {ctx.bin_type!r}"
+                f"station {st.station} identified bin {bin_type!r}, "
+                f"but this cycle inspects bin {ctx.identity.bin_type!r}"
             )
         if st is not None:
-            ctx.bin_poses[st.station] = T_base_bin
-            ctx.pose_source[st.station] = "measured"
-        ctx.bin_type = bin_type
-        ctx.T_base_bin = T_base_bin
+            ctx.stations.bin_poses[st.station] = T_base_bin
+            ctx.stations.pose_source[st.station] = "measured"
+        ctx.identity.bin_type = bin_type
+        ctx.identity.T_base_bin = T_base_bin
         # where the bin stands in the base's map: what a station without the board is told (base_odometry)
-        ctx.T_map_bin = ctx.T_map_base @ T_base_bin if ctx.T_map_base is not None else None
+        ctx.stations.T_map_bin = ctx.stations.T_map_base @ T_base_bin if ctx.stations.T_map_base is not None else None
         from cellctl.recording import foxglove
 
         ctx.log.write_json(topics.BIN_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", T_base_bin))
@@ -125,26 +135,28 @@ class Identifying(Step):
         from cellctl.recording import foxglove
 
         ctx = run.ctx
-        if ctx.bin_type is None:
+        if ctx.identity.bin_type is None:
             raise IdentificationError(
                 f"station {st.station} cannot see the board ({st.identify_reason}) and no earlier station "
                 "identified the bin"
             )
         planned = invert(st.base_pose.matrix())
-        if ctx.T_map_bin is not None and ctx.T_map_base is not None:
-            ctx.T_base_bin = invert(ctx.T_map_base) @ ctx.T_map_bin
+        if ctx.stations.T_map_bin is not None and ctx.stations.T_map_base is not None:
+            ctx.identity.T_base_bin = invert(ctx.stations.T_map_base) @ ctx.stations.T_map_bin
             source = "base_odometry"
-            dt, dr = pose_error(planned, ctx.T_base_bin)
+            dt, dr = pose_error(planned, ctx.identity.T_base_bin)
             how = (
                 f"carried from the last measured station by the base's reported motion "
                 f"({dt * 1000:.1f} mm / {np.degrees(dr):.2f} deg from the planned station pose)"
             )
         else:
-            ctx.T_base_bin = planned
+            ctx.identity.T_base_bin = planned
             source = "carried_over"
             how = "carried over (planned station pose: the base reports no pose)"
-        ctx.bin_poses[st.station] = ctx.T_base_bin
-        ctx.pose_source[st.station] = source
-        ctx.log.write_json(topics.BIN_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", ctx.T_base_bin))
+        ctx.stations.bin_poses[st.station] = ctx.identity.T_base_bin
+        ctx.stations.pose_source[st.station] = source
+        ctx.log.write_json(
+            topics.BIN_POSE, "foxglove.PoseInFrame", foxglove.pose_in_frame("base", ctx.identity.T_base_bin)
+        )
         run.event("info", f"station {st.station}: board not visible, bin pose {how}")
         return "succeeded"

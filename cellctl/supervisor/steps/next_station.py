@@ -16,34 +16,34 @@ class NextStation(Step):
     NAME = "next_station"
     OUTCOMES = ("next_surface", "next_station", "done")
     DESCRIPTION = "whole-bin cycle: scan the station's next surface, else park at the next station, else report"
-    READS = ("station_index", "surface_index")
+    READS = ("stations.station_index", "stations.surface_index")
     WRITES = (
-        "station_index",
-        "surface_index",
-        "next_viewpoint",
-        "approach",
-        "identify_attempts",
-        "observation_index",
+        "stations.station_index",
+        "stations.surface_index",
+        "scan.next_viewpoint",
+        "identity.approach",
+        "identity.identify_attempts",
+        "identity.observation_index",
     )
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        st = ctx.current_station()
+        st = ctx.stations.current_station()
         if st is None:
             return "done"
-        ctx.next_viewpoint = 0
-        if ctx.surface_index + 1 < len(ctx.station_surfaces(st)):
-            ctx.surface_index += 1
+        ctx.scan.next_viewpoint = 0
+        if ctx.stations.surface_index + 1 < len(ctx.stations.station_surfaces(st)):
+            ctx.stations.surface_index += 1
             return "next_surface"
-        ctx.surface_index = 0
-        ctx.station_index += 1
-        while (nxt := ctx.current_station()) is not None and not ctx.station_surfaces(nxt):
-            ctx.station_notes[nxt.station] = "skipped: the plan has no viewpoints at this station"
-            ctx.station_index += 1
+        ctx.stations.surface_index = 0
+        ctx.stations.station_index += 1
+        while (nxt := ctx.stations.current_station()) is not None and not ctx.stations.station_surfaces(nxt):
+            ctx.stations.station_notes[nxt.station] = "skipped: the plan has no viewpoints at this station"
+            ctx.stations.station_index += 1
         if nxt is None:
-            ctx.station_index = len(ctx.station_order)
+            ctx.stations.station_index = len(ctx.stations.station_order)
             return "done"
-        ctx.approach = None  # the base drives: park at the next station
-        ctx.identify_attempts = 0
-        ctx.observation_index = nxt.observation_index or 0
+        ctx.identity.approach = None  # the base drives: park at the next station
+        ctx.identity.identify_attempts = 0
+        ctx.identity.observation_index = nxt.observation_index or 0
         return "next_station"

@@ -66,13 +66,13 @@ def store_reference(
     Raises:
         RecordingError: the image cannot be stored (the cycle fails: a set with holes is not one).
     """
-    plan = ctx.plan
-    if plan is None or ctx.bin_type is None:
+    plan = ctx.scan.plan
+    if plan is None or ctx.identity.bin_type is None:
         raise RecordingError("a commissioning view came before the bin type and plan were known")
-    if ctx.references is None:
-        ctx.references = ReferenceSetWriter(reference_root(ctx.cfg), ctx.bin_type, ctx.cycle_id)
-    st = ctx.current_station()
-    ctx.references.add(
+    if ctx.refs.writer is None:
+        ctx.refs.writer = ReferenceSetWriter(reference_root(ctx.cfg), ctx.identity.bin_type, ctx.cycle_id)
+    st = ctx.stations.current_station()
+    ctx.refs.writer.add(
         plan.plan_id or "unnamed",
         ctx.surface,
         st.station if st is not None else None,
@@ -80,7 +80,7 @@ def store_reference(
         image,
         fmt,
         T_base_cam,
-        ctx.T_base_bin,
+        ctx.identity.T_base_bin,
         intr,
     )
 
@@ -97,28 +97,28 @@ def reference_query(ctx: CycleContext, viewpoint: int, T_base_cam: np.ndarray) -
     or the mesh's plane is missing, or ``classifier.references`` is off: the detector decides alone
     (:func:`reference_state` says why).
     """
-    plan = ctx.plan
-    if plan is None or ctx.bin_type is None or ctx.T_base_bin is None or ctx.catalog is None:
+    plan = ctx.scan.plan
+    if plan is None or ctx.identity.bin_type is None or ctx.identity.T_base_bin is None or ctx.catalog is None:
         return None
     if not ctx.cfg.classifier.references:  # switched off: the detector alone, as before commissioning
         return None
-    ref = lookup_reference(reference_root(ctx.cfg), ctx.bin_type, plan.plan_id or "unnamed", viewpoint)
+    ref = lookup_reference(reference_root(ctx.cfg), ctx.identity.bin_type, plan.plan_id or "unnamed", viewpoint)
     if ref is None or ref.T_bin_cam is None or ref.intrinsics is None:
         return None
     from cellctl.classify.reference import plane_from_mesh
     from cellctl.errors import ClassifierError
 
-    mesh = ctx.catalog.load_mesh(ctx.bin_type)
-    if ctx.bin_type not in _CASTERS:
+    mesh = ctx.catalog.load_mesh(ctx.identity.bin_type)
+    if ctx.identity.bin_type not in _CASTERS:
         from cellctl.classify.heatmap import MeshCaster
 
-        _CASTERS[ctx.bin_type] = MeshCaster(mesh)
+        _CASTERS[ctx.identity.bin_type] = MeshCaster(mesh)
     intr = ref.intrinsics
     try:
-        plane = plane_from_mesh(_CASTERS[ctx.bin_type], mesh, ref.T_bin_cam, intr.K(), intr.width, intr.height)
+        plane = plane_from_mesh(_CASTERS[ctx.identity.bin_type], mesh, ref.T_bin_cam, intr.K(), intr.width, intr.height)
     except ClassifierError:
         return None
-    T_bin_cam = np.linalg.inv(ctx.T_base_bin) @ np.asarray(T_base_cam, np.float64)
+    T_bin_cam = np.linalg.inv(ctx.identity.T_base_bin) @ np.asarray(T_base_cam, np.float64)
     return ClassifyReference(
         image=str(ref.image),
         sha256=ref.sha256,
@@ -134,16 +134,16 @@ def reference_query(ctx: CycleContext, viewpoint: int, T_base_cam: np.ndarray) -
 def reference_state(ctx: CycleContext) -> str | None:
     """For a view sent without a reference: ``no_reference`` when the plan scanned now has a set
     (the viewpoint has none in it), None when it has none (the plan was never commissioned)."""
-    if ctx.plan is None or ctx.bin_type is None or not ctx.cfg.classifier.references:
+    if ctx.scan.plan is None or ctx.identity.bin_type is None or not ctx.cfg.classifier.references:
         return None
-    found = latest_set(reference_root(ctx.cfg), ctx.bin_type, ctx.plan.plan_id or "unnamed")
+    found = latest_set(reference_root(ctx.cfg), ctx.identity.bin_type, ctx.scan.plan.plan_id or "unnamed")
     return "no_reference" if found is not None else None
 
 
 def _scanned_plans(ctx: CycleContext) -> dict[str, list[str]]:
     """surface → the plan ids the cycle scanned for it."""
     out: dict[str, list[str]] = {}
-    for (_station, surface), reply in ctx.plans.items():
+    for (_station, surface), reply in ctx.stations.plans.items():
         out.setdefault(surface or ctx.surface, []).append(reply.plan_id or "unnamed")
     return out
 
@@ -152,7 +152,7 @@ def decision_counts(ctx: CycleContext) -> dict[str, dict[str, int]]:
     """Per surface, how many classified views each path decided (``reference``, ``detector``, ``model``)
     and, for views whose plan had references, why the detector decided alone (``<reason>``)."""
     out: dict[str, dict[str, int]] = {}
-    for v in ctx.viewpoints:
+    for v in ctx.scan.viewpoints:
         if v.label is None:
             continue
         c = out.setdefault(v.surface or ctx.surface, {})
@@ -171,16 +171,16 @@ def decision_paths(ctx: CycleContext) -> tuple[dict[str, str] | None, int | None
     views of a viewpoint without a reference, past the pose tolerance or whose alignment was
     rejected were judged by the detector alone, and :func:`decision_counts` records how many.
     """
-    if ctx.bin_type is None or not ctx.plans:
+    if ctx.identity.bin_type is None or not ctx.stations.plans:
         return None, None
     root = reference_root(ctx.cfg)
     paths: dict[str, str] = {}
     version = None
     for surface, plan_ids in _scanned_plans(ctx).items():
-        mine = [v for v in ctx.viewpoints if (v.surface or ctx.surface) == surface]
+        mine = [v for v in ctx.scan.viewpoints if (v.surface or ctx.surface) == surface]
         if any(v.decided_by == "reference" for v in mine):
             paths[surface] = "references"
-            found = [latest_set(root, ctx.bin_type, pid) for pid in plan_ids]
+            found = [latest_set(root, ctx.identity.bin_type, pid) for pid in plan_ids]
             version = max([version or 0, *(f[0].version for f in found if f is not None)]) or None
             continue
         enrolled = any("-enrolled-" in (v.model_id or "") for v in mine)
@@ -206,7 +206,7 @@ def commission(run: StepRun, record: dict[str, Any]) -> CommissionResult:
         RecordingError: no view was stored, or the set cannot be written.
     """
     ctx = run.ctx
-    refs = ctx.references
+    refs = ctx.refs.writer
     if refs is None:
         raise RecordingError("the commissioning cycle stored no reference view (every viewpoint refused?)")
     folder = refs.claim()
@@ -223,7 +223,7 @@ def commission(run: StepRun, record: dict[str, Any]) -> CommissionResult:
         else:
             problems[surface] = why or "not enrolled"
             run.event("warning", f"commissioning: {surface} detector not enrolled: {problems[surface]}")
-    man, path, sha = refs.finish(ctx.user or "", ctx.whole_plan_id, enrolled, problems)
+    man, path, sha = refs.finish(ctx.user or "", ctx.stations.whole_plan_id, enrolled, problems)
     record = {**record, "manifest_sha256": sha, "manifest_path": str(path), "manifest": man.model_dump(mode="json")}
     ctx.log.write_json(topics.REFERENCES, "cellctl.References", record)
     run.event("info", f"commissioning: reference set v{man.version} of {man.bin_type}, {man.references} views")
@@ -245,25 +245,25 @@ class References(Step):
     NAME = "references"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "decision path per surface; mode commission: version the reference set, enroll, manifest, audit"
-    READS = ("mode", "viewpoints")
-    WRITES = ("decision_path", "reference_version", "commission")
+    READS = ("scan.viewpoints",)
+    WRITES = ("refs.decision_path", "refs.reference_version", "refs.commission")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        ctx.decision_path, ctx.reference_version = decision_paths(ctx)  # type: ignore[assignment]
+        ctx.refs.decision_path, ctx.refs.reference_version = decision_paths(ctx)  # type: ignore[assignment]
         counts = decision_counts(ctx)
         record = {
-            "decision_path": ctx.decision_path,
-            "reference_version": ctx.reference_version,
+            "decision_path": ctx.refs.decision_path,
+            "reference_version": ctx.refs.reference_version,
             "decided_by": counts,
         }
         for surface, c in counts.items():
-            if ctx.decision_path and ctx.decision_path.get(surface) != "references" and c.get("detector"):
+            if ctx.refs.decision_path and ctx.refs.decision_path.get(surface) != "references" and c.get("detector"):
                 why = {k: n for k, n in c.items() if k not in ("reference", "detector", "model")}
                 if why:  # the plan had references, yet none decided a view: say why in the event log
                     run.event("warning", f"{surface}: no view was judged against its reference ({why})")
         if ctx.mode == "commission":
-            ctx.commission = commission(run, record)
+            ctx.refs.commission = commission(run, record)
         else:
             ctx.log.write_json(topics.REFERENCES, "cellctl.References", record)
         return "succeeded"

@@ -20,36 +20,37 @@ class Replanning(Step):
     NAME = "replanning"
     OUTCOMES = ("submitted", "plan_ready", "failed")
     DESCRIPTION = "submit an offline planning job; end with replan_required (or wait, by config)"
-    READS = ("bin_type", "T_base_bin", "params")
-    WRITES = ("planner_job_id", "outcome", "reason")
+    READS = ("identity.bin_type", "identity.T_base_bin")
+    WRITES = ("scan.planner_job_id", "result.outcome", "result.reason")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
         pc = ctx.cfg.planner
         req = PlanJobRequest(
-            bin_type=ctx.bin_type or "",
-            bin_pose=PoseMsg.from_matrix(ctx.T_base_bin),
+            bin_type=ctx.identity.bin_type or "",
+            bin_pose=PoseMsg.from_matrix(ctx.identity.T_base_bin),
             surface=ctx.surface,
             seed_pct=pc.seed_pct,
             mode=pc.mode,
             seed=pc.seed,
             # the tour starts where the arm is now: at the observation pose it identified from
-            q_start=list(ctx.approach.joints) if ctx.approach is not None else None,
-            whole=ctx.whole and ctx.stations is None,
+            q_start=list(ctx.identity.approach.joints) if ctx.identity.approach is not None else None,
+            whole=ctx.whole and ctx.stations.planned is None,
         )
-        st = ctx.current_station()
+        st = ctx.stations.current_station()
         key = keys.planner_jobs(ctx.cfg.cell_id)
         reply, _ = run.call(
             "planner", "jobs", req, PlanJobReply, key=key, timeout=ctx.cfg.supervisor.timeouts.plan_submit
         )
-        ctx.planner_job_id = reply.job_id
+        ctx.scan.planner_job_id = reply.job_id
         what = "whole-bin " if req.whole else f"station {st.station} {ctx.surface} " if st is not None else ""
-        run.event("info", f"{what}planning job {reply.job_id} submitted for bin {ctx.bin_type!r}")
+        run.event("info", f"{what}planning job {reply.job_id} submitted for bin {ctx.identity.bin_type!r}")
         if not ctx.cfg.supervisor.wait_for_plan:
-            ctx.outcome = CycleOutcome.replan_required
+            ctx.result.outcome = CycleOutcome.replan_required
             where = f" at station {st.station} ({ctx.surface})" if st is not None else ""
-            ctx.reason = (
-                f"no {'whole-bin plan' if req.whole else 'plan within tolerance'} for bin {ctx.bin_type!r}{where}; "
+            ctx.result.reason = (
+                f"no {'whole-bin plan' if req.whole else 'plan within tolerance'} "
+                f"for bin {ctx.identity.bin_type!r}{where}; "
                 f"{what}planning job {reply.job_id} submitted"
             )
             return "submitted"
@@ -61,7 +62,7 @@ class Replanning(Step):
                 if status.reason:  # e.g. no plan sees enough of this bin for a clean verdict (cellctl.seen)
                     run.event("warning", f"planning job {reply.job_id}: {status.reason}")
                 if req.whole:
-                    ctx.stations = None  # the next lookup reads the new plan's stations
+                    ctx.stations.planned = None  # the next lookup reads the new plan's stations
                 return "plan_ready"
             if status.state == "failed":
                 raise PlanningError(f"planning job {reply.job_id} failed: {status.reason}")

@@ -102,7 +102,7 @@ def _bin_type(ctx):
     from cellctl.errors import ConfigError
 
     try:
-        return ctx.catalog.get(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
+        return ctx.catalog.get(ctx.identity.bin_type) if ctx.catalog is not None and ctx.identity.bin_type else None
     except ConfigError:  # the mesh loaded, so this does not happen; without a board the projection still works
         return None
 
@@ -128,36 +128,46 @@ def surface_fractions(mesh, seen_ids: np.ndarray) -> dict[str, float | None]:
 def gate(run: StepRun, seen: dict[str, float | None] | None) -> None:
     """A ``clean`` verdict below ``classifier.verdict.min_seen_fraction`` on any surface becomes ``incomplete``."""
     ctx = run.ctx
-    ctx.verdict, why = gate_verdict(ctx.verdict, seen, ctx.cfg.classifier.verdict.min_seen_fraction)
+    ctx.result.verdict, why = gate_verdict(ctx.result.verdict, seen, ctx.cfg.classifier.verdict.min_seen_fraction)
     if why is not None:
-        ctx.reason = why
+        ctx.result.reason = why
         run.event("warning", f"verdict incomplete: {why}")
 
 
 def _whole_coverage(ctx, mesh, seen: np.ndarray) -> None:
     """Each (station, surface)'s own share of a whole-bin cycle's coverage (``seen``: face ids)."""
-    faces_by = {k: set(f) for k, f in _faces_by_view(ctx.plan, ctx.plans).items()}
-    for st, surf in ctx.plans:
+    faces_by = {k: set(f) for k, f in _faces_by_view(ctx.scan.plan, ctx.stations.plans).items()}
+    for st, surf in ctx.stations.plans:
         mine: set[int] = set()
-        for v in ctx.viewpoints:
+        for v in ctx.scan.viewpoints:
             if (v.station, v.surface) == (st, surf) and v.error is None and v.label is not None:
                 mine |= faces_by.get(view_key(v), set())
-        ctx.station_coverage[(st, surf)] = _coverage(mesh, _ids(mine, mesh.n_faces), surf)
+        ctx.stations.station_coverage[(st, surf)] = _coverage(mesh, _ids(mine, mesh.n_faces), surf)
 
 
 class Reporting(Step):
     NAME = "reporting"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "per-face dirt map (heat maps fused over views) + coverage; verdict by the configured rule"
-    READS = ("plan", "viewpoints", "params")
-    WRITES = ("dirt_map", "coverage", "coverage_by_surface", "outcome", "verdict", "viewpoints", "reason")
+    READS = ("scan.plan", "scan.viewpoints")
+    WRITES = (
+        "result.dirt_map",
+        "result.coverage",
+        "result.coverage_by_surface",
+        "result.outcome",
+        "result.verdict",
+        "scan.viewpoints",
+        "result.reason",
+    )
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        mesh = ctx.catalog.load_mesh(ctx.bin_type) if ctx.catalog is not None and ctx.bin_type else None
-        has_heat = any(v.heatmap for v in ctx.viewpoints)
-        whole = ctx.whole and bool(ctx.station_order)
-        plans = ctx.plans if whole else None
+        mesh = (
+            ctx.catalog.load_mesh(ctx.identity.bin_type) if ctx.catalog is not None and ctx.identity.bin_type else None
+        )
+        has_heat = any(v.heatmap for v in ctx.scan.viewpoints)
+        whole = ctx.whole and bool(ctx.stations.station_order)
+        plans = ctx.stations.plans if whole else None
         cover_surface = None if whole else ctx.surface
         if mesh is not None and has_heat and ctx.mode != "collect":
             from cellctl.classify.heatmap import fuse_config, verdict
@@ -165,50 +175,56 @@ class Reporting(Step):
 
             vc = ctx.cfg.classifier.verdict
             fm = fuse_config(
-                view_evidence(ctx.plan, ctx.viewpoints, ctx.T_base_bin, plans, ctx.bin_poses),
+                view_evidence(
+                    ctx.scan.plan, ctx.scan.viewpoints, ctx.identity.T_base_bin, plans, ctx.stations.bin_poses
+                ),
                 mesh,
                 CameraModel.from_config(ctx.cfg.camera),
                 vc,
                 _bin_type(ctx),
             )
-            ctx.dirt_map = fm.as_json()
+            ctx.result.dirt_map = fm.as_json()
             seen_ids = np.flatnonzero(fm.seen)
-            ctx.coverage = _coverage(mesh, seen_ids, cover_surface)  # type: ignore[arg-type]
-            labels = [v.label for v in ctx.viewpoints if v.label is not None]
+            ctx.result.coverage = _coverage(mesh, seen_ids, cover_surface)  # type: ignore[arg-type]
+            labels = [v.label for v in ctx.scan.viewpoints if v.label is not None]
             if vc.rule == "faces":
-                before = ctx.verdict
-                ctx.verdict = verdict(fm, labels, vc.rule, vc.min_dirty_area_cm2)  # type: ignore[assignment]
+                before = ctx.result.verdict
+                ctx.result.verdict = verdict(fm, labels, vc.rule, vc.min_dirty_area_cm2)  # type: ignore[assignment]
                 run.event(
                     "info",
-                    f"verdict {ctx.verdict} (rule faces): {int(fm.dirty.sum())} dirty faces, "
+                    f"verdict {ctx.result.verdict} (rule faces): {int(fm.dirty.sum())} dirty faces, "
                     f"{fm.dirty_area_m2 * 1e4:.1f} cm², {int(fm.seen.sum())} faces seen"
-                    + (f"; any-view rule said {before}" if before != ctx.verdict else ""),
+                    + (f"; any-view rule said {before}" if before != ctx.result.verdict else ""),
                 )
             # the heat maps are in the MCAP (topics.HEATMAP); the CycleResult keeps face_p
-            ctx.viewpoints = [v.model_copy(update={"heatmap": None}) for v in ctx.viewpoints]
+            ctx.scan.viewpoints = [v.model_copy(update={"heatmap": None}) for v in ctx.scan.viewpoints]
         else:
-            ctx.dirt_map, ctx.coverage = dirt_map(ctx.plan, ctx.viewpoints, mesh, cover_surface, plans)  # type: ignore[arg-type]
+            ctx.result.dirt_map, ctx.result.coverage = dirt_map(
+                ctx.scan.plan, ctx.scan.viewpoints, mesh, cover_surface, plans
+            )  # type: ignore[arg-type]
             seen_ids = (
-                _ids(set(ctx.dirt_map["seen_dirty"]) | set(ctx.dirt_map["seen_clean"]), mesh.n_faces)
+                _ids(set(ctx.result.dirt_map["seen_dirty"]) | set(ctx.result.dirt_map["seen_clean"]), mesh.n_faces)
                 if mesh is not None
                 else None
             )
         if mesh is not None and seen_ids is not None:
-            ctx.coverage_by_surface = surface_fractions(mesh, seen_ids)
+            ctx.result.coverage_by_surface = surface_fractions(mesh, seen_ids)
         if whole and mesh is not None and seen_ids is not None:
             _whole_coverage(ctx, mesh, seen_ids)
-            ctx.dirt_map = {**ctx.dirt_map, "coverage_by_surface": ctx.coverage_by_surface}
+            ctx.result.dirt_map = {**ctx.result.dirt_map, "coverage_by_surface": ctx.result.coverage_by_surface}
             run.event(
                 "info",
                 "whole bin: "
-                + ", ".join(f"{s} {c:.0%}" if c is not None else f"{s} -" for s, c in ctx.coverage_by_surface.items())
-                + f" seen from {len(ctx.station_order)} stations",
+                + ", ".join(
+                    f"{s} {c:.0%}" if c is not None else f"{s} -" for s, c in ctx.result.coverage_by_surface.items()
+                )
+                + f" seen from {len(ctx.stations.station_order)} stations",
             )
         if mesh is not None:
             self._scene(ctx, mesh)
         if ctx.mode != "wash_and_verify":  # wash_check gates the verdict the re-inspections end with
-            gate(run, ctx.coverage_by_surface)
-        ctx.outcome = CycleOutcome.completed
+            gate(run, ctx.result.coverage_by_surface)
+        ctx.result.outcome = CycleOutcome.completed
         return "succeeded"
 
     @staticmethod
@@ -220,21 +236,21 @@ class Reporting(Step):
         from cellctl.recording import foxglove
         from cellctl.recording.dirt_map import COLOURS, face_colours
 
-        rgba = face_colours(mesh.n_faces, ctx.dirt_map)
+        rgba = face_colours(mesh.n_faces, ctx.result.dirt_map)
         cams = []
-        for v in ctx.viewpoints:
+        for v in ctx.scan.viewpoints:
             if v.camera_pose is None:
                 continue
             colour = (
                 COLOURS["dirty"] if v.label == "dirty" else COLOURS["clean"] if v.label == "clean" else (0.2, 0.4, 1, 1)
             )
             T = v.camera_pose.matrix()
-            T_then = ctx.bin_poses.get(v.station) if v.station is not None else None
-            if T_then is not None and ctx.T_base_bin is not None:
-                T = ctx.T_base_bin @ np.linalg.inv(T_then) @ T
+            T_then = ctx.stations.bin_poses.get(v.station) if v.station is not None else None
+            if T_then is not None and ctx.identity.T_base_bin is not None:
+                T = ctx.identity.T_base_bin @ np.linalg.inv(T_then) @ T
             cams.append((T, colour, f"{v.index}" + ("r" if v.relook_of is not None else "")))
         ctx.log.write_json(
             topics.SCENE,
             "foxglove.SceneUpdate",
-            foxglove.scene_update("base", ctx.T_base_bin, mesh.vertices, mesh.faces, rgba, cams),
+            foxglove.scene_update("base", ctx.identity.T_base_bin, mesh.vertices, mesh.faces, rgba, cams),
         )

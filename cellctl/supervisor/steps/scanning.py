@@ -102,13 +102,15 @@ def classifier_input(
     filled in, and for the surfaces of ``classifier.mask_cabin`` the cabin past the bin too (the recorded image
     stays as captured)."""
     ctx = run.ctx
-    if ctx.catalog is None or not ctx.bin_type or ctx.T_base_bin is None:
+    if ctx.catalog is None or not ctx.identity.bin_type or ctx.identity.T_base_bin is None:
         return data, fmt
-    bt = ctx.catalog.get(ctx.bin_type)
+    bt = ctx.catalog.get(ctx.identity.bin_type)
     budget = ctx.cfg.camera.max_image_pixels
-    image = mask_board(data, bt, ctx.T_base_bin, T_base_cam, intr, budget)
+    image = mask_board(data, bt, ctx.identity.T_base_bin, T_base_cam, intr, budget)
     if (surface or ctx.surface) in ctx.cfg.classifier.mask_cabin:
-        image = mask_cabin(image, ctx.catalog.load_mesh(ctx.bin_type), ctx.T_base_bin, T_base_cam, intr, budget)
+        image = mask_cabin(
+            image, ctx.catalog.load_mesh(ctx.identity.bin_type), ctx.identity.T_base_bin, T_base_cam, intr, budget
+        )
     return (image, "png") if image is not data else (data, fmt)
 
 
@@ -124,12 +126,12 @@ class Scanning(Step):
     NAME = "scanning"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "move → settle → capture per viewpoint; classification overlaps the next move"
-    READS = ("plan", "params", "mode", "next_viewpoint", "viewpoints", "classifications")
-    WRITES = ("viewpoints", "classifications", "next_viewpoint", "references")
+    READS = ("scan.plan", "scan.next_viewpoint", "scan.viewpoints", "scan.classifications")
+    WRITES = ("scan.viewpoints", "scan.classifications", "scan.next_viewpoint", "refs.writer")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        plan = ctx.plan
+        plan = ctx.scan.plan
         assert plan is not None  # READS plan: the loader checked a step wrote it
         surface = ctx.surface
         collect = ctx.mode == "collect"
@@ -138,10 +140,10 @@ class Scanning(Step):
         seed = ctx.params.seed
         # classifications run on past a Hold (the scanning activation is cancelled, the cycle is not)
         background = run.detached("classify_background")
-        st = ctx.current_station()
+        st = ctx.stations.current_station()
         # whole-bin cycle: each view says where it was taken (viewpoint indices repeat across plans)
         where = {"station": st.station, "surface": surface} if st is not None else {}
-        for k in range(ctx.next_viewpoint, len(plan.viewpoints)):
+        for k in range(ctx.scan.next_viewpoint, len(plan.viewpoints)):
             vp = plan.viewpoints[k]
             if perturb > 0:
                 # data collection: a seeded random offset of the camera position per viewpoint
@@ -192,10 +194,10 @@ class Scanning(Step):
                 if again is None:
                     # One refused viewpoint (e.g. newly in collision after adjustment) costs coverage,
                     # not the cycle; hangs and missing workers still abort.
-                    ctx.viewpoints.append(
+                    ctx.scan.viewpoints.append(
                         ViewpointResult(index=vp.index, camera_pose=vp.camera_pose, error=str(err), **where)
                     )
-                    ctx.next_viewpoint = k + 1
+                    ctx.scan.next_viewpoint = k + 1
                     continue
                 moved = again
             cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
@@ -219,12 +221,14 @@ class Scanning(Step):
                     reference = reference_query(ctx, vp.index, moved.camera_pose.matrix())
                     if reference is None:
                         result = result.model_copy(update={"reference_reason": reference_state(ctx)})
-                ctx.classifications[len(ctx.viewpoints)] = ctx.pool.submit(
+                ctx.scan.classifications[len(ctx.scan.viewpoints)] = ctx.pool.submit(
                     classify_image, background, vp.index, image, fmt, surface, reference
                 )
-            ctx.viewpoints.append(result)
-            ctx.next_viewpoint = k + 1
-        mine = [v for v in ctx.viewpoints if (v.station, v.surface) == (where.get("station"), where.get("surface"))]
+            ctx.scan.viewpoints.append(result)
+            ctx.scan.next_viewpoint = k + 1
+        mine = [
+            v for v in ctx.scan.viewpoints if (v.station, v.surface) == (where.get("station"), where.get("surface"))
+        ]
         if not any(v.error is None for v in mine):
             first = mine[0].error if mine else "the plan has none"
             at = f" at station {st.station} ({surface})" if st is not None else ""

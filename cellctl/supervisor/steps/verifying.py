@@ -91,8 +91,8 @@ def imaged_faces(ctx: Any, mesh: Any, v: ViewpointResult) -> set[int]:
 
     if v.camera_pose is None:
         return set()
-    T_base_bin = ctx.bin_poses.get(v.station) if v.station is not None else None
-    T_base_bin = ctx.T_base_bin if T_base_bin is None else T_base_bin
+    T_base_bin = ctx.stations.bin_poses.get(v.station) if v.station is not None else None
+    T_base_bin = ctx.identity.T_base_bin if T_base_bin is None else T_base_bin
     if T_base_bin is None:
         return set()
     cam = CameraModel.from_config(ctx.cfg.camera)
@@ -113,45 +113,55 @@ class Verifying(Step):
     NAME = "verifying"
     OUTCOMES = ("succeeded", "next", "failed")
     DESCRIPTION = "re-inspect the washed regions and their splash neighbours; merge into the dirt map; record the round"
-    READS = ("wash_plan", "plan", "dirt_map", "verify_queue")
-    WRITES = ("dirt_map", "wash_views", "wash_rounds", "wash", "wash_plan", "wash_next_view", "verify_queue")
+    READS = ("wash.plan", "scan.plan", "result.dirt_map", "wash.verify_queue")
+    WRITES = (
+        "result.dirt_map",
+        "wash.views",
+        "wash.rounds",
+        "wash.result",
+        "wash.plan",
+        "wash.next_view",
+        "wash.verify_queue",
+    )
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        wplan, iplan = ctx.wash_plan, ctx.plan
+        wplan, iplan = ctx.wash.plan, ctx.scan.plan
         assert wplan is not None and iplan is not None  # READS
         mesh = wash_mesh(ctx)
-        r = len(ctx.wash_rounds) + 1
+        r = len(ctx.wash.rounds) + 1
         n = mesh.n_faces
-        if ctx.verify_queue:
-            rank = ctx.verify_queue[0]
+        if ctx.wash.verify_queue:
+            rank = ctx.wash.verify_queue[0]
             views = views_at(ctx, mesh, rank)
-            for k in range(ctx.wash_next_view, len(views)):
+            for k in range(ctx.wash.next_view, len(views)):
                 surf, vp = views[k]
                 self._look(run, vp, r, surf, rank)
-                ctx.wash_next_view = k + 1
+                ctx.wash.next_view = k + 1
             self._relook(run, r, rank)
-            ctx.verify_queue.pop(0)
-            ctx.wash_next_view = 0
-            if ctx.verify_queue:
+            ctx.wash.verify_queue.pop(0)
+            ctx.wash.next_view = 0
+            if ctx.wash.verify_queue:
                 return "next"
         washed, covered = face_mask(wplan.washed, n) | washed_faces(ctx, n), face_mask(wplan.covered, n)
-        mine = [v for v in ctx.wash_views if v.wash_round == r]
+        mine = [v for v in ctx.wash.views if v.wash_round == r]
         before = face_mask(wplan.dirty, n)
         new_map = self._dirt_map(ctx, mesh, mine, before, washed_faces(ctx, n))
-        ctx.dirt_map = merge_dirt_maps(ctx.dirt_map or {}, new_map, mesh)
+        ctx.result.dirt_map = merge_dirt_maps(ctx.result.dirt_map or {}, new_map, mesh)
         # the heat maps are in the MCAP (topics.HEATMAP); the round's dirt map keeps the fused face_p
-        ctx.wash_views = [v.model_copy(update={"heatmap": None}) if v.wash_round == r else v for v in ctx.wash_views]
+        ctx.wash.views = [v.model_copy(update={"heatmap": None}) if v.wash_round == r else v for v in ctx.wash.views]
         from cellctl.washing.targets import dirty_from_map
 
-        after, _ = dirty_from_map(ctx.dirt_map, mesh.n_faces, ctx.cfg.wash.threshold)
-        stats = ctx.wash_run
+        after, _ = dirty_from_map(ctx.result.dirt_map, mesh.n_faces, ctx.cfg.wash.threshold)
+        stats = ctx.wash.run
         pictures = list(stats.get("pictures", []))
         folder = picture_dir(ctx)
         if folder is not None:
             from cellctl.recording.dirt_map import draw_dirt_map
 
-            png = draw_dirt_map(mesh, ctx.dirt_map, folder / f"r{r}_after.png", f"{ctx.bin_type} round {r}: after")
+            png = draw_dirt_map(
+                mesh, ctx.result.dirt_map, folder / f"r{r}_after.png", f"{ctx.identity.bin_type} round {r}: after"
+            )
             pictures.append(png.name)
         a = mesh.areas
         rec = WashRound(
@@ -173,10 +183,10 @@ class Verifying(Step):
             pictures=pictures,
         )
         ctx.log.write_json(topics.WASH_ROUND, "cellctl.WashRound", rec.model_dump(mode="json"))
-        ctx.wash_rounds.append(rec)
-        ctx.wash = WashResult(rounds=list(ctx.wash_rounds))  # the verdict is wash_check's
-        ctx.wash_plan = None
-        ctx.wash_next_view = 0
+        ctx.wash.rounds.append(rec)
+        ctx.wash.result = WashResult(rounds=list(ctx.wash.rounds))  # the verdict is wash_check's
+        ctx.wash.plan = None
+        ctx.wash.next_view = 0
         run.event(
             "info",
             f"wash round {r} re-inspected with {len(mine)} views: {int(after.sum())} dirty faces "
@@ -192,7 +202,7 @@ class Verifying(Step):
         where = {"station": rank, "surface": surface} if rank is not None else {}
         settle = ctx.cfg.robot.settle_s
         move = MoveRequest(joints=vp.joints, settle_s=settle)
-        T_then, T_now = ctx.wash_scan_poses.get(rank), ctx.bin_poses.get(rank)  # type: ignore[arg-type]
+        T_then, T_now = ctx.wash.scan_poses.get(rank), ctx.stations.bin_poses.get(rank)  # type: ignore[arg-type]
         if T_then is not None and T_now is not None and not np.allclose(T_then, T_now, atol=1e-9):
             # parked again since the scan: the same view of the bin, from the new park
             T = T_now @ invert(T_then) @ vp.camera_pose.matrix()
@@ -228,7 +238,7 @@ class Verifying(Step):
         except WorkerFailed as err:
             run.checkpoint()
             if record_refusal:
-                ctx.wash_views.append(ViewpointResult(index=index, camera_pose=pose, error=str(err), **where))
+                ctx.wash.views.append(ViewpointResult(index=index, camera_pose=pose, error=str(err), **where))
             return False
         cap, image = run.call("camera", "capture", CaptureRequest(format="png"), CaptureReply)
         data = captured_image(cap, image)
@@ -237,7 +247,7 @@ class Verifying(Step):
         img, fmt = classifier_input(run, data, cap.format, moved.camera_pose.matrix(), cap.intrinsics, surface)
         reply = classify_image(run, index, img, fmt, surface)
         record_heat(run, reply)
-        ctx.wash_views.append(with_reply(ViewpointResult(index=index, camera_pose=moved.camera_pose, **where), reply))
+        ctx.wash.views.append(with_reply(ViewpointResult(index=index, camera_pose=moved.camera_pose, **where), reply))
         return True
 
     @staticmethod
@@ -260,7 +270,7 @@ class Verifying(Step):
         if rc.max_views <= 0:
             return 0
         confirm = Classifying._confirming(ctx)
-        here = [v for v in ctx.wash_views if v.wash_round == r and v.station == rank]
+        here = [v for v in ctx.wash.views if v.wash_round == r and v.station == rank]
         looked = {view_key(v) for v in here if v.relook_of is not None and v.error is None}
         tried = {view_key(v): 0 for v in here}
         for v in here:
@@ -306,8 +316,8 @@ class Verifying(Step):
         (a dirty view on the faces it sees that were dirty and not washed, when it sees any)."""
         from cellctl.supervisor.steps.reporting import _bin_type, _faces_by_view, view_evidence
 
-        whole = ctx.whole and bool(ctx.station_order)
-        plans = ctx.plans if whole else None
+        whole = ctx.whole and bool(ctx.stations.station_order)
+        plans = ctx.stations.plans if whole else None
         if any(v.heatmap for v in views):
             from cellctl.classify.heatmap import fuse_config
             from cellctl.geometry.camera import CameraModel
@@ -315,7 +325,9 @@ class Verifying(Step):
             # the scan's own fusion settings (projection, board occluder), so the re-inspection map and
             # the scan's map judge a face the same way
             fm = fuse_config(
-                view_evidence(ctx.plan, views, ctx.T_base_bin, plans, ctx.bin_poses if whole else None),
+                view_evidence(
+                    ctx.scan.plan, views, ctx.identity.T_base_bin, plans, ctx.stations.bin_poses if whole else None
+                ),
                 mesh,
                 CameraModel.from_config(ctx.cfg.camera),
                 ctx.cfg.classifier.verdict,
@@ -325,7 +337,7 @@ class Verifying(Step):
         from cellctl.supervisor.steps.classifying import Classifying, view_key
 
         n = mesh.n_faces
-        faces_by = _faces_by_view(ctx.plan, plans)
+        faces_by = _faces_by_view(ctx.scan.plan, plans)
         seen: set[int] = set()
         dirty: set[int] = set()
         # a viewpoint's views (its re-looks with it) decide together, as in the scan (classifying)

@@ -102,19 +102,19 @@ def _spot_passes(plan: WashPlanReply) -> list[Any]:
 
 
 def wash_mesh(ctx: CycleContext) -> Any:  # BinMesh
-    if ctx.catalog is None or ctx.bin_type is None or ctx.T_base_bin is None:
+    if ctx.catalog is None or ctx.identity.bin_type is None or ctx.identity.T_base_bin is None:
         raise PlanningError("a wash needs the identified bin (type, mesh and pose); the cycle has none")
-    return ctx.catalog.load_mesh(ctx.bin_type)
+    return ctx.catalog.load_mesh(ctx.identity.bin_type)
 
 
 def wash_ranks(ctx: CycleContext) -> list[int | None]:
     """The stations a round may wash from, in the order it walks them: the one the base stands at,
     then the others back along the scan's visiting order (a single-station cycle: ``[None]``)."""
-    if not ctx.whole or not ctx.wash_scan_poses:
+    if not ctx.whole or not ctx.wash.scan_poses:
         return [None]
-    here = ctx.wash_parked
-    rest = [r for r in reversed(ctx.station_order) if r in ctx.wash_scan_poses and r != here]
-    return ([here] if here in ctx.wash_scan_poses else []) + rest
+    here = ctx.wash.parked
+    rest = [r for r in reversed(ctx.stations.station_order) if r in ctx.wash.scan_poses and r != here]
+    return ([here] if here in ctx.wash.scan_poses else []) + rest
 
 
 def park_at(run: StepRun, rank: int | None, why: str) -> bool:
@@ -122,32 +122,32 @@ def park_at(run: StepRun, rank: int | None, why: str) -> bool:
     does; else sets the station loop's place there for ``wash_approaching`` → ``wash_identifying``
     (the new park's bin pose is measured again, or carried over) and returns False."""
     ctx = run.ctx
-    if rank is None or rank == ctx.wash_parked:
+    if rank is None or rank == ctx.wash.parked:
         return True
-    ctx.station_index = ctx.station_order.index(rank)
-    ctx.surface_index = 0
-    st = ctx.current_station()
+    ctx.stations.station_index = ctx.stations.station_order.index(rank)
+    ctx.stations.surface_index = 0
+    st = ctx.stations.current_station()
     assert st is not None
-    ctx.approach = None  # the base drives: park at the station
-    ctx.observation_index = st.observation_index or 0
-    ctx.identify_attempts = 0
-    ctx.wash_parked = rank
+    ctx.identity.approach = None  # the base drives: park at the station
+    ctx.identity.observation_index = st.observation_index or 0
+    ctx.identity.identify_attempts = 0
+    ctx.wash.parked = rank
     # sweeps planned at the scan's park of this station would miss by the new park's error
-    ctx.wash_station_sweeps.pop(rank, None)
-    run.event("info", f"wash round {len(ctx.wash_rounds) + 1}: parking at station {rank} to {why}")
+    ctx.wash.station_sweeps.pop(rank, None)
+    run.event("info", f"wash round {len(ctx.wash.rounds) + 1}: parking at station {rank} to {why}")
     return False
 
 
 def washed_faces(ctx: CycleContext, n: int) -> np.ndarray:
     """(F,) faces the round's sweeps that ran sprayed to their passes (every station's)."""
-    return face_mask(list(ctx.wash_run.get("washed", [])), n)
+    return face_mask(list(ctx.wash.run.get("washed", [])), n)
 
 
 def look_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:
     """(F,) what the round re-inspects: its targets and every face its jet sprayed, dilated by the splash."""
     from cellctl.washing.targets import dilate
 
-    wplan = ctx.wash_plan
+    wplan = ctx.wash.plan
     assert wplan is not None
     n = mesh.n_faces
     sprayed = face_mask(wplan.targets, n) | face_mask(wplan.washed, n) | washed_faces(ctx, n)
@@ -159,10 +159,10 @@ def views_at(ctx: CycleContext, mesh: Any, rank: int | None) -> list[tuple[str, 
     look = look_faces(ctx, mesh)
     n = mesh.n_faces
     if rank is None:
-        assert ctx.plan is not None
-        pairs = [(ctx.surface, vp) for vp in ctx.plan.viewpoints]
+        assert ctx.scan.plan is not None
+        pairs = [(ctx.surface, vp) for vp in ctx.scan.plan.viewpoints]
     else:
-        pairs = [(surf, vp) for (st, surf), p in ctx.plans.items() if st == rank for vp in p.viewpoints]
+        pairs = [(surf, vp) for (st, surf), p in ctx.stations.plans.items() if st == rank for vp in p.viewpoints]
     return [(s, vp) for s, vp in pairs if any(0 <= f < n and look[f] for f in vp.faces)]
 
 
@@ -178,10 +178,13 @@ def round_poses(ctx: CycleContext) -> list[np.ndarray]:
     The other stations are replanned at the pose measured when the base parks there
     (``Washing._replan``)."""
     if not ctx.whole:
-        assert ctx.T_base_bin is not None
-        return [ctx.T_base_bin]
-    here = ctx.wash_parked
-    return [ctx.bin_poses[r] if r == here and r in ctx.bin_poses else ctx.wash_scan_poses[r] for r in wash_ranks(ctx)]
+        assert ctx.identity.T_base_bin is not None
+        return [ctx.identity.T_base_bin]
+    here = ctx.wash.parked
+    return [
+        ctx.stations.bin_poses[r] if r == here and r in ctx.stations.bin_poses else ctx.wash.scan_poses[r]
+        for r in wash_ranks(ctx)
+    ]
 
 
 def verify_stations(ctx: CycleContext) -> list[int | None]:
@@ -211,7 +214,7 @@ def seen_fraction(ctx: CycleContext, mesh: Any) -> float:
 
     A clean verdict is a statement about these faces only: powder where no view looks is not seen,
     and not washed (docs/washing/README.md, the seed-20 twin run)."""
-    _, seen, _ = face_state(ctx.dirt_map or {}, mesh.n_faces)
+    _, seen, _ = face_state(ctx.result.dirt_map or {}, mesh.n_faces)
     total = float(mesh.areas.sum())
     return float(mesh.areas[seen].sum()) / total if total > 0 else 0.0
 
@@ -219,7 +222,7 @@ def seen_fraction(ctx: CycleContext, mesh: Any) -> float:
 def _dirty_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:
     from cellctl.washing.targets import dirty_from_map
 
-    dirty, _ = dirty_from_map(ctx.dirt_map or {}, mesh.n_faces, ctx.cfg.wash.threshold)
+    dirty, _ = dirty_from_map(ctx.result.dirt_map or {}, mesh.n_faces, ctx.cfg.wash.threshold)
     return dirty
 
 
@@ -227,19 +230,19 @@ class WashCheck(Step):
     NAME = "wash_check"
     OUTCOMES = ("done", "wash", "failed")
     DESCRIPTION = "wash_and_verify: clean, dirty (rounds spent / unwashable), or plan the next round's wash"
-    READS = ("mode", "dirt_map")
+    READS = ("result.dirt_map",)
     WRITES = (
-        "wash_plan",
-        "wash",
-        "verdict",
-        "reason",
-        "coverage_by_surface",
-        "wash_queue",
-        "verify_queue",
-        "wash_phase",
-        "wash_scan_poses",
-        "wash_parked",
-        "wash_station_sweeps",
+        "wash.plan",
+        "wash.result",
+        "result.verdict",
+        "result.reason",
+        "result.coverage_by_surface",
+        "wash.queue",
+        "wash.verify_queue",
+        "wash.phase",
+        "wash.scan_poses",
+        "wash.parked",
+        "wash.station_sweeps",
     )
 
     def execute(self, run: StepRun) -> str:
@@ -247,15 +250,15 @@ class WashCheck(Step):
         if ctx.mode != "wash_and_verify":
             return "done"
         wc = ctx.cfg.wash
-        done = len(ctx.wash_rounds)
-        if ctx.dirt_map is None:
+        done = len(ctx.wash.rounds)
+        if ctx.result.dirt_map is None:
             return self._end(run, None, "no dirt map: the wash needs the cycle's dirt map (nothing was inspected)")
-        if ctx.whole and not ctx.wash_scan_poses:
-            if not ctx.bin_poses:
+        if ctx.whole and not ctx.wash.scan_poses:
+            if not ctx.stations.bin_poses:
                 return self._end(run, None, "not washed: the whole-bin cycle measured no station's bin pose")
             # the poses the scan's plans were adjusted to; the base stands at the last station scanned
-            ctx.wash_scan_poses = dict(ctx.bin_poses)
-            ctx.wash_parked = [r for r in ctx.station_order if r in ctx.bin_poses][-1]
+            ctx.wash.scan_poses = dict(ctx.stations.bin_poses)
+            ctx.wash.parked = [r for r in ctx.stations.station_order if r in ctx.stations.bin_poses][-1]
         mesh = wash_mesh(ctx)
         dirty = _dirty_faces(ctx, mesh)
         if not dirty.any():
@@ -267,8 +270,12 @@ class WashCheck(Step):
                 )
                 return self._end(run, "incomplete", why, dirty, mesh)
             # the surfaces as the re-inspections leave them: CycleResult.coverage_by_surface says what clean covers
-            ctx.coverage_by_surface = surface_fractions(mesh, np.flatnonzero(face_state(ctx.dirt_map, mesh.n_faces)[1]))
-            verdict, why = gate_verdict("clean", ctx.coverage_by_surface, ctx.cfg.classifier.verdict.min_seen_fraction)
+            ctx.result.coverage_by_surface = surface_fractions(
+                mesh, np.flatnonzero(face_state(ctx.result.dirt_map, mesh.n_faces)[1])
+            )
+            verdict, why = gate_verdict(
+                "clean", ctx.result.coverage_by_surface, ctx.cfg.classifier.verdict.min_seen_fraction
+            )
             return self._end(run, verdict, why, dirty, mesh)  # WashResult.seen_fraction: what clean covers
         area = float(mesh.areas[dirty].sum())
         if done >= wc.max_rounds:
@@ -280,20 +287,20 @@ class WashCheck(Step):
         if not plan.sweeps:
             why = f"unwashable: {plan.reason}"
             return self._end(run, "dirty", why, dirty, mesh, plan.summary.get("unwashable", []))
-        ctx.wash_plan = plan
-        ctx.wash_next_sweep = 0
-        ctx.wash_next_view = 0
-        ctx.wash_run = {"sweeps_run": 0, "passes_run": 0, "refused": [], "pictures": [], "replanned": []}
+        ctx.wash.plan = plan
+        ctx.wash.next_sweep = 0
+        ctx.wash.next_view = 0
+        ctx.wash.run = {"sweeps_run": 0, "passes_run": 0, "refused": [], "pictures": [], "replanned": []}
         ranks = wash_ranks(ctx)
-        ctx.wash_run["ranks"] = ranks  # the plan's station k is ranks[k] (the base moves on this round)
-        ctx.wash_station_sweeps = {}
+        ctx.wash.run["ranks"] = ranks  # the plan's station k is ranks[k] (the base moves on this round)
+        ctx.wash.station_sweeps = {}
         for k, rank in enumerate(ranks):
             mine = [sw for sw in plan.sweeps if sw.station == k]
             if mine:
-                ctx.wash_station_sweeps[rank] = mine
-        ctx.wash_queue = [r for r in ranks if r in ctx.wash_station_sweeps]
-        ctx.verify_queue = []
-        ctx.wash_phase = "wash"
+                ctx.wash.station_sweeps[rank] = mine
+        ctx.wash.queue = [r for r in ranks if r in ctx.wash.station_sweeps]
+        ctx.wash.verify_queue = []
+        ctx.wash.phase = "wash"
         n_unw = len(plan.unwashable)
         run.event(
             "info",
@@ -310,13 +317,13 @@ class WashCheck(Step):
         ctx = run.ctx
         wc = ctx.cfg.wash
         state, _ = run.call("robot", "state", RobotStateRequest(), RobotState)
-        assert ctx.T_base_bin is not None and ctx.bin_type is not None  # wash_mesh checked them
+        assert ctx.identity.T_base_bin is not None and ctx.identity.bin_type is not None  # wash_mesh checked them
         poses = round_poses(ctx)
         req = WashPlanRequest(
-            bin_type=ctx.bin_type,
+            bin_type=ctx.identity.bin_type,
             stations=[PoseMsg.from_matrix(invert(T), "bin") for T in poses],
             q_start=state.joints,
-            dirt_map=ctx.dirt_map,
+            dirt_map=ctx.result.dirt_map,
             threshold=wc.threshold,
             margin_m=wc.margin_m,
             seed=ctx.params.seed,
@@ -334,13 +341,15 @@ class WashCheck(Step):
         from cellctl.recording.dirt_map import draw_dirt_map
         from cellctl.washing.pictures import draw_wash_path
 
-        assert ctx.T_base_bin is not None
-        name = ctx.bin_type or "bin"
+        assert ctx.identity.T_base_bin is not None
+        name = ctx.identity.bin_type or "bin"
         poses = round_poses(ctx)
         view = _plan_view(plan, mesh.n_faces, [invert(T) for T in poses])
-        before = draw_dirt_map(mesh, ctx.dirt_map or {}, folder / f"r{r}_before.png", f"{name} round {r}: before")
+        before = draw_dirt_map(
+            mesh, ctx.result.dirt_map or {}, folder / f"r{r}_before.png", f"{name} round {r}: before"
+        )
         path = draw_wash_path(mesh, view, _spot_passes(plan), folder / f"r{r}_path.png", f"{name} round {r}:")
-        ctx.wash_run["pictures"] = [before.name, path.name]  # in <cycle_id>.wash/: a replay's names match
+        ctx.wash.run["pictures"] = [before.name, path.name]  # in <cycle_id>.wash/: a replay's names match
 
     @staticmethod
     def _end(
@@ -354,22 +363,22 @@ class WashCheck(Step):
         ctx = run.ctx
         remaining = np.flatnonzero(dirty).tolist() if dirty is not None else []
         area = float(mesh.areas[dirty].sum()) if dirty is not None and mesh is not None else 0.0
-        ctx.wash = WashResult(
+        ctx.wash.result = WashResult(
             verdict=verdict,  # type: ignore[arg-type]
             reason=reason,
-            rounds=list(ctx.wash_rounds),
+            rounds=list(ctx.wash.rounds),
             remaining_faces=remaining,
             remaining_m2=round(area, 6),
             unwashable=unwashable or [],
-            seen_fraction=round(seen_fraction(ctx, mesh), 4) if mesh is not None and ctx.dirt_map else None,
+            seen_fraction=round(seen_fraction(ctx, mesh), 4) if mesh is not None and ctx.result.dirt_map else None,
             min_seen_fraction=ctx.cfg.wash.min_seen_fraction,
         )
-        ctx.wash_plan = None
+        ctx.wash.plan = None
         if verdict is not None:
-            ctx.verdict = verdict  # type: ignore[assignment]
+            ctx.result.verdict = verdict  # type: ignore[assignment]
         if verdict == "incomplete":
-            ctx.reason = reason
-        n = len(ctx.wash_rounds)
+            ctx.result.reason = reason
+        n = len(ctx.wash.rounds)
         run.event(
             "info" if verdict == "clean" else "warning",
             f"wash and verify: {verdict or 'no verdict'} after {n} round(s)" + (f" ({reason})" if reason else ""),
@@ -381,28 +390,28 @@ class WashStation(Step):
     NAME = "wash_station"
     OUTCOMES = ("wash", "verify", "park")
     DESCRIPTION = "walk the round's stations: park at the next one to wash or re-inspect from, then wash or verify"
-    READS = ("wash_plan", "wash_queue", "verify_queue", "wash_phase")
+    READS = ("wash.plan", "wash.queue", "wash.verify_queue", "wash.phase")
     WRITES = (
-        "wash_phase",
-        "verify_queue",
-        "wash_parked",
-        "station_index",
-        "surface_index",
-        "approach",
-        "observation_index",
-        "identify_attempts",
-        "wash_station_sweeps",
+        "wash.phase",
+        "wash.verify_queue",
+        "wash.parked",
+        "stations.station_index",
+        "stations.surface_index",
+        "identity.approach",
+        "identity.observation_index",
+        "identity.identify_attempts",
+        "wash.station_sweeps",
     )
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        if ctx.wash_phase == "wash":
-            if ctx.wash_queue:
-                return "wash" if park_at(run, ctx.wash_queue[0], "wash from it") else "park"
-            ctx.wash_phase = "verify"
-            ctx.verify_queue = verify_stations(ctx)
-            ctx.wash_next_view = 0
-        if ctx.verify_queue and not park_at(run, ctx.verify_queue[0], "re-inspect from it"):
+        if ctx.wash.phase == "wash":
+            if ctx.wash.queue:
+                return "wash" if park_at(run, ctx.wash.queue[0], "wash from it") else "park"
+            ctx.wash.phase = "verify"
+            ctx.wash.verify_queue = verify_stations(ctx)
+            ctx.wash.next_view = 0
+        if ctx.wash.verify_queue and not park_at(run, ctx.wash.verify_queue[0], "re-inspect from it"):
             return "park"
         return "verify"
 
@@ -411,22 +420,22 @@ class Washing(Step):
     NAME = "washing"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "run the station's wash sweeps on the robot, one request per sweep (a Hold resumes at the next)"
-    READS = ("wash_plan", "wash_queue")
-    WRITES = ("wash_next_sweep", "wash_run", "wash_queue", "wash_station_sweeps")
+    READS = ("wash.plan", "wash.queue")
+    WRITES = ("wash.next_sweep", "wash.run", "wash.queue", "wash.station_sweeps")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
-        plan = ctx.wash_plan
+        plan = ctx.wash.plan
         assert plan is not None  # READS wash_plan
-        r = len(ctx.wash_rounds) + 1
-        stats = ctx.wash_run
-        rank = ctx.wash_queue[0] if ctx.wash_queue else None
-        sweeps = ctx.wash_station_sweeps.get(rank)
+        r = len(ctx.wash.rounds) + 1
+        stats = ctx.wash.run
+        rank = ctx.wash.queue[0] if ctx.wash.queue else None
+        sweeps = ctx.wash.station_sweeps.get(rank)
         if sweeps is None:
             sweeps = self._replan(run, rank, r)
-            ctx.wash_station_sweeps[rank] = sweeps
+            ctx.wash.station_sweeps[rank] = sweeps
         where = f" at station {rank}" if rank is not None else ""
-        for i in range(ctx.wash_next_sweep, len(sweeps)):
+        for i in range(ctx.wash.next_sweep, len(sweeps)):
             sw = sweeps[i]
             req = WashRequest(
                 sweeps=[WashSweep(joints=sw.joints, passes=sw.passes, region=sw.region)],
@@ -447,23 +456,23 @@ class Washing(Step):
                 # one refused sweep (newly in collision at the measured pose) costs its faces, not the round
                 # the reason's head names the sweep and the cause (the CycleResult has a size limit)
                 stats["refused"].append({"sweep": i, "station": rank, "reason": str(err)[:120]})
-                ctx.wash_next_sweep = i + 1
+                ctx.wash.next_sweep = i + 1
                 continue
             stats["sweeps_run"] += reply.sweeps_run
             stats["passes_run"] += reply.passes_run
             stats["washed"] = sorted(set(stats.get("washed", [])) | set(sw.faces))
-            ctx.wash_next_sweep = i + 1
-        ctx.wash_next_sweep = 0
-        if ctx.wash_queue:
-            ctx.wash_queue.pop(0)
+            ctx.wash.next_sweep = i + 1
+        ctx.wash.next_sweep = 0
+        if ctx.wash.queue:
+            ctx.wash.queue.pop(0)
         run.event(
             "info",
             f"wash round {r}{where}: {len(sweeps)} sweeps; {stats['sweeps_run']} sweeps, {stats['passes_run']} "
             "passes run so far" + (f", {len(stats['refused'])} refused" if stats["refused"] else ""),
         )
-        if not ctx.wash_queue and stats["sweeps_run"] == 0:
+        if not ctx.wash.queue and stats["sweeps_run"] == 0:
             first = stats["refused"][0]["reason"] if stats["refused"] else "none planned"
-            n = sum(len(v) for v in ctx.wash_station_sweeps.values())
+            n = sum(len(v) for v in ctx.wash.station_sweeps.values())
             raise WorkerFailed(f"robot ran none of the {n} wash sweeps (first: {first})", role="robot")
         return "succeeded"
 
@@ -474,9 +483,9 @@ class Washing(Step):
         from cellctl.geometry.transforms import invert
 
         ctx = run.ctx
-        plan = ctx.wash_plan
-        assert plan is not None and rank is not None and ctx.bin_type is not None
-        k = ctx.wash_run["ranks"].index(rank)
+        plan = ctx.wash.plan
+        assert plan is not None and rank is not None and ctx.identity.bin_type is not None
+        k = ctx.wash.run["ranks"].index(rank)
         # its share: the round's target faces under its sweeps' spot paths (within a footprint)
         mesh = wash_mesh(ctx)
         spots = [np.asarray(sw.spots, np.float64).reshape(-1, 3) for sw in plan.sweeps if sw.station == k]
@@ -488,8 +497,8 @@ class Washing(Step):
             share = targets[d <= ctx.cfg.nozzle.footprint_m].tolist()
         state, _ = run.call("robot", "state", RobotStateRequest(), RobotState)
         req = WashPlanRequest(
-            bin_type=ctx.bin_type,
-            stations=[PoseMsg.from_matrix(invert(ctx.bin_poses[rank]), "bin")],
+            bin_type=ctx.identity.bin_type,
+            stations=[PoseMsg.from_matrix(invert(ctx.stations.bin_poses[rank]), "bin")],
             q_start=state.joints,
             dirt_map={"seen_dirty": share},
             threshold=ctx.cfg.wash.threshold,
@@ -501,7 +510,7 @@ class Washing(Step):
         ctx.log.write_json(
             topics.WASH_PLAN, "cellctl.WashPlan", {"round": r, "station": rank, "replanned": True, **reply.summary}
         )
-        ctx.wash_run.setdefault("replanned", []).append(
+        ctx.wash.run.setdefault("replanned", []).append(
             {"station": rank, "faces": len(share), "sweeps": len(reply.sweeps), "plan_s": reply.plan_s}
         )
         run.event(
