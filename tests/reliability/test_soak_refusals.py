@@ -29,9 +29,9 @@ def test_a_stations_refusals_count_when_its_views_are_not_listed():
 def test_the_demo_table_counts_refusals_as_the_soak_does():
     """A whole-bin result cut for the wire keeps its stations' refusal counts: the demo's ``ref`` column
     reports them, not only the refused views still listed."""
-    from cellctl.cli.demo import Row, _fill
+    from cellctl.bench.demo.runner import Row, fill
 
     st = [StationResult(station=0, refused={"external": 2}), StationResult(station=1)]
     row = Row(n=1, story="s")
-    _fill(row, _result([ViewpointResult(index=0, label="clean")], st))
+    fill(row, _result([ViewpointResult(index=0, label="clean")], st))
     assert row.refused == 2
