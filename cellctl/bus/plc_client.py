@@ -285,6 +285,39 @@ class CellLink:
             raise WorkerTimeout(f"the daemon did not answer {cmd.request_id!r} within {timeout:g} s")
         return decode_as(Ack, replies[0].ok.payload.to_bytes())
 
+    def put(self, cell: str, cmd: Command, timeout: float) -> Ack:
+        """Send ``cmd`` to ``cell`` by put (no reply channel) and return its Ack read from ``cmd/ack``.
+
+        The path of a PLC that cannot query: the daemon answers every command on ``cmd/ack`` as well; the
+        Ack is matched by ``cmd.request_id``.
+
+        Raises:
+            WorkerUnavailable: no session.
+            WorkerTimeout: no Ack with the command's request id on ``cmd/ack`` within ``timeout`` s.
+        """
+        s = self._session
+        if s is None:
+            raise self._unreachable()
+        acks: queue.Queue[Ack] = queue.Queue()
+        sub = s.declare_subscriber(keys.cmd_ack(cell), lambda smp: acks.put(decode_as(Ack, smp.payload.to_bytes())))
+        try:
+            time.sleep(0.1)  # let the subscription reach the router before the put
+            # BLOCK: the default (DROP) may drop a put at a full transmission queue, and nothing would answer
+            s.put(keys.cmd(cell), encode(cmd), congestion_control=zenoh.CongestionControl.BLOCK)
+            deadline = time.monotonic() + timeout
+            while (left := deadline - time.monotonic()) > 0:
+                try:
+                    ack = acks.get(timeout=left)
+                except queue.Empty:
+                    break
+                if ack.request_id == cmd.request_id:
+                    return ack
+        finally:
+            sub.undeclare()
+        raise WorkerTimeout(
+            f"no Ack on {keys.cmd_ack(cell)} within {timeout:g} s" + acl_hint(self.cfg.bus, keys.cmd(cell))
+        )
+
     def send_async(self, cell: str, cmd: Command, timeout: float, done: Callable[[Ack | CellError], None]) -> None:
         """Send ``cmd`` to ``cell`` by query without blocking; ``done`` gets its Ack or the error.
 
@@ -338,9 +371,9 @@ class CellLink:
 class PlcClient:
     """A PLC-side client of one cell: blocking commands, Status/CycleResult/plan progress as queues.
 
-    Used by the tools that drive a cell the way a PLC would (``cellctl demo``, the cycle, fault and
-    soak benches). It speaks only the wire contract (through :class:`CellLink`), so what works here
-    works from a real PLC.
+    Used by the tools that drive a cell the way a PLC would (``cellctl demo``, ``cellctl cmd``/``status``,
+    ``cellctl replay --verify``, the cycle, fault and soak benches).
+    It speaks only the wire contract (through :class:`CellLink`), so what works here works from a real PLC.
 
     Args:
         cfg: the cell config (endpoints, cell id).
@@ -399,8 +432,11 @@ class PlcClient:
         """Request a PackML unit mode (``production``, ``maintenance``, ``manual``) and return the Ack."""
         return self.send(Command(unit_mode=mode, user=user, request_id=self.next_id(), stamp=now_iso()), timeout)
 
-    def send(self, cmd: Command, timeout: float = 10.0) -> Ack:
-        """Send a built Command by query (the path with a guaranteed reply) and return its Ack."""
+    def send(self, cmd: Command, timeout: float = 10.0, *, put: bool = False) -> Ack:
+        """Send a built Command and return its Ack: by query (the path with a guaranteed reply), or with
+        ``put`` by put, the Ack read from ``cmd/ack`` (:meth:`CellLink.put`)."""
+        if put:
+            return self.link.put(self.cell, cmd, timeout)
         return self.link.send(self.cell, cmd, timeout)
 
     def wait_for(self, pred: Callable[[Status], bool], timeout: float) -> Status | None:

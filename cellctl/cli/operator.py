@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import queue
 import sys
-import time
+from typing import TYPE_CHECKING
 
 from cellctl.cli import add_config_arguments, config_from_args
-from cellctl.errors import CellError, WorkerTimeout, WorkerUnavailable
+from cellctl.errors import CellError
+
+if TYPE_CHECKING:
+    from cellctl.messages import Status
 
 COMMANDS = ["reset", "start", "stop", "hold", "unhold", "suspend", "unsuspend", "abort", "clear", "complete"]
 UNIT_MODES = ["production", "maintenance", "manual"]
@@ -65,13 +67,8 @@ def _parse_params(items: list[str]) -> dict:
 
 
 def run_cmd(args: argparse.Namespace) -> int:
-    import zenoh
-
-    from cellctl.bus import keys
-    from cellctl.bus.codec import decode_as, encode
-    from cellctl.bus.security import acl_hint
-    from cellctl.bus.session import open_session
-    from cellctl.messages import Ack, Command, Status, now_iso
+    from cellctl.bus.plc_client import PlcClient
+    from cellctl.messages import Command, now_iso
     from cellctl.supervisor.definition import PackMLState
 
     states = [s.name for s in PackMLState if s != PackMLState.Undefined]
@@ -84,96 +81,47 @@ def run_cmd(args: argparse.Namespace) -> int:
         raise CellError("cellctl cmd: give a PackML command, --unit-mode MODE or --base-parked STATION (exactly one)")
     if args.command is None and args.param:
         raise CellError(f"cellctl cmd: only a PackML command takes --param, got {args.param}")
-    cmd = Command(
-        command=args.command,
-        unit_mode=args.unit_mode,
-        base_parked=args.base_parked,
-        user=args.user,
-        request_id=f"cli-{time.time_ns()}",
-        params=_parse_params(args.param),
-        stamp=now_iso(),
-    )
-    with open_session(cfg, "client") as s:
-        statuses: queue.Queue[Status] = queue.Queue()
-        sub = s.declare_subscriber(
-            keys.status(cfg.cell_id), lambda smp: statuses.put(decode_as(Status, smp.payload.to_bytes()))
+    params = _parse_params(args.param)
+    # the one client of the PLC contract: request ids cli-<boot token>-<n>, Statuses subscribed before the send
+    with PlcClient(cfg, "cli") as plc:
+        cmd = Command(
+            command=args.command,
+            unit_mode=args.unit_mode,
+            base_parked=args.base_parked,
+            user=args.user,
+            request_id=plc.next_id(),
+            params=params,
+            stamp=now_iso(),
         )
-        acks: queue.Queue[Ack] = queue.Queue()
-        if args.put:
-            asub = s.declare_subscriber(
-                keys.cmd_ack(cfg.cell_id), lambda smp: acks.put(decode_as(Ack, smp.payload.to_bytes()))
-            )
-            time.sleep(0.1)  # let the subscription reach the router before the put
-            # BLOCK: the default (DROP) may drop a put at a full transmission queue, and nothing would answer
-            s.put(keys.cmd(cfg.cell_id), encode(cmd), congestion_control=zenoh.CongestionControl.BLOCK)
-            try:
-                while True:
-                    ack = acks.get(timeout=args.timeout)
-                    if ack.request_id == cmd.request_id:
-                        break
-            except queue.Empty:
-                raise WorkerTimeout(
-                    f"no Ack on {keys.cmd_ack(cfg.cell_id)} within {args.timeout:g} s"
-                    + acl_hint(cfg.bus, keys.cmd(cfg.cell_id))
-                ) from None
-            asub.undeclare()
-        else:
-            replies = list(s.get(keys.cmd(cfg.cell_id), payload=encode(cmd), timeout=args.timeout))
-            if not replies:
-                raise WorkerUnavailable(
-                    f"no cellctl daemon serves {keys.cmd(cfg.cell_id)!r}; is `cellctl run` running?"
-                    + acl_hint(cfg.bus, keys.cmd(cfg.cell_id))
-                )
-            if replies[0].ok is None:
-                raise WorkerTimeout(f"the daemon did not answer within {args.timeout:g} s")
-            ack = decode_as(Ack, replies[0].ok.payload.to_bytes())
+        ack = plc.send(cmd, args.timeout, put=args.put)
         print(ack.model_dump_json())
         if not ack.accepted:
             return 1
         if args.wait:
-            deadline = time.monotonic() + args.timeout
-            state = ack.state
-            while state != args.wait:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    print(f"cellctl cmd: timed out waiting for {args.wait!r}; state is {state!r}", file=sys.stderr)
-                    return 3
-                try:
-                    st = statuses.get(timeout=left)
-                except queue.Empty:
-                    continue
-                state = st.state
-            print(json.dumps({"reached": state}))
-        sub.undeclare()
+            seen = [ack.state]
+
+            def reached(st: Status) -> bool:
+                seen.append(st.state)
+                return st.state == args.wait
+
+            if ack.state != args.wait and plc.wait_for(reached, args.timeout) is None:
+                print(f"cellctl cmd: timed out waiting for {args.wait!r}; state is {seen[-1]!r}", file=sys.stderr)
+                return 3
+            print(json.dumps({"reached": args.wait}))
     return 0
 
 
-def query_status(session, cfg, timeout: float):
-    from cellctl.bus import keys
-    from cellctl.bus.codec import decode_as
-    from cellctl.messages import Status
-
-    replies = list(session.get(keys.status(cfg.cell_id), timeout=timeout))
-    if not replies:
-        raise WorkerUnavailable(f"no cellctl daemon serves {keys.status(cfg.cell_id)!r}; is `cellctl run` running?")
-    if replies[0].ok is None:
-        raise WorkerTimeout(f"the daemon did not answer a status query within {timeout:g} s")
-    return decode_as(Status, replies[0].ok.payload.to_bytes())
-
-
 def run_status(args: argparse.Namespace) -> int:
-    from cellctl.bus import keys
-    from cellctl.bus.session import open_session
+    from cellctl.bus.plc_client import PlcClient
 
     cfg = config_from_args(args)
-    with open_session(cfg, "client") as s:
-        print(query_status(s, cfg, args.timeout).model_dump_json(), flush=True)
+    with PlcClient(cfg, "cli") as plc:
+        print(plc.status(args.timeout).model_dump_json(), flush=True)
         if args.watch:
-            q: queue.Queue[bytes] = queue.Queue()
-            s.declare_subscriber(keys.status(cfg.cell_id), lambda smp: q.put(smp.payload.to_bytes()))
+            plc.drain()  # from now on
             try:
                 while True:
-                    print(q.get().decode(), flush=True)
+                    print(plc.statuses.get().model_dump_json(), flush=True)
             except KeyboardInterrupt:
                 return 0
     return 0
