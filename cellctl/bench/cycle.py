@@ -18,8 +18,8 @@ from cellctl.bench.options import BenchOptions
 
 def bench_cycle(opts: BenchOptions) -> dict[str, Any]:
     """``opts.n`` measured cycles (default 3) after the plan-priming one."""
+    from cellctl.bench.reliability.sim_cell import running_sim_cell
     from cellctl.errors import CellError
-    from cellctl.reliability.sim_cell import running_sim_cell
 
     n = opts.n or 3
     runs = []

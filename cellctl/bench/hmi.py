@@ -83,8 +83,8 @@ def _client(port: int, rate_hz: float, stop: Any, out: Any) -> None:
 
 def bench_hmi(opts: BenchOptions) -> dict[str, Any]:
     """``opts.n`` sim cycles (default 2) with the HMI polled at 50 Hz; latencies of GET /api/status."""
+    from cellctl.bench.reliability.sim_cell import FAST_SIM, running_sim_cell
     from cellctl.bus.session import private_bus_overrides
-    from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
 
     n_cycles = opts.n or 2
     port = _free_port()

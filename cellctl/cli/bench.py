@@ -41,12 +41,12 @@ BENCHES: dict[str, tuple[str, str]] = {
         "surface, cycle time (--n seeds)",
     ),
     "faults": (
-        "cellctl.reliability.faults:bench_faults",
+        "cellctl.bench.reliability.faults:bench_faults",
         "kill/freeze each worker at each cycle step: detection time, safe state, recovery",
     ),
-    "fuzz": ("cellctl.reliability.fuzz:bench_fuzz", "seeded hostile payloads to the command key (--n cases)"),
+    "fuzz": ("cellctl.bench.reliability.fuzz:bench_fuzz", "seeded hostile payloads to the command key (--n cases)"),
     "soak": (
-        "cellctl.reliability.soak:bench_soak",
+        "cellctl.bench.reliability.soak:bench_soak",
         "sim cycles back to back (--n cycles): cycles/hour, RSS, open files",
     ),
     "inspect": (
@@ -55,7 +55,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     ),
     "hmi": ("cellctl.bench.hmi:bench_hmi", "GET /api/status p50/p99 of a separate HMI process while sim cycles run"),
     "cluster": (
-        "cellctl.reliability.cluster:bench_cluster",
+        "cellctl.bench.reliability.cluster:bench_cluster",
         "3 cells, planner pool, PLC host in network namespaces: cycles, jobs, 1 vs 2 workers, link faults (root)",
     ),
     "opcua": (

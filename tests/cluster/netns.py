@@ -1,6 +1,6 @@
 """The netns harness for the cluster tests: skip with the reason where namespaces are not allowed.
 
-The harness itself (:mod:`cellctl.reliability.netns`, the relay, :mod:`cellctl.reliability.cluster`)
+The harness itself (:mod:`cellctl.bench.reliability.netns`, the relay, :mod:`cellctl.bench.reliability.cluster`)
 lives in the package because ``cellctl bench cluster`` builds the same plant.
 """
 
@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from cellctl.reliability.cluster import Cluster, ClusterOptions
-from cellctl.reliability.netns import netns_unavailable
+from cellctl.bench.reliability.cluster import Cluster, ClusterOptions
+from cellctl.bench.reliability.netns import netns_unavailable
 
 __all__ = ["cluster_of", "require_netns"]
 

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from cellctl.bench.reliability.cluster import bring_up, first_cycles, link_fault, records_check
+from cellctl.bench.reliability.netns import PREFIX, _ip
 from cellctl.planning.planfile import read_document
-from cellctl.reliability.cluster import bring_up, first_cycles, link_fault, records_check
-from cellctl.reliability.netns import PREFIX, _ip
 from tests.cluster.netns import cluster_of
 
 

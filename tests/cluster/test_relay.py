@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from cellctl.bench.reliability.relay import LinkShape, Relay
 from cellctl.errors import ConfigError
-from cellctl.reliability.relay import LinkShape, Relay
 from tests.conftest import free_port
 
 

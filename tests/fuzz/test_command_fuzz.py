@@ -1,6 +1,6 @@
 """Hostile payloads on the command key: every one gets exactly one Ack, a rejected one changes nothing.
 
-The shipped fuzzer (:mod:`cellctl.reliability.fuzz`, seeded) and hypothesis (derandomized) both
+The shipped fuzzer (:mod:`cellctl.bench.reliability.fuzz`, seeded) and hypothesis (derandomized) both
 drive a real cell over Zenoh on loopback; the slowed sim robot keeps started cycles in Execute
 so that Execute, Held and Suspended are fuzzed too.
 """
@@ -14,8 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cellctl.app import build_cell
-from cellctl.config import load_config
-from cellctl.reliability.fuzz import (
+from cellctl.bench.reliability.fuzz import (
     CATEGORIES,
     FUZZ_OVERRIDES,
     CommandFuzzer,
@@ -24,6 +23,7 @@ from cellctl.reliability.fuzz import (
     run_fuzz,
     slow_sim_robot,
 )
+from cellctl.config import load_config
 from tests.conftest import cfg_overrides
 
 SEED = 20240601

@@ -20,7 +20,7 @@ QUICK = ["planner.seed_pct=2"]
 
 
 def test_node_opcua_runs_a_sim_cycle(tmp_path) -> None:
-    from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
+    from cellctl.bench.reliability.sim_cell import FAST_SIM, running_sim_cell
 
     opts = BenchOptions(overrides=(*private_bus_overrides(), *QUICK))
     with running_sim_cell(opts, "opcua-sim", FAST_SIM) as run:

@@ -56,9 +56,9 @@ def test_login_command_and_forged_post_in_the_browser(cfg, cell, hmi, client, dr
 def test_a_real_sim_cycle_in_the_browser(tmp_path, driver) -> None:
     from argparse import Namespace
 
+    from cellctl.bench.reliability.sim_cell import FAST_SIM, running_sim_cell
     from cellctl.bus.session import private_bus_overrides
     from cellctl.hmi.server import Hmi, HmiServer
-    from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
     from tests.hmi.conftest import Client, hmi_config
 
     args = Namespace(config=None, overrides=private_bus_overrides())

@@ -6,7 +6,7 @@ import random
 
 import pytest
 
-from cellctl.reliability.soak import growth
+from cellctl.bench.reliability.soak import growth
 
 
 def _samples(values: list[float]) -> list[dict]:
@@ -42,7 +42,7 @@ def test_too_few_samples_give_no_verdict() -> None:
 @pytest.mark.timeout(1800)
 def test_short_soak_of_the_sim_cell_completes_every_cycle_without_leaking_descriptors(port: int) -> None:
     from cellctl.bench.options import BenchOptions
-    from cellctl.reliability.soak import bench_soak
+    from cellctl.bench.reliability.soak import bench_soak
 
     ep = f'["tcp/127.0.0.1:{port}"]'
     out = bench_soak(BenchOptions(n=25, overrides=(f"bus.listen={ep}", f"bus.connect={ep}")))

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from cellctl.bench.reliability.soak import refused_viewpoints
 from cellctl.messages import CycleResult, StationResult, ViewpointResult
-from cellctl.reliability.soak import refused_viewpoints
 
 
 def _result(views: list[ViewpointResult], stations: list[StationResult] | None) -> CycleResult:

@@ -16,11 +16,11 @@ import math
 import pytest
 
 from cellctl.bench.options import BenchOptions
+from cellctl.bench.reliability.sim_cell import FAST_SIM
 from cellctl.bus import keys
 from cellctl.bus.rpc import request
 from cellctl.bus.session import private_bus_overrides
 from cellctl.messages import Command, SimScenarioRequest, SimState, now_iso
-from cellctl.reliability.sim_cell import FAST_SIM
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
 
@@ -43,7 +43,7 @@ def _commission(plc, timeout: float):
 
 
 def test_commissioned_plan_is_judged_against_its_references_and_a_replan_falls_back() -> None:
-    from cellctl.reliability.sim_cell import running_sim_cell
+    from cellctl.bench.reliability.sim_cell import running_sim_cell
 
     opts = BenchOptions(overrides=tuple(private_bus_overrides()))
     with running_sim_cell(opts, "references-sim", FAST_SIM) as run:

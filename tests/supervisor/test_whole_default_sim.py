@@ -23,7 +23,7 @@ QUICK = [
 
 
 def test_the_shipped_config_runs_a_whole_bin_cycle_in_the_twin() -> None:
-    from cellctl.reliability.sim_cell import running_sim_cell
+    from cellctl.bench.reliability.sim_cell import running_sim_cell
 
     opts = BenchOptions(overrides=(*private_bus_overrides(), *QUICK))
     with running_sim_cell(opts, "whole-default", []) as run:

@@ -13,9 +13,9 @@ import subprocess
 import pytest
 
 from cellctl.app import build_cell
+from cellctl.bench.reliability.faults import FAULTS, FaultCase, FaultInjector
 from cellctl.bus.plc_client import PlcClient
 from cellctl.config import load_config
-from cellctl.reliability.faults import FAULTS, FaultCase, FaultInjector
 from tests.conftest import cfg_overrides, free_port
 from tests.fakes.worker_process import spawn
 from tests.fakes.workers import fake_identify

@@ -78,7 +78,7 @@ def table(rows: list[Row]) -> str:
 
 def fill(row: Row, res: Any) -> None:
     """The table row's figures from a CycleResult."""
-    from cellctl.reliability.soak import refused_viewpoints
+    from cellctl.bench.reliability.soak import refused_viewpoints
     from cellctl.surface import SURFACES
 
     row.outcome = res.outcome.value

@@ -22,9 +22,9 @@ Hold/Suspend/Complete/Stop/Abort/Clear then take the machine through every waiti
 PackML, each with the robot's real ``stop``.
 """
 
-from cellctl.reliability.fuzz.bench import FUZZ_OVERRIDES, bench_fuzz, run_fuzz, slow_sim_robot
-from cellctl.reliability.fuzz.contract import STABLE, FuzzStats, FuzzTarget
-from cellctl.reliability.fuzz.generators import CATEGORIES, REJECT, CommandFuzzer, FuzzCase
+from cellctl.bench.reliability.fuzz.bench import FUZZ_OVERRIDES, bench_fuzz, run_fuzz, slow_sim_robot
+from cellctl.bench.reliability.fuzz.contract import STABLE, FuzzStats, FuzzTarget
+from cellctl.bench.reliability.fuzz.generators import CATEGORIES, REJECT, CommandFuzzer, FuzzCase
 
 __all__ = [
     "CATEGORIES",

@@ -12,8 +12,8 @@ from contextlib import contextmanager
 from typing import Any
 
 from cellctl.bench.options import BenchOptions
-from cellctl.reliability.fuzz.contract import FuzzTarget
-from cellctl.reliability.fuzz.generators import CommandFuzzer
+from cellctl.bench.reliability.fuzz.contract import FuzzTarget
+from cellctl.bench.reliability.fuzz.generators import CommandFuzzer
 
 __all__ = ["FUZZ_OVERRIDES", "bench_fuzz", "run_fuzz", "slow_sim_robot"]
 

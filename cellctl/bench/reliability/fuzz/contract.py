@@ -1,6 +1,6 @@
 """The command contract, checked on every case sent to a running cell.
 
-:class:`FuzzTarget` sends a :class:`~cellctl.reliability.fuzz.generators.FuzzCase` by query or
+:class:`FuzzTarget` sends a :class:`~cellctl.bench.reliability.fuzz.generators.FuzzCase` by query or
 by put and records in :class:`FuzzStats` every breach of: exactly one Ack per command; a
 rejected command changes nothing and names the state it arrived in; a payload that must be
 refused is refused; a valid command is accepted exactly when the PackML table allows it; the
@@ -17,11 +17,11 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
+from cellctl.bench.reliability.fuzz.generators import REJECT, FuzzCase
 from cellctl.bus import keys
 from cellctl.bus.codec import decode_as, encode
 from cellctl.errors import CellError
 from cellctl.messages import Ack, Command
-from cellctl.reliability.fuzz.generators import REJECT, FuzzCase
 
 __all__ = ["STABLE", "FuzzStats", "FuzzTarget"]
 

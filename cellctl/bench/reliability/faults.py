@@ -334,7 +334,7 @@ def bench_faults(opts: BenchOptions) -> dict[str, Any]:
 
     ``opts.n`` (optional) keeps only the first n cases.
     """
-    from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
+    from cellctl.bench.reliability.sim_cell import FAST_SIM, running_sim_cell
 
     reports: list[FaultCaseResult] = []
     with running_sim_cell(opts, "faults", FAST_SIM) as run:

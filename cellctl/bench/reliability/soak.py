@@ -8,7 +8,7 @@ file descriptors (files, sockets, pipes) and threads. Growth is judged after a w
 10 % of the samples, where caches and allocator pools fill): the median of the last fifth of
 the samples minus the median of the first fifth after warm-up, against a noise floor.
 
-The sim runs fast (:data:`cellctl.reliability.sim_cell.FAST_SIM`) because the soak is about
+The sim runs fast (:data:`cellctl.bench.reliability.sim_cell.FAST_SIM`) because the soak is about
 the controller's resources over many cycles, not about motion time; ``--set`` changes that.
 """
 
@@ -116,8 +116,8 @@ def bench_soak(opts: BenchOptions) -> dict[str, Any]:
     """Run ``opts.n`` cycles (default 50) back to back and report throughput and resource curves."""
     import os
 
+    from cellctl.bench.reliability.sim_cell import FAST_SIM, running_sim_cell
     from cellctl.errors import CellError
-    from cellctl.reliability.sim_cell import FAST_SIM, running_sim_cell
 
     n = opts.n or 50
     every = max(1, n // 100)

@@ -11,7 +11,7 @@ The settings are re-read from ``control`` (a JSON file) every 100 ms, so a test 
 mid-run by rewriting the file. Random draws use ``seed``. Run in the host that owns the
 listen address::
 
-    python -c "import sys; from cellctl.reliability.relay import main; main(sys.argv[1])" SPEC.json
+    python -c "import sys; from cellctl.bench.reliability.relay import main; main(sys.argv[1])" SPEC.json
 
 ``SPEC`` names ``listen`` (host, port), ``target`` (host, port) and ``control`` (path).
 """

@@ -1,14 +1,14 @@
 """A plant in one machine: cells, a planner pool and a PLC on separate "hosts" (network namespaces).
 
 Topology (:class:`Cluster`), one Zenoh router per host (``cellctl router``), linked by veths
-on 169.254.0.0/16 (:mod:`cellctl.reliability.netns`)::
+on 169.254.0.0/16 (:mod:`cellctl.bench.reliability.netns`)::
 
     cellN host:   cellctl run --with-workers (the cell's router on 127.0.0.1, sim robot/camera/
                   classifier)  +  host router (connects the daemon, the compute and plant hosts)
     compute host: router with the planner pool's job queue + K pool workers (one plans folder)
     plant host:   router + one PLC agent per cell (drives the cell by the wire contract only)
 
-A cell's compute link may run through a :mod:`~cellctl.reliability.relay` (latency, loss).
+A cell's compute link may run through a :mod:`~cellctl.bench.reliability.relay` (latency, loss).
 The PLC agent (:func:`plc_agent_main`) is a process in the plant host that takes JSON
 commands on stdin and answers JSON lines on stdout, and logs every Status it receives with
 the wall clock (one clock for every namespace), so faults are timed against the cell's own
@@ -30,9 +30,9 @@ from pathlib import Path
 from typing import Any
 
 from cellctl.bench.options import BenchOptions
+from cellctl.bench.reliability.netns import Host, Plant, netns_unavailable
+from cellctl.bench.reliability.sim_cell import FAST_SIM
 from cellctl.errors import CellError, ConfigError
-from cellctl.reliability.netns import Host, Plant, netns_unavailable
-from cellctl.reliability.sim_cell import FAST_SIM
 
 __all__ = ["Cluster", "ClusterOptions", "PlcAgent", "bench_cluster", "plc_agent_main"]
 
@@ -191,7 +191,7 @@ class Cluster:
                     json.dumps({"listen": [up, RELAY_PORT], "target": ["127.0.0.1", ROUTER_PORT], "control": str(ctl)}),
                 )
                 self.relay_controls[c] = ctl
-                code = "import sys; from cellctl.reliability.relay import main; main(sys.argv[1])"
+                code = "import sys; from cellctl.bench.reliability.relay import main; main(sys.argv[1])"
                 self.procs[f"compute/relay-{c}"] = compute.spawn([sys.executable, "-c", code, str(spec)], f"relay-{c}")
             y = self._router_yaml(
                 c,
@@ -248,7 +248,7 @@ class Cluster:
         self.procs[f"{c}/daemon"] = self.plant.hosts[c].spawn(args, "daemon")
 
     def _agent(self, c: str) -> PlcAgent:
-        code = "from cellctl.reliability.cluster import plc_agent_main; plc_agent_main()"
+        code = "from cellctl.bench.reliability.cluster import plc_agent_main; plc_agent_main()"
         argv = ["ip", "netns", "exec", self.plant.hosts["plant"].ns, sys.executable, "-c", code]
         log = (self.tmp / f"plant-plc-{c}.log").open("ab")
         proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=log, start_new_session=True)
