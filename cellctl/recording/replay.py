@@ -10,6 +10,7 @@ clear error.
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import queue
@@ -17,6 +18,7 @@ import tempfile
 import threading
 import time
 from collections import defaultdict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -291,6 +293,249 @@ def _state_sequence(statuses: list[dict[str, Any]]) -> list[str]:
     return seq
 
 
+@dataclass
+class _Recording:
+    """A recorded cycle indexed for its replay: each key's (request, reply) exchanges in order."""
+
+    rec: RecordedCycle
+    prefix: str
+    by_key: dict[str, deque[tuple[dict, RecordedMessage | None]]]
+    images: deque[RecordedMessage]
+    in_flight: dict[str, dict]
+    """Requests recorded without a reply: in flight when the log was cut."""
+    results: list[dict[str, Any]]
+    starts: list[dict[str, Any]]
+    """The recorded start commands (their params and user start the replayed cycle)."""
+    states: list[str]
+
+    @property
+    def interrupted(self) -> bool:
+        """The log ends at a crash (no CycleResult)."""
+        return not self.results
+
+
+def _index_recording(path: Path | str, cid: str) -> _Recording:
+    """Read ``path`` and pair each recorded request with its reply, per key."""
+    from cellctl.bus import keys
+
+    rec = read_cycle(path)
+    by_key: dict[str, deque[tuple[dict, RecordedMessage | None]]] = defaultdict(deque)
+    images = deque(m for m in rec.messages if m.schema == "foxglove.CompressedImage" and m.topic == topics.CAMERA_IMAGE)
+    pending: dict[str, dict] = {}
+    for m in rec.messages:
+        ex = topics.exchange_of(m.topic)
+        if ex is None:
+            continue
+        k, side = ex
+        if side == "request":
+            pending[k] = m.json()
+        else:
+            by_key[k].append((pending.pop(k, {}), m))
+    results = [m.json() for m in rec.messages if m.schema == "cellctl/CycleResult"]
+    commands = [m.json() for m in rec.messages if m.schema == "cellctl/Command" and m.topic == keys.cmd(cid)]
+    starts = [c for c in commands if c.get("command") == "start" or c.get("cntrl_cmd") == 2]
+    states = _state_sequence([m.json() for m in rec.messages if m.schema == "cellctl/Status"])
+    return _Recording(rec, keys.prefix(cid) + "/", by_key, images, dict(pending), results, starts, states)
+
+
+@dataclass
+class _ReplayWorkers:
+    """The replay's workers: each request is checked against the recorded one and answered with its reply.
+
+    Handlers run on Zenoh threads: what they share goes under :attr:`lock`.
+    """
+
+    recording: _Recording
+    differences: list[str]
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    reached_cut: list[str] = field(default_factory=list)
+    """Keys whose requests went past the recording (an interrupted cycle's cut)."""
+
+    def handler(self, key: str) -> Callable[[Any, bytes | None], Any]:
+        """The request handler of ``key``."""
+        return functools.partial(self.answer, key)
+
+    def answer(self, key: str, req: Any, payload: bytes | None) -> Any:
+        from cellctl.bus.codec import decode
+        from cellctl.messages import ErrorReply
+
+        r = self.recording
+        with self.lock:
+            if r.interrupted and not r.by_key[key]:
+                # past the recording on this key; other keys go on (classify runs beside scanning)
+                want = r.in_flight.pop(key, None)
+                self.reached_cut.append(key)
+                got = _strip(json.loads(req.model_dump_json()))
+                if want is not None and got != _strip(want):
+                    self.differences.append(
+                        f"the request in flight at the cut on {key} differs: recorded {_strip(want)} replayed {got}"
+                    )
+                raise RecordingError(f"replay: the recording ends before this request on {key} (interrupted cycle)")
+            if not r.by_key[key]:
+                raise RecordingError(f"replay: unexpected extra request on {key}")
+            want, reply = r.by_key[key].popleft()
+        got = _reference_relative(json.loads(req.model_dump_json()))
+        want = _reference_relative(_as_today(want))
+        if _strip(got) != _strip(want):
+            self.differences.append(f"request on {key} differs: recorded {_strip(want)} replayed {_strip(got)}")
+        assert reply is not None
+        msg = decode(reply.data, 64 * 1024 * 1024)
+        if isinstance(msg, ErrorReply):
+            # the log holds the supervisor's wording ("robot refused move: <reason>");
+            # answer with the worker's own reason so the replayed wording matches
+            role, _, op = key[len(r.prefix) :].partition("/")
+            said = f"{role} refused {op}: "
+            raise RecordingError(msg.reason[len(said) :] if msg.reason.startswith(said) else msg.reason)
+        if msg.type == "cellctl/CaptureReply":
+            with self.lock:
+                img = r.images.popleft().json()["data"] if r.images else ""
+            import base64
+
+            return msg, base64.b64decode(img)
+        return msg
+
+
+def _role_ops(r: _Recording, cfg: Any) -> dict[str, list[tuple[str, str]]]:
+    """The recorded ops per worker role (every required role, even one the cycle never asked)."""
+    role_ops: dict[str, list[tuple[str, str]]] = defaultdict(list)
+    for k in r.by_key:
+        rest = k[len(r.prefix) :] if k.startswith(r.prefix) else k
+        role, _, op = rest.partition("/")
+        role_ops[role].append((op, k))
+    for role in cfg.supervisor.required_workers:
+        role_ops.setdefault(role, [])
+    return role_ops
+
+
+def _config_as_recorded(cfg: Any, rec: RecordedCycle, scratch: Path) -> Any:
+    """``cfg`` with what the cycle ran with taken from the log's metadata; plans go to ``scratch``."""
+    # Re-looks depend on the config the cycle ran with, not on a reply: take it from the log
+    # (a log without the key was recorded before re-looks existed, so it made none).
+    relook = cfg.classifier.relook.model_copy(
+        update={
+            "max_views": int(rec.metadata.get("cycle", {}).get("relook_max_views", 0)),
+            "confirm_dirty": rec.metadata.get("cycle", {}).get("relook_confirm_dirty", "off"),
+        }
+    )
+    cfg = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"relook": relook})})
+    # so does the station loop (a log without the key was recorded before whole-bin cycles existed)
+    whole = rec.metadata.get("cycle", {}).get("whole_bin", "false") == "true"
+    planner = cfg.planner.model_copy(
+        update={
+            "whole": cfg.planner.whole.model_copy(update={"enabled": whole}),
+            "plans_dir": scratch / "plans",
+        }
+    )
+    cfg = cfg.model_copy(update={"planner": planner})
+    # and the verdict's coverage gate (a log without the key predates it: no minimum)
+    minimum = json.loads(rec.metadata.get("cycle", {}).get("min_seen_fraction", "{}"))
+    verdict_cfg = cfg.classifier.verdict.model_copy(update={"min_seen_fraction": minimum})
+    return cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"verdict": verdict_cfg})})
+
+
+def _serve(session: Any, cid: str, role_ops: dict[str, list[tuple[str, str]]], workers: _ReplayWorkers,
+           servers: list[Any]) -> None:  # fmt: skip
+    """Announce a replay worker per recorded role, each op answered from the log (appended to ``servers``)."""
+    from cellctl.bus import keys
+    from cellctl.messages import MESSAGE_TYPES
+    from cellctl.workers._server import WorkerServer
+
+    for role, ops in role_ops.items():
+        if role not in keys.ROLES:
+            continue
+        srv = WorkerServer(session, cid, role, "replay" if role == "planner" else None)
+        for op, k in ops:
+            srv.serve(op.replace("/", "-"), tuple(MESSAGE_TYPES.values()), workers.handler(k), key=k)
+        srv.announce()
+        servers.append(srv)
+
+
+def _run_cycle(
+    session: Any, cid: str, cell: Any, starts: list[dict[str, Any]], timeout_s: float, differences: list[str]
+) -> tuple[CycleResult | None, list[dict]]:
+    """Reset the replayed cell, start the cycle as recorded, wait for its result; the statuses it published."""
+    from cellctl.bus import keys
+    from cellctl.bus.codec import decode_as, encode
+    from cellctl.messages import Ack, Command, CycleResult
+
+    statuses: queue.Queue[dict] = queue.Queue()
+    seen: list[dict] = []
+    session.declare_subscriber(keys.status(cid), lambda s: statuses.put(json.loads(s.payload.to_bytes())))
+    res_q: queue.Queue[CycleResult] = queue.Queue()
+    session.declare_subscriber(keys.result(cid), lambda s: res_q.put(decode_as(CycleResult, s.payload.to_bytes())))
+    time.sleep(0.3)
+
+    def send(cmd: Command) -> Ack:
+        (r,) = list(session.get(keys.cmd(cid), payload=encode(cmd), timeout=5))
+        return decode_as(Ack, r.ok.payload.to_bytes())
+
+    send(Command(command="reset"))
+    deadline = time.monotonic() + 10
+    while cell.supervisor.top_state != "Idle" and time.monotonic() < deadline:
+        time.sleep(0.02)
+    params = starts[0].get("params", {}) if starts else {}
+    user = starts[0].get("user") if starts else None
+    if params.get("mode") == "commission":  # staff started it in maintenance, signed (unit_modes.py)
+        send(Command(unit_mode="maintenance", user=user))
+    while not statuses.empty():
+        statuses.get_nowait()
+    ack = send(Command(command="start", params=params, user=user))
+    if not ack.accepted:
+        differences.append(f"start refused on replay: {ack.reason}")
+    replayed: CycleResult | None
+    try:
+        replayed = res_q.get(timeout=timeout_s)
+    except queue.Empty:
+        differences.append(f"no CycleResult within {timeout_s:g} s")
+        replayed = None
+    time.sleep(0.2)
+    while not statuses.empty():
+        seen.append(statuses.get_nowait())
+    return replayed, seen
+
+
+def _compare(
+    r: _Recording, replayed: CycleResult | None, seen: list[dict], reached_cut: list[str], differences: list[str]
+) -> tuple[list[str], list[str]]:
+    """Append what differs (states, result, requests never made) to ``differences``; the two cycles' states."""
+    from cellctl.messages import CycleResult
+
+    recorded_states = r.states
+    replayed_states = _state_sequence([s for s in seen if s.get("cycle_id")])
+    if not any(s.endswith(".next_station") for s in recorded_states):
+        # recorded before the station loop's state existed (a single-station cycle passes it at once)
+        replayed_states = _state_sequence([s for s in seen if s.get("cycle_id") and s.get("step") != "next_station"])
+    outside = ("Idle", "Stopped", "Resetting", "Complete", "Aborted")  # published after the log closed
+    rec_cycle_states = [s for s in recorded_states if s.split(".")[0] not in outside]
+    rep_cycle_states = [s for s in replayed_states if s.split(".")[0] not in outside]
+    if r.interrupted:
+        if rec_cycle_states != rep_cycle_states[: len(rec_cycle_states)]:
+            differences.append(f"states up to the cut differ: recorded {rec_cycle_states} replayed {rep_cycle_states}")
+        if not reached_cut and replayed is not None:
+            differences.append(f"the replayed cycle ended ({replayed.outcome}) without reaching the recorded cut")
+    elif rec_cycle_states != rep_cycle_states:
+        differences.append(f"states differ: recorded {rec_cycle_states} replayed {rep_cycle_states}")
+    if not r.interrupted and replayed is not None:
+        # The recorded result read by today's model: fields added since (still v1) take their
+        # defaults, so a log recorded before them compares on what it holds.
+        results = r.results
+        want = _strip(json.loads(recorded_as_sent(CycleResult.model_validate(results[-1]), replayed).model_dump_json()))
+        got = _strip(json.loads(replayed.model_dump_json()))
+        for k in _GATE_FIELDS:  # a log from before the coverage gate holds none: today's replay fills them
+            if results[-1].get(k) is None:
+                want.pop(k, None)
+                got.pop(k, None)
+        for k in _REFERENCE_FIELDS:
+            want.pop(k, None)
+            got.pop(k, None)
+        if want != got:
+            differences.append(f"result differs: recorded {want} replayed {got}")
+    left = {k: len(v) for k, v in r.by_key.items() if v}
+    if left:
+        differences.append(f"recorded requests never made on replay: {left}")
+    return rec_cycle_states, rep_cycle_states
+
+
 def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification: Any = None) -> VerifyReport:
     """Re-run a recorded cycle through a fresh supervisor whose workers answer from the log.
 
@@ -305,194 +550,35 @@ def verify(path: Path | str, cfg: Any, timeout_s: float = 120.0, identification:
     what the replayed cycle does past the cut is not compared.
     """
     from cellctl.app import build_cell
-    from cellctl.bus import keys
-    from cellctl.bus.codec import decode, decode_as, encode
     from cellctl.bus.session import open_session
-    from cellctl.messages import MESSAGE_TYPES, Ack, Command, CycleResult, ErrorReply
-    from cellctl.workers._server import WorkerServer
 
-    rec = read_cycle(path)
     cid = cfg.cell_id
-    prefix = keys.prefix(cid) + "/"
-    by_key: dict[str, deque[tuple[dict, RecordedMessage | None]]] = defaultdict(deque)
-    images = deque(m for m in rec.messages if m.schema == "foxglove.CompressedImage" and m.topic == topics.CAMERA_IMAGE)
-    pending: dict[str, dict] = {}
-    for m in rec.messages:
-        ex = topics.exchange_of(m.topic)
-        if ex is None:
-            continue
-        k, side = ex
-        if side == "request":
-            pending[k] = m.json()
-        else:
-            by_key[k].append((pending.pop(k, {}), m))
-    results = [m.json() for m in rec.messages if m.schema == "cellctl/CycleResult"]
-    interrupted = not results
-    in_flight = dict(pending)  # requests recorded without a reply: in flight when the log was cut
-    reached_cut: list[str] = []
-    commands = [m.json() for m in rec.messages if m.schema == "cellctl/Command" and m.topic == keys.cmd(cid)]
-    starts = [c for c in commands if c.get("command") == "start" or c.get("cntrl_cmd") == 2]
-    recorded_states = _state_sequence([m.json() for m in rec.messages if m.schema == "cellctl/Status"])
+    r = _index_recording(path, cid)
     differences: list[str] = []
-    lock = threading.Lock()
-
-    def answer(key: str):
-        def handler(req: Any, payload: bytes | None) -> Any:
-            with lock:
-                if interrupted and not by_key[key]:
-                    # past the recording on this key; other keys go on (classify runs beside scanning)
-                    want = in_flight.pop(key, None)
-                    reached_cut.append(key)
-                    got = _strip(json.loads(req.model_dump_json()))
-                    if want is not None and got != _strip(want):
-                        differences.append(
-                            f"the request in flight at the cut on {key} differs: recorded {_strip(want)} replayed {got}"
-                        )
-                    raise RecordingError(f"replay: the recording ends before this request on {key} (interrupted cycle)")
-                if not by_key[key]:
-                    raise RecordingError(f"replay: unexpected extra request on {key}")
-                want, reply = by_key[key].popleft()
-            got = _reference_relative(json.loads(req.model_dump_json()))
-            want = _reference_relative(_as_today(want))
-            if _strip(got) != _strip(want):
-                differences.append(f"request on {key} differs: recorded {_strip(want)} replayed {_strip(got)}")
-            assert reply is not None
-            msg = decode(reply.data, 64 * 1024 * 1024)
-            if isinstance(msg, ErrorReply):
-                # the log holds the supervisor's wording ("robot refused move: <reason>");
-                # answer with the worker's own reason so the replayed wording matches
-                role, _, op = key[len(prefix) :].partition("/")
-                said = f"{role} refused {op}: "
-                raise RecordingError(msg.reason[len(said) :] if msg.reason.startswith(said) else msg.reason)
-            if msg.type == "cellctl/CaptureReply":
-                with lock:
-                    img = images.popleft().json()["data"] if images else ""
-                import base64
-
-                return msg, base64.b64decode(img)
-            return msg
-
-        return handler
-
-    role_ops: dict[str, list[tuple[str, str]]] = defaultdict(list)
-    for k in by_key:
-        rest = k[len(prefix) :] if k.startswith(prefix) else k
-        role, _, op = rest.partition("/")
-        role_ops[role].append((op, k))
-    for role in cfg.supervisor.required_workers:
-        role_ops.setdefault(role, [])
-
-    # Re-looks depend on the config the cycle ran with, not on a reply: take it from the log
-    # (a log without the key was recorded before re-looks existed, so it made none).
-    relook = cfg.classifier.relook.model_copy(
-        update={
-            "max_views": int(rec.metadata.get("cycle", {}).get("relook_max_views", 0)),
-            "confirm_dirty": rec.metadata.get("cycle", {}).get("relook_confirm_dirty", "off"),
-        }
-    )
-    cfg = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"relook": relook})})
-    # so does the station loop (a log without the key was recorded before whole-bin cycles existed)
-    whole = rec.metadata.get("cycle", {}).get("whole_bin", "false") == "true"
+    workers = _ReplayWorkers(r, differences)
+    role_ops = _role_ops(r, cfg)
     # reference sets go to a scratch folder: a replayed commissioning must not add a set to the cell's
     scratch = tempfile.TemporaryDirectory(prefix="cellctl-replay-")
-    planner = cfg.planner.model_copy(
-        update={
-            "whole": cfg.planner.whole.model_copy(update={"enabled": whole}),
-            "plans_dir": Path(scratch.name) / "plans",
-        }
-    )
-    cfg = cfg.model_copy(update={"planner": planner})
-    # and the verdict's coverage gate (a log without the key predates it: no minimum)
-    minimum = json.loads(rec.metadata.get("cycle", {}).get("min_seen_fraction", "{}"))
-    verdict_cfg = cfg.classifier.verdict.model_copy(update={"min_seen_fraction": minimum})
-    cfg = cfg.model_copy(update={"classifier": cfg.classifier.model_copy(update={"verdict": verdict_cfg})})
+    cfg = _config_as_recorded(cfg, r.rec, Path(scratch.name))
     cell = build_cell(cfg, identification=identification)
     session = open_session(cfg, "client")
-    servers = []
+    servers: list[Any] = []
     try:
-        for role, ops in role_ops.items():
-            if role not in keys.ROLES:
-                continue
-            srv = WorkerServer(session, cid, role, "replay" if role == "planner" else None)
-            for op, k in ops:
-                srv.serve(op.replace("/", "-"), tuple(MESSAGE_TYPES.values()), answer(k), key=k)
-            srv.announce()
-            servers.append(srv)
-        statuses: queue.Queue[dict] = queue.Queue()
-        seen: list[dict] = []
-        session.declare_subscriber(keys.status(cid), lambda s: statuses.put(json.loads(s.payload.to_bytes())))
-        res_q: queue.Queue[CycleResult] = queue.Queue()
-        session.declare_subscriber(keys.result(cid), lambda s: res_q.put(decode_as(CycleResult, s.payload.to_bytes())))
-        time.sleep(0.3)
-
-        def send(cmd: Command) -> Ack:
-            (r,) = list(session.get(keys.cmd(cid), payload=encode(cmd), timeout=5))
-            return decode_as(Ack, r.ok.payload.to_bytes())
-
-        send(Command(command="reset"))
-        deadline = time.monotonic() + 10
-        while cell.supervisor.top_state != "Idle" and time.monotonic() < deadline:
-            time.sleep(0.02)
-        params = starts[0].get("params", {}) if starts else {}
-        user = starts[0].get("user") if starts else None
-        if params.get("mode") == "commission":  # staff started it in maintenance, signed (unit_modes.py)
-            send(Command(unit_mode="maintenance", user=user))
-        while not statuses.empty():
-            statuses.get_nowait()
-        ack = send(Command(command="start", params=params, user=user))
-        if not ack.accepted:
-            differences.append(f"start refused on replay: {ack.reason}")
-        try:
-            replayed = res_q.get(timeout=timeout_s)
-        except queue.Empty:
-            differences.append(f"no CycleResult within {timeout_s:g} s")
-            replayed = None
-        time.sleep(0.2)
-        while not statuses.empty():
-            seen.append(statuses.get_nowait())
+        _serve(session, cid, role_ops, workers, servers)
+        replayed, seen = _run_cycle(session, cid, cell, r.starts, timeout_s, differences)
     finally:
         for srv in servers:
             srv.close()
         session.close()
         cell.close()
         scratch.cleanup()
-    replayed_states = _state_sequence([s for s in seen if s.get("cycle_id")])
-    if not any(s.endswith(".next_station") for s in recorded_states):
-        # recorded before the station loop's state existed (a single-station cycle passes it at once)
-        replayed_states = _state_sequence([s for s in seen if s.get("cycle_id") and s.get("step") != "next_station"])
-    outside = ("Idle", "Stopped", "Resetting", "Complete", "Aborted")  # published after the log closed
-    rec_cycle_states = [s for s in recorded_states if s.split(".")[0] not in outside]
-    rep_cycle_states = [s for s in replayed_states if s.split(".")[0] not in outside]
-    if interrupted:
-        if rec_cycle_states != rep_cycle_states[: len(rec_cycle_states)]:
-            differences.append(f"states up to the cut differ: recorded {rec_cycle_states} replayed {rep_cycle_states}")
-        if not reached_cut and replayed is not None:
-            differences.append(f"the replayed cycle ended ({replayed.outcome}) without reaching the recorded cut")
-    elif rec_cycle_states != rep_cycle_states:
-        differences.append(f"states differ: recorded {rec_cycle_states} replayed {rep_cycle_states}")
-    if not interrupted and replayed is not None:
-        # The recorded result read by today's model: fields added since (still v1) take their
-        # defaults, so a log recorded before them compares on what it holds.
-        want = _strip(json.loads(recorded_as_sent(CycleResult.model_validate(results[-1]), replayed).model_dump_json()))
-        got = _strip(json.loads(replayed.model_dump_json()))
-        for k in _GATE_FIELDS:  # a log from before the coverage gate holds none: today's replay fills them
-            if results[-1].get(k) is None:
-                want.pop(k, None)
-                got.pop(k, None)
-        for k in _REFERENCE_FIELDS:
-            want.pop(k, None)
-            got.pop(k, None)
-        if want != got:
-            differences.append(f"result differs: recorded {want} replayed {got}")
-    left = {k: len(v) for k, v in by_key.items() if v}
-    if left:
-        differences.append(f"recorded requests never made on replay: {left}")
+    rec_cycle_states, rep_cycle_states = _compare(r, replayed, seen, workers.reached_cut, differences)
     return VerifyReport(
         not differences,
         differences,
         rec_cycle_states,
         rep_cycle_states,
-        sum(1 for m in rec.messages if m.topic.endswith(topics.REQUEST_SUFFIX)),
-        rec.skipped,
-        interrupted,
+        sum(1 for m in r.rec.messages if m.topic.endswith(topics.REQUEST_SUFFIX)),
+        r.rec.skipped,
+        r.interrupted,
     )
