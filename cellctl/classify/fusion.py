@@ -346,6 +346,65 @@ def _fit_logistic(
     return w.detach().numpy()
 
 
+@dataclass(frozen=True)
+class _TrainRequest:
+    """What :func:`train_detector` was asked for (the card records it)."""
+
+    data: Path | str
+    surface: str
+    out: Path
+    seed: int
+    epochs: int
+    calib: Path | str | None
+    target_false_clean: float
+    decision_score: str
+
+
+@dataclass
+class _TrainData:
+    """One surface's split, loaded: train/val/test arrays (val grown by the calibration pool when given)."""
+
+    split: Any
+    xtr: torch.Tensor
+    mtr: np.ndarray
+    ytr: np.ndarray
+    xva: torch.Tensor
+    mva: np.ndarray
+    yva: np.ndarray
+    xte: torch.Tensor
+    yte: np.ndarray
+    n_val: int
+    """Validation images before the calibration pool joined (the card's ``val`` metrics)."""
+    calib_items: list[tuple[Path, int]]
+    cruns: list[dict[str, Any]]
+
+
+@dataclass
+class _Fitted:
+    """The learnt parts: backbone, patch head, clean bank (its normalisation), and the pool's features."""
+
+    feats: nn.Module
+    head: nn.Module
+    bank: MemoryBank
+    init: dict[str, Any] | None
+    fva: torch.Tensor
+    fte: torch.Tensor
+
+
+@dataclass
+class _Calibration:
+    """Fusion, Platt scalings, anomaly reference and threshold, fitted on the pool (val + calib)."""
+
+    fuse: np.ndarray
+    platt: np.ndarray
+    platt_sup: np.ndarray
+    ref: list[float]
+    threshold: float
+    pv: np.ndarray
+    """The pool's p_dirty under the chosen decision score."""
+    pool_acc: dict[str, Any]
+
+
 def train_detector(
     data: Path | str,
     surface: str,
@@ -391,6 +450,32 @@ def train_detector(
         raise ClassifierError(f"decision_score {decision_score!r} is unknown; expected one of {DECISION_SCORES}")
     torch.set_num_threads(threads or 1)
     t0 = time.perf_counter()
+    d = _load_training_data(data, surface, seed, calib)
+    fit = _fit_parts(d, surface, epochs, bank_size, seed, init_from)
+    cal = _calibrate(d, fit, target_false_clean, decision_score)
+    st, at = _patch_maps(fit, fit.fte)
+    pt = _sig(cal.platt[0] * _fused_max(cal.fuse, st, at) + cal.platt[1])
+    if decision_score == "supervised":
+        pt = _sig(cal.platt_sup[0] * st.double().numpy().reshape(len(st), -1).max(1) + cal.platt_sup[1])
+    blob = _detector_blob(surface, fit, cal, decision_score)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    torch.save(blob, tmp)
+    os.replace(tmp, out)
+    band = UNCERTAIN_LOGIT_BAND
+    scores = {
+        "val": metrics(cal.pv[: d.n_val], d.yva[: d.n_val], cal.threshold, band),
+        "test": metrics(pt, d.yte, cal.threshold, band),
+        **({"calib_pool": metrics(cal.pv, d.yva, cal.threshold, band)} if calib is not None else {}),
+    }
+    req = _TrainRequest(data, surface, out, seed, epochs, calib, target_false_clean, decision_score)
+    card = _model_card(req, d, fit, cal, scores, t0)
+    out.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
+    return card
+
+
+def _load_training_data(data: Path | str, surface: str, seed: int, calib: Path | str | None) -> _TrainData:
+    """The split's arrays; a calibration folder's images all join val (refused when it holds shifted draws)."""
     split = split_dataset(data, surface, seed=seed, fractions=SPLIT)
     xtr, mtr, ytr = load_arrays(split.train)
     xva, mva, yva = load_arrays(split.val)
@@ -408,43 +493,58 @@ def train_detector(
             raise ClassifierError(f"calibration folder {str(calib)!r} has no {surface} images")
         xca, mca, yca = load_arrays(calib_items)
         xva, mva, yva = torch.cat([xva, xca]), np.concatenate([mva, mca]), np.concatenate([yva, yca])
+    return _TrainData(split, xtr, mtr, ytr, xva, mva, yva, xte, yte, n_val, calib_items, cruns)
+
+
+def _fit_parts(
+    d: _TrainData, surface: str, epochs: int, bank_size: int, seed: int, init_from: Path | str | None
+) -> _Fitted:
+    """Fine-tune backbone + patch head on train, then the clean bank in the fine-tuned feature space."""
     feats = PatchFeatures()
     head = _head()
     init = None
     if init_from is not None:
         init = _init_weights(Path(init_from), surface, feats, head)
     print(f"detector {surface}: fine-tuning blocks 0-10 + patch head, {epochs} epochs", file=sys.stderr)
-    finetune(feats, head, xtr, mtr, ytr, epochs=epochs, seed=seed)
-    ftr, fva, fte = _features(feats, xtr), _features(feats, xva), _features(feats, xte)
+    finetune(feats, head, d.xtr, d.mtr, d.ytr, epochs=epochs, seed=seed)
+    ftr, fva, fte = _features(feats, d.xtr), _features(feats, d.xva), _features(feats, d.xte)
     print(f"detector {surface}: coreset of {bank_size} clean patches", file=sys.stderr)
     # the bank learns clean steel in the fine-tuned feature space: one backbone pass serves
     # both parts (the latency budget); the bank still never sees a dirty patch
-    bank = MemoryBank.fit(ftr[torch.from_numpy(ytr == 0)], bank_size, seed)
-    mean, std = bank.mean, bank.std
+    bank = MemoryBank.fit(ftr[torch.from_numpy(d.ytr == 0)], bank_size, seed)
+    return _Fitted(feats, head, bank, init, fva, fte)
 
-    def maps(f: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        ss, aa = [], []
-        with torch.inference_mode():
-            for i in range(0, len(f), 64):
-                raw = f[i : i + 64].float()
-                ss.append(head(raw)[:, 0])
-                aa.append(bank((raw - mean) / std))
-        return torch.cat(ss), torch.cat(aa)
 
-    sv, av = maps(fva)
+def _patch_maps(fit: _Fitted, f: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Head logit maps and bank distance maps of features ``f``, in batches of 64."""
+    ss, aa = [], []
+    mean, std = fit.bank.mean, fit.bank.std
+    with torch.inference_mode():
+        for i in range(0, len(f), 64):
+            raw = f[i : i + 64].float()
+            ss.append(fit.head(raw)[:, 0])
+            aa.append(fit.bank((raw - mean) / std))
+    return torch.cat(ss), torch.cat(aa)
+
+
+def _fused_max(fuse: np.ndarray, s: torch.Tensor, a: torch.Tensor) -> np.ndarray:
+    """Each image's largest fused patch logit."""
+    z = fuse[0] * s.double().numpy() + fuse[1] * a.double().numpy() + fuse[2]
+    return z.reshape(len(z), -1).max(1)
+
+
+def _calibrate(d: _TrainData, fit: _Fitted, target_false_clean: float, decision_score: str) -> _Calibration:
+    """Patch fusion, Platt scalings, anomaly reference and threshold on the pool (val + calib)."""
+    sv, av = _patch_maps(fit, fit.fva)
     # patch fusion on val patches (balanced), so the bank's own training patches play no part
-    pl = (mva >= PATCH_DIRTY).ravel()
-    pk = ((mva >= PATCH_DIRTY) | (mva == 0)).ravel()
+    pl = (d.mva >= PATCH_DIRTY).ravel()
+    pk = ((d.mva >= PATCH_DIRTY) | (d.mva == 0)).ravel()
     xs = np.c_[sv.numpy().ravel(), av.numpy().ravel()][pk]
     yl = pl[pk].astype(np.float64)
     wl = np.where(yl > 0, (len(yl) - yl.sum()) / max(yl.sum(), 1.0), 1.0)
     fuse = _fit_logistic(xs, yl, wl)
-
-    def zmax(s: torch.Tensor, a: torch.Tensor) -> np.ndarray:
-        z = fuse[0] * s.double().numpy() + fuse[1] * a.double().numpy() + fuse[2]
-        return z.reshape(len(z), -1).max(1)
-
-    zv = zmax(sv, av)
+    zv = _fused_max(fuse, sv, av)
+    yva = d.yva
     platt = _fit_logistic(zv[:, None], yva.astype(np.float64), l2=0.0)
     svmax = sv.double().numpy().reshape(len(sv), -1).max(1)
     platt_sup = _fit_logistic(svmax[:, None], yva.astype(np.float64), l2=0.0)
@@ -462,51 +562,57 @@ def train_detector(
     }
     if decision_score == "supervised":
         pv, threshold = psv, t_sup
-    calib_info = None
-    if calib is not None:
-        calib_info = {
-            "root": _rel(calib),
-            "n": len(calib_items),
-            "dirty": int(sum(y for _, y in calib_items)),
-            "generator": cruns or None,
-            "recreate": _recreate(cruns, Path(calib)),
-            "rule": "fusion, Platt and threshold fitted on val + all of calib (the pool); threshold: "
-            "floor(target x n_dirty) pool misses allowed, half-way in logit to the clean score below, cap 0.5",
-        }
-    st, at = maps(fte)
-    pt = _sig(platt[0] * zmax(st, at) + platt[1])
-    if decision_score == "supervised":
-        pt = _sig(platt_sup[0] * st.double().numpy().reshape(len(st), -1).max(1) + platt_sup[1])
-    blob = {
+    return _Calibration(fuse, platt, platt_sup, ref, threshold, pv, pool_acc)
+
+
+def _detector_blob(surface: str, fit: _Fitted, cal: _Calibration, decision_score: str) -> dict[str, Any]:
+    """What ``<surface>.detect.pt`` holds (format 2)."""
+    bank = fit.bank
+    return {
         "format": DETECTOR_FORMAT,
         "surface": surface,
         "input_size": INPUT_SIZE,
         "grid": GRID,
         "bank": bank.bank.half().float(),
-        "feat_mean": mean.view(-1),
-        "feat_std": std.view(-1),
-        "head": {k: v.detach().clone() for k, v in head.state_dict().items()},
-        "backbone": {k: v.detach().clone() for k, v in feats.state_dict().items()},
-        "fuse": [float(v) for v in fuse],
-        "platt": [float(v) for v in platt],
-        "platt_sup": [float(v) for v in platt_sup],
-        "anomaly_ref": ref,
-        "threshold": float(threshold),
-        "uncertain_logit_band": band,
+        "feat_mean": bank.mean.view(-1),
+        "feat_std": bank.std.view(-1),
+        "head": {k: v.detach().clone() for k, v in fit.head.state_dict().items()},
+        "backbone": {k: v.detach().clone() for k, v in fit.feats.state_dict().items()},
+        "fuse": [float(v) for v in cal.fuse],
+        "platt": [float(v) for v in cal.platt],
+        "platt_sup": [float(v) for v in cal.platt_sup],
+        "anomaly_ref": cal.ref,
+        "threshold": float(cal.threshold),
+        "uncertain_logit_band": UNCERTAIN_LOGIT_BAND,
         "decision_score": decision_score,
         "labels": list(LABELS),
     }
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    torch.save(blob, tmp)
-    os.replace(tmp, out)
-    sha = file_sha256(out)
+
+
+def _model_card(
+    req: _TrainRequest, d: _TrainData, fit: _Fitted, cal: _Calibration, scores: dict[str, Any], t0: float
+) -> dict[str, Any]:
+    """The card of the written detector (``scores``: its metrics; ``t0``: when the training began)."""
     from cellctl.classify.nets import lite0_imagenet_path
 
+    data, surface, out, seed, epochs, calib = req.data, req.surface, req.out, req.seed, req.epochs, req.calib
+    calib_info = None
+    if calib is not None:
+        calib_info = {
+            "root": _rel(calib),
+            "n": len(d.calib_items),
+            "dirty": int(sum(y for _, y in d.calib_items)),
+            "generator": d.cruns or None,
+            "recreate": _recreate(d.cruns, Path(calib)),
+            "rule": "fusion, Platt and threshold fitted on val + all of calib (the pool); threshold: "
+            "floor(target x n_dirty) pool misses allowed, half-way in logit to the clean score below, cap 0.5",
+        }
+    sha = file_sha256(out)
     bb = lite0_imagenet_path()
     root = Path(data)
     prov_path = root / surface / "synth.json"
-    card = {
+    init = fit.init
+    return {
         "model_id": f"{surface}-detect-{sha[:12]}",
         "format": DETECTOR_FORMAT,
         "surface": surface,
@@ -525,37 +631,31 @@ def train_detector(
         },
         "input_size": INPUT_SIZE,
         "grid": GRID,
-        "bank_size": int(bank.bank.shape[0]),
+        "bank_size": int(fit.bank.bank.shape[0]),
         "finetune_epochs": epochs,
         "augmentation": "flips, exposure, channel gain, tone curve, illumination gradient, blur, noise (finetune.py)",
         "patch_dirty_fraction": PATCH_DIRTY,
-        "fuse": blob["fuse"],
-        "platt": blob["platt"],
-        "threshold": float(threshold),
-        "uncertain_logit_band": band,
+        "fuse": [float(v) for v in cal.fuse],
+        "platt": [float(v) for v in cal.platt],
+        "threshold": float(cal.threshold),
+        "uncertain_logit_band": UNCERTAIN_LOGIT_BAND,
         "decision": {
             "rule": "dirty if p_dirty >= threshold; uncertain within band logits",
-            "target_false_clean": target_false_clean,
-            "score": decision_score,
-            "pool_accuracy": pool_acc,
+            "target_false_clean": req.target_false_clean,
+            "score": req.decision_score,
+            "pool_accuracy": cal.pool_acc,
         },
         "data": {
             "root": _rel(root),
             "split_seed": seed,
-            "counts": split.counts(),
+            "counts": d.split.counts(),
             "generator": (runs := json.loads(prov_path.read_text()) if prov_path.is_file() else None),
             "recreate": _recreate(runs or [], root),
             "calib": calib_info,
         },
-        "metrics": {
-            "val": metrics(pv[:n_val], yva[:n_val], threshold, band),
-            "test": metrics(pt, yte, threshold, band),
-            **({"calib_pool": metrics(pv, yva, threshold, band)} if calib is not None else {}),
-        },
+        "metrics": scores,
         "train_seconds": round(time.perf_counter() - t0, 1),
     }
-    out.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
-    return card
 
 
 def _init_weights(path: Path, surface: str, feats: nn.Module, head: nn.Module) -> dict[str, Any]:
