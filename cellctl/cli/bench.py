@@ -72,6 +72,9 @@ BENCHES: dict[str, tuple[str, str]] = {
     ),
 }
 
+COMMISSIONED = "cellctl.bench.classify.inspect_commissioned:bench_inspect_commissioned"
+"""``bench inspect --commissioned`` (or ``--merge``): every view decided with and without its reference."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="measure and print JSON")
@@ -121,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     opts = options_from_args(args)
     target = BENCHES[args.what][0]
     if args.what == "inspect" and (opts.commissioned or opts.merge):  # with and without commissioned references
-        target = "cellctl.bench.classify.inspect_commissioned:bench_inspect_commissioned"
+        target = COMMISSIONED
     mod, fn = target.split(":")
     result = getattr(importlib.import_module(mod), fn)(opts)
     text = json.dumps(result, indent=2)
