@@ -2,7 +2,7 @@
 near a clump, the dirt map's probability of those faces, and the powder left after each round when the
 logged `robot/wash` sweeps are sprayed at the bin pose measured before them (the twin's spray model).
 
-    .venv/bin/python docs/washing/tools/replay_twin_powder.py logs/<demo>/<day>/<cycle>.mcap \
+    .venv/bin/python -m cellctl.bench.demo.wash_powder logs/<demo>/<day>/<cycle>.mcap \
         [--seed 18] [--amount 0.01] [--clump -0.43 0.335 -0.585] [--bin case_study]
 
 Demo story 3 (docs/figures/wash_story3_twin_powder.json): the clump lies on the -x side of a leg (faces
