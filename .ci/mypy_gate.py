@@ -30,7 +30,7 @@ ERROR = re.compile(r"^(?P<path>[^:\s]+\.py):\d+(?::\d+)?: error: ")
 
 
 def key_of(path: str) -> str:
-    """The baseline key of a file: its top-level package (``cellctl/planning``) or module (``cellctl/config.py``)."""
+    """The baseline key of a file: its top-level package (``cellctl/planning``) or module (``cellctl/images.py``)."""
     for own in OWN_KEYS:
         if path.startswith(own):
             return own.rstrip("/")

@@ -48,7 +48,7 @@ def preflight(cfg: CellConfig) -> None:
     from cellctl.washing.nozzle import NozzleModel
 
     load_definitions(cfg.root)
-    # The checks across a model's fields that need the domain's models (config.py imports none):
+    # The checks across a model's fields that need the domain's models (cellctl.config imports none):
     try:
         NozzleModel.from_config(cfg.nozzle)
     except ConfigError as err:

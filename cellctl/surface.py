@@ -17,7 +17,7 @@ from typing import Literal, get_args
 
 from cellctl.errors import CellError
 
-__all__ = ["EXTERNAL", "FACE_TAG", "INTERNAL", "SURFACES", "Surface", "check_surface"]
+__all__ = ["EXTERNAL", "FACE_TAG", "INTERNAL", "SURFACES", "Surface", "check_surface", "per_surface"]
 
 Surface = Literal["external", "internal"]
 """A bin surface name."""
@@ -32,6 +32,11 @@ INTERNAL = 1
 
 FACE_TAG: dict[Surface, int] = {"external": EXTERNAL, "internal": INTERNAL}
 """Surface name → per-face mesh tag."""
+
+
+def per_surface(external: float, internal: float) -> dict[Surface, float]:
+    """One value per surface (a config default such as ``min_seen_fraction``), spelt without the names."""
+    return {"external": external, "internal": internal}
 
 
 def check_surface(value: object, error: type[CellError] = CellError, what: str = "surface") -> Surface:

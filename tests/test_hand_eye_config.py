@@ -76,7 +76,7 @@ def test_a_bad_hand_eye_file_is_a_config_error_naming_it(tmp_path: Path, content
     he = tmp_path / "he.json"
     if content is not None:
         he.write_text(content)
-    with pytest.raises(ConfigError) as e:  # the check `validate` and `run` make (config.py reads no file)
+    with pytest.raises(ConfigError) as e:  # the check `validate` and `run` make (cellctl.config reads no file)
         preflight(load_config(cell_with(tmp_path, str(he))))
     assert "robot.hand_eye" in str(e.value) and str(he) in str(e.value)
     assert message in str(e.value)

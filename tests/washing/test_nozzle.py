@@ -34,7 +34,7 @@ def test_default_config_has_a_nozzle_and_two_passes() -> None:
     ],
 )
 def test_bad_nozzle_config_is_a_config_error_naming_the_value(override: str, named: str) -> None:
-    with pytest.raises(ConfigError, match=named):  # as `validate` and `run` check it (config.py imports no model)
+    with pytest.raises(ConfigError, match=named):  # as `validate` and `run` check it (cellctl.config imports no model)
         preflight(load_config(None, [override]))
 
 
