@@ -242,6 +242,34 @@ def _pose_covariance(
     return cov, sig_t, sig_r
 
 
+@dataclass(frozen=True)
+class _BoardCorners:
+    """The ChArUco corners of the one board in view, matched to the board's points."""
+
+    name: str
+    kb: KnownBoard
+    marker_ids: list[int]
+    ignored_ids: list[int]
+    corner_ids: list[int]
+    obj: NDArray[np.float64]
+    """Corner positions on the board (N, 3), metres."""
+    img: NDArray[np.float64]
+    """Corner positions in the image (N, 2), pixels."""
+
+
+@dataclass(frozen=True)
+class _PnP:
+    """The refined board pose in the camera and how unique it is."""
+
+    rms: float
+    rvec: Any
+    """Rotation vector (3, 1), as cv2 returns it (an array or a ``cv2.Mat``)."""
+    tvec: Any
+    """Translation (3, 1), metres."""
+    ratio: float
+    gap: float
+
+
 def identify(
     image_bgr: NDArray[np.uint8],
     intrinsics: Intrinsics,
@@ -274,7 +302,52 @@ def identify(
     gray = _gray(image_bgr, intrinsics)
     K = intrinsics.K()
     dist = np.asarray(intrinsics.dist, dtype=np.float64)
+    bc = _board_corners(gray, boards, st)
+    pnp = _solve_pnp(bc, K, dist, st)
+    kb, obj, img, rvec, tvec = bc.kb, bc.obj, bc.img, pnp.rvec, pnp.tvec
+    proj = cv2.projectPoints(obj, rvec, tvec, K, dist)[0].reshape(-1, 2)
+    res = np.linalg.norm(proj - img, axis=1)
+    if pnp.rms > st.max_reproj_px:
+        raise not_identified(
+            "reprojection",
+            f"reprojection error {pnp.rms:.2f} px RMS > {st.max_reproj_px} px over {len(obj)} corners "
+            f"of board {bc.name!r}: "
+            "wrong intrinsics, motion blur or a bent board?",
+        )
+    R = cv2.Rodrigues(rvec)[0]
+    T_cam_board = transform_from(R, tvec.ravel())
+    centre = board_centre(kb.spec)
+    cov, sig_t, sig_r = _pose_covariance(obj, img, rvec, tvec, K, dist, centre, st.pixel_sigma_floor_px)
+    T_base_bin = T_bc @ T_cam_board @ invert(kb.T_bin_board)
+    return Identification(
+        bin_type=bc.name,
+        T_base_bin=T_base_bin,
+        T_cam_board=T_cam_board,
+        T_base_cam=T_bc,
+        T_bin_board=kb.T_bin_board,
+        marker_ids=bc.marker_ids,
+        ignored_ids=bc.ignored_ids,
+        corner_ids=bc.corner_ids,
+        image_points=img,
+        reproj_rms_px=pnp.rms,
+        reproj_max_px=float(res.max()),
+        ambiguity_ratio=pnp.ratio,
+        ippe_gap_deg=pnp.gap,
+        sigma_trans_mm=sig_t,
+        sigma_rot_deg=sig_r,
+        distance_m=float(np.linalg.norm(R @ centre + tvec.ravel())),
+        elapsed_ms=(time.perf_counter() - t0) * 1000.0,
+        image_size=(int(gray.shape[1]), int(gray.shape[0])),
+        board_size_m=(
+            float(kb.spec.squares_x * kb.spec.square_m),
+            float(kb.spec.squares_y * kb.spec.square_m),
+        ),
+        cov_board=cov,
+    )
 
+
+def _board_corners(gray: NDArray[np.uint8], boards: list[KnownBoard], st: IdentifySettings) -> _BoardCorners:
+    """Markers → the one board in view (by id range) → its ChArUco corners, checked (count, not collinear)."""
     dic = get_dictionary(boards[0].spec.dictionary)
     dp = detector_parameters()
     mcorners, mids, _rejected = cv2.aruco.ArucoDetector(dic, dp).detectMarkers(gray)
@@ -284,29 +357,7 @@ def identify(
             f"no markers detected in the {gray.shape[1]}×{gray.shape[0]} image" + _quality_hint(gray),
         )
     ids = [int(i) for i in mids.ravel()]
-
-    # --- bin type from the id ranges --------------------------------------------------------
-    per_board = {k.bin_type: [i for i in ids if k.id_range[0] <= i <= k.id_range[1]] for k in boards}
-    known = {i for v in per_board.values() for i in v}
-    unknown = sorted(int(i) for i in ids if i not in known)
-    present = {name: v for name, v in per_board.items() if len(v) >= st.min_board_markers}
-    if len(present) >= 2:
-        desc = "; ".join(f"{n}: ids {sorted(v)}" for n, v in present.items())
-        raise not_identified("two boards", f"markers from two boards in one image: {desc}")
-    if not present:
-        if unknown and not known:
-            ranges = ", ".join(f"{k.bin_type} {k.id_range[0]}..{k.id_range[1]}" for k in boards)
-            raise not_identified(
-                "unknown id range",
-                f"unknown id range: ids {unknown} belong to no catalog board (known: {ranges})",
-            )
-        raise not_identified(
-            "too few markers",
-            f"only {len(ids)} marker(s) detected (ids {sorted(ids)}); a board needs "
-            f"≥ {st.min_board_markers} of its markers in view" + _quality_hint(gray),
-        )
-    name = next(iter(present))
-    kb = next(k for k in boards if k.bin_type == name)
+    name, kb = _board_in_view(ids, boards, st, gray)
     sel = [j for j, i in enumerate(ids) if kb.id_range[0] <= i <= kb.id_range[1]]
     ignored = sorted(int(ids[j]) for j in range(len(ids)) if j not in sel)
 
@@ -330,8 +381,39 @@ def identify(
     obj, img = kb.board.matchImagePoints(ccorners, cids)
     obj = obj.reshape(-1, 3).astype(np.float64)
     img = img.reshape(-1, 2).astype(np.float64)
+    return _BoardCorners(name, kb, sorted(int(ids[j]) for j in sel), ignored, cid, obj, img)
 
-    # --- pose: IPPE both solutions, ambiguity, LM refinement -------------------------------
+
+def _board_in_view(
+    ids: list[int], boards: list[KnownBoard], st: IdentifySettings, gray: NDArray[np.uint8]
+) -> tuple[str, KnownBoard]:
+    """The bin type whose id range holds enough of the detected markers (exactly one may)."""
+    per_board = {k.bin_type: [i for i in ids if k.id_range[0] <= i <= k.id_range[1]] for k in boards}
+    known = {i for v in per_board.values() for i in v}
+    unknown = sorted(int(i) for i in ids if i not in known)
+    present = {name: v for name, v in per_board.items() if len(v) >= st.min_board_markers}
+    if len(present) >= 2:
+        desc = "; ".join(f"{n}: ids {sorted(v)}" for n, v in present.items())
+        raise not_identified("two boards", f"markers from two boards in one image: {desc}")
+    if not present:
+        if unknown and not known:
+            ranges = ", ".join(f"{k.bin_type} {k.id_range[0]}..{k.id_range[1]}" for k in boards)
+            raise not_identified(
+                "unknown id range",
+                f"unknown id range: ids {unknown} belong to no catalog board (known: {ranges})",
+            )
+        raise not_identified(
+            "too few markers",
+            f"only {len(ids)} marker(s) detected (ids {sorted(ids)}); a board needs "
+            f"≥ {st.min_board_markers} of its markers in view" + _quality_hint(gray),
+        )
+    name = next(iter(present))
+    return name, next(k for k in boards if k.bin_type == name)
+
+
+def _solve_pnp(bc: _BoardCorners, K: NDArray[np.float64], dist: NDArray[np.float64], st: IdentifySettings) -> _PnP:
+    """IPPE (both planar solutions), each refined with LM; refused when the best is not unique."""
+    obj, img, n, name = bc.obj, bc.img, len(bc.obj), bc.name
     nsol, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
     if nsol < 1:
         raise not_identified("ambiguous", f"IPPE found no pose for {n} corners of board {name!r}")
@@ -360,42 +442,4 @@ def identify(
             f"second {sols[1][0]:.3f} px RMS after refinement, solutions {gap:.1f}° apart): board too small "
             f"or too far for a unique pose ({n} corners)",
         )
-    proj = cv2.projectPoints(obj, rvec, tvec, K, dist)[0].reshape(-1, 2)
-    res = np.linalg.norm(proj - img, axis=1)
-    if rms > st.max_reproj_px:
-        raise not_identified(
-            "reprojection",
-            f"reprojection error {rms:.2f} px RMS > {st.max_reproj_px} px over {n} corners "
-            f"of board {name!r}: "
-            "wrong intrinsics, motion blur or a bent board?",
-        )
-    R = cv2.Rodrigues(rvec)[0]
-    T_cam_board = transform_from(R, tvec.ravel())
-    centre = board_centre(kb.spec)
-    cov, sig_t, sig_r = _pose_covariance(obj, img, rvec, tvec, K, dist, centre, st.pixel_sigma_floor_px)
-    T_base_bin = T_bc @ T_cam_board @ invert(kb.T_bin_board)
-    return Identification(
-        bin_type=name,
-        T_base_bin=T_base_bin,
-        T_cam_board=T_cam_board,
-        T_base_cam=T_bc,
-        T_bin_board=kb.T_bin_board,
-        marker_ids=sorted(int(ids[j]) for j in sel),
-        ignored_ids=ignored,
-        corner_ids=cid,
-        image_points=img,
-        reproj_rms_px=rms,
-        reproj_max_px=float(res.max()),
-        ambiguity_ratio=ratio,
-        ippe_gap_deg=gap,
-        sigma_trans_mm=sig_t,
-        sigma_rot_deg=sig_r,
-        distance_m=float(np.linalg.norm(R @ centre + tvec.ravel())),
-        elapsed_ms=(time.perf_counter() - t0) * 1000.0,
-        image_size=(int(gray.shape[1]), int(gray.shape[0])),
-        board_size_m=(
-            float(kb.spec.squares_x * kb.spec.square_m),
-            float(kb.spec.squares_y * kb.spec.square_m),
-        ),
-        cov_board=cov,
-    )
+    return _PnP(rms, rvec, tvec, ratio, gap)
