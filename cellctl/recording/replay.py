@@ -455,8 +455,9 @@ def _run_cycle(
 ) -> tuple[CycleResult | None, list[dict]]:
     """Reset the replayed cell, start the cycle as recorded, wait for its result; the statuses it published."""
     from cellctl.bus import keys
-    from cellctl.bus.codec import decode_as, encode
-    from cellctl.messages import Ack, Command, CycleResult
+    from cellctl.bus.codec import decode_as
+    from cellctl.bus.plc_client import PlcClient
+    from cellctl.messages import Command, CycleResult, now_iso
 
     statuses: queue.Queue[dict] = queue.Queue()
     seen: list[dict] = []
@@ -465,21 +466,23 @@ def _run_cycle(
     session.declare_subscriber(keys.result(cid), lambda s: res_q.put(decode_as(CycleResult, s.payload.to_bytes())))
     time.sleep(0.3)
 
-    def send(cmd: Command) -> Ack:
-        (r,) = list(session.get(keys.cmd(cid), payload=encode(cmd), timeout=5))
-        return decode_as(Ack, r.ok.payload.to_bytes())
-
-    send(Command(command="reset"))
-    deadline = time.monotonic() + 10
-    while cell.supervisor.top_state != "Idle" and time.monotonic() < deadline:
-        time.sleep(0.02)
-    params = starts[0].get("params", {}) if starts else {}
-    user = starts[0].get("user") if starts else None
-    if params.get("mode") == "commission":  # staff started it in maintenance, signed (unit_modes.py)
-        send(Command(unit_mode="maintenance", user=user))
-    while not statuses.empty():
-        statuses.get_nowait()
-    ack = send(Command(command="start", params=params, user=user))
+    # the commands go as a PLC sends them, through the one client of the contract (ids replay-<token>-<n>)
+    plc = PlcClient(cell.cfg, "replay")
+    try:
+        plc.command("reset", timeout=5)
+        deadline = time.monotonic() + 10
+        while cell.supervisor.top_state != "Idle" and time.monotonic() < deadline:
+            time.sleep(0.02)
+        params = starts[0].get("params", {}) if starts else {}
+        user = starts[0].get("user") if starts else None
+        if params.get("mode") == "commission":  # staff started it in maintenance, signed (unit_modes.py)
+            plc.unit_mode("maintenance", timeout=5, user=user)
+        while not statuses.empty():
+            statuses.get_nowait()
+        start = Command(command="start", params=params, user=user, request_id=plc.next_id(), stamp=now_iso())
+        ack = plc.send(start, timeout=5)
+    finally:
+        plc.close()  # the result and the statuses are read on the replay's own session
     if not ack.accepted:
         differences.append(f"start refused on replay: {ack.reason}")
     replayed: CycleResult | None
