@@ -1,4 +1,4 @@
-"""Classifier verbs: ``dataset``, ``train``, ``eval``, ``classify`` (torch imported lazily).
+"""Classifier verbs: ``dataset``, ``train``, ``eval``, ``detector``, ``classify`` (torch imported lazily).
 
 Examples::
 
@@ -23,8 +23,24 @@ from cellctl.surface import SURFACES
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the classifier verbs ``dataset``, ``train``, ``eval``, ``detector``, ``classify`` (their order in --help)."""
+    _add_dataset(sub)
+    _add_train(sub)
+    _add_eval(sub)
+    _add_detector(sub)
+    _add_classify(sub)
+
+
+def _add_dataset(sub: argparse._SubParsersAction) -> None:
+    """``dataset``: make classifier datasets (``synth``, ``contam``)."""
     p = sub.add_parser("dataset", help="make classifier datasets")
     dsub = p.add_subparsers(dest="dataset_verb", metavar="ACTION", required=True)
+    _add_dataset_synth(dsub)
+    _add_dataset_contam(dsub)
+
+
+def _add_dataset_synth(dsub: argparse._SubParsersAction) -> None:
+    """``dataset synth``: a labelled synthetic clean/dirty set."""
     s = dsub.add_parser("synth", help="render a labelled synthetic clean/dirty set")
     s.add_argument("--surface", required=True, choices=SURFACES)
     s.add_argument("--n", type=int, required=True, help="number of images (half clean, half dirty)")
@@ -45,6 +61,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_config_arguments(s)
     s.set_defaults(func=run_synth)
+
+
+def _add_dataset_contam(dsub: argparse._SubParsersAction) -> None:
+    """``dataset contam``: a clean/dirty set over contamination families."""
     m = dsub.add_parser("contam", help="clean/dirty set over contamination families (twin renders + close-ups)")
     m.add_argument("--surface", required=True, choices=SURFACES)
     m.add_argument("--n", type=int, required=True, help="number of images (half clean, half dirty)")
@@ -63,6 +83,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(m)
     m.set_defaults(func=run_contam)
 
+
+def _add_train(sub: argparse._SubParsersAction) -> None:
+    """``train``: a surface's whole-image clean/dirty classifier."""
     t = sub.add_parser("train", help="train a surface's clean/dirty classifier")
     t.add_argument("--surface", required=True, choices=SURFACES)
     t.add_argument("--data", required=True, help="dataset root (DATA/<surface>/<clean|dirty>/*.png)")
@@ -78,6 +101,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(t)
     t.set_defaults(func=run_train)
 
+
+def _add_eval(sub: argparse._SubParsersAction) -> None:
+    """``eval``: a surface model on a dataset."""
     e = sub.add_parser("eval", help="evaluate a surface model on a dataset")
     e.add_argument("--surface", required=True, choices=SURFACES)
     e.add_argument("--data", required=True)
@@ -102,8 +128,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(e)
     e.set_defaults(func=run_eval)
 
+
+def _add_detector(sub: argparse._SubParsersAction) -> None:
+    """``detector``: the combined detector's actions, in this order in ``--help``."""
     d = sub.add_parser("detector", help="the combined detector (supervised patch head + clean-only memory bank)")
     dv = d.add_subparsers(dest="detector_verb", metavar="ACTION", required=True)
+    _add_detector_train(dv)
+    _add_detector_eval(dv)
+    _add_detector_export(dv)
+    _add_detector_label_check(dv)
+    _add_detector_enroll(dv)
+    _add_detector_update(dv)
+    _add_detector_proof(dv)
+    _add_detector_bank_compare(dv)
+
+
+def _add_detector_train(dv: argparse._SubParsersAction) -> None:
+    """``detector train``: fit a surface's detector."""
     dt = dv.add_parser("train", help="fit a surface's detector on a `dataset contam` folder")
     dt.add_argument("--surface", required=True, choices=SURFACES)
     dt.add_argument("--data", required=True)
@@ -126,6 +167,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_config_arguments(dt)
     dt.set_defaults(func=run_detector_train)
+
+
+def _add_detector_eval(dv: argparse._SubParsersAction) -> None:
+    """``detector eval``: score a surface's detector on a folder."""
     de = dv.add_parser("eval", help="evaluate a surface's detector on every image of a folder")
     de.add_argument("--surface", required=True, choices=SURFACES)
     de.add_argument("--data", required=True)
@@ -136,6 +181,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_config_arguments(de)
     de.set_defaults(func=run_detector_eval)
+
+
+def _add_detector_export(dv: argparse._SubParsersAction) -> None:
+    """``detector export``: the detector's networks to ONNX."""
     dx = dv.add_parser(
         "export",
         help="export a surface's detector networks to ONNX beside it (<surface>.detect.onnx), parity-checked "
@@ -145,6 +194,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     dx.add_argument("--model", default=None, help="default: <classifier.models_dir>/<surface>.detect.pt")
     add_config_arguments(dx)
     dx.set_defaults(func=run_detector_export)
+
+
+def _add_detector_label_check(dv: argparse._SubParsersAction) -> None:
+    """``detector label-check``: score visible-mask surroundings factors."""
     dl = dv.add_parser(
         "label-check",
         help="score visible-mask surroundings factors on a held-out draw of the training generator (a pre-change "
@@ -157,6 +210,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     dl.add_argument("--model", type=Path, default=None, help="the observer (default models/classifier/S.detect.pt)")
     dl.add_argument("--out", type=Path, default=None, help="also write the JSON here")
     dl.set_defaults(func=run_label_check)
+
+
+def _add_detector_enroll(dv: argparse._SubParsersAction) -> None:
+    """``detector enroll``: adapt a detector to a site's clean images."""
     dn = dv.add_parser(
         "enroll",
         help="adapt a surface's detector to a site's clean images (merged clean bank, threshold from held-out "
@@ -170,6 +227,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(dn)
     dn.set_defaults(func=run_detector_enroll)
 
+
+def _add_detector_update(dv: argparse._SubParsersAction) -> None:
+    """``detector update``: re-enroll from the operators' confirmed-clean views."""
     du = dv.add_parser(
         "update",
         help="re-enroll a surface's detector from the views operators confirmed clean on the HMI (review bank), and "
@@ -185,6 +245,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(du)
     du.set_defaults(func=run_detector_update)
 
+
+def _add_detector_proof(dv: argparse._SubParsersAction) -> None:
+    """``detector proof``: shifted, leave-one-family-out and unseen-site scores."""
     dp = dv.add_parser(
         "proof",
         help="generate and score the shifted generator, leave-one-family-out refits and the unseen site (enrolled "
@@ -200,6 +263,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     dp.add_argument("--work", type=Path, default=None, help="keep the generated images here (default: a temp dir)")
     add_config_arguments(dp)
     dp.set_defaults(func=run_detector_proof)
+
+
+def _add_detector_bank_compare(dv: argparse._SubParsersAction) -> None:
+    """``detector bank-compare``: the clean-only bank on frozen ImageNet features."""
     db = dv.add_parser(
         "bank-compare",
         help="the clean-only bank alone on frozen ImageNet Lite0/1/2 features (128-192 px) vs the fine-tuned "
@@ -214,6 +281,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_arguments(db)
     db.set_defaults(func=run_detector_bank_compare)
 
+
+def _add_classify(sub: argparse._SubParsersAction) -> None:
+    """``classify``: classify image files."""
     c = sub.add_parser("classify", help="classify image files")
     c.add_argument("images", nargs="+")
     c.add_argument("--surface", required=True, choices=SURFACES)
