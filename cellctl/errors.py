@@ -34,6 +34,7 @@ __all__ = [
     "RecordingError",
     "RobotError",
     "TransitionRejected",
+    "UndeclaredAccess",
     "WorkerError",
     "WorkerFailed",
     "WorkerTimeout",
@@ -47,6 +48,10 @@ class CellError(Exception):
 
 class ConfigError(CellError):
     """A configuration, catalog or state-machine definition is invalid."""
+
+
+class UndeclaredAccess(CellError):
+    """A cycle step read or wrote a blackboard field its declaration does not name (the message names both)."""
 
 
 class ProtocolError(CellError):

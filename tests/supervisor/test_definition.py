@@ -82,6 +82,8 @@ def test_mermaid_draws_both_machines() -> None:
 
 
 def test_step_rejects_undeclared_outcome() -> None:
+    from cellctl.supervisor.context import CycleContext, StepRun
+    from cellctl.supervisor.recorder import NullRecorder
     from cellctl.supervisor.steps import Step
 
     class Bad(Step):
@@ -92,4 +94,4 @@ def test_step_rejects_undeclared_outcome() -> None:
             return "exploded"
 
     with pytest.raises(ValueError, match="outcome 'exploded' does not belong"):
-        Bad()(None)  # type: ignore[arg-type]
+        Bad()(StepRun(CycleContext(cycle_id="c", cfg=None, session=None, log=NullRecorder()), 1, "bad"))  # type: ignore[arg-type]

@@ -59,6 +59,7 @@ def test_every_step_declares_fields_of_the_context() -> None:
     for name, step in STEPS.items():
         assert set(step.READS) <= fields, name
         assert set(step.WRITES) <= fields, name
+        assert set(step.CONSULTS) <= fields, name
 
 
 def test_approaching_parks_first_then_only_moves_the_arm(cfg) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 
 from cellctl.messages import ApproachReply, ApproachRequest
 from cellctl.supervisor.context import StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 
 if TYPE_CHECKING:
     from cellctl.workers.base import Base
@@ -53,6 +53,7 @@ class Approaching(Step):
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "park beside the bin (at the station, first attempt) and move to observation pose k"
     READS = ("identity.observation_index",)
+    CONSULTS = (*AT_STATION, "identity.approach")
     WRITES = ("identity.approach", "stations.T_map_base")
 
     def execute(self, run: StepRun) -> str:

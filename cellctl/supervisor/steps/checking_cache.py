@@ -12,15 +12,30 @@ from __future__ import annotations
 from cellctl.errors import PlanCacheError, PlanningError
 from cellctl.messages import PlanLookupReply, PlanLookupRequest, PoseMsg
 from cellctl.supervisor.context import StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 
 
 class CheckingCache(Step):
     NAME = "checking_cache"
     OUTCOMES = ("hit", "miss", "move", "failed")
     DESCRIPTION = "plan-cache lookup + tolerance check + viewpoint adjustment (in the planner worker)"
-    READS = ("identity.bin_type", "identity.T_base_bin")
-    WRITES = ("scan.plan", "identity.approach")
+    READS = ("identity.bin_type", "identity.T_base_bin", "stations.bin_poses", "stations.pose_source", "stations.plans")
+    CONSULTS = AT_STATION
+    WRITES = (
+        "scan.plan",
+        "stations.plans",
+        "stations.planned",
+        "stations.whole_plan_id",
+        "stations.modelled_cycle_s",
+        "stations.station_order",
+        "stations.station_index",
+        "stations.surface_index",
+        "stations.bin_poses",
+        "stations.pose_source",
+        "identity.approach",
+        "identity.observation_index",
+        "identity.identify_attempts",
+    )
 
     def _lookup(self, run: StepRun) -> PlanLookupReply:
         ctx = run.ctx

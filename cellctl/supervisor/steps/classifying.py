@@ -30,7 +30,7 @@ from cellctl.bus import topics
 from cellctl.errors import ClassifierError, WorkerError, WorkerFailed
 from cellctl.messages import CaptureReply, CaptureRequest, MoveReply, MoveRequest, PoseMsg, ViewpointResult
 from cellctl.supervisor.context import StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 
 RELOOK_POSES = 4
 """Re-look poses per viewpoint (:func:`~cellctl.classify.heatmap.relook_pose` swings about ±x, ±y)."""
@@ -98,8 +98,9 @@ class Classifying(Step):
     NAME = "classifying"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "wait for classifications; re-look at uncertain viewpoints; verdict = dirty if any view is dirty"
-    READS = ("scan.classifications", "scan.viewpoints")
-    WRITES = ("scan.viewpoints", "result.verdict")
+    READS = ("scan.classifications", "scan.viewpoints", "identity.bin_type", "identity.T_base_bin")
+    CONSULTS = AT_STATION
+    WRITES = ("scan.viewpoints", "scan.classifications", "result.verdict")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx

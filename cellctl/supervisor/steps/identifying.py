@@ -11,7 +11,7 @@ from cellctl.errors import CameraError, IdentificationError, WorkerFailed
 from cellctl.images import IMAGE_MAGIC, decode_image
 from cellctl.messages import ApproachReply, CaptureReply, CaptureRequest, EventLevel
 from cellctl.supervisor.context import StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.approaching import approach_request
 
 if TYPE_CHECKING:
@@ -35,7 +35,14 @@ class Identifying(Step):
     NAME = "identifying"
     OUTCOMES = ("succeeded", "retry", "failed")
     DESCRIPTION = "ChArUco → bin type + T_base_bin; fuses several views if configured; retries from the next pose"
-    READS = ("identity.approach", "identity.observation_index", "identity.identify_attempts")
+    READS = (
+        "identity.approach",
+        "identity.observation_index",
+        "identity.identify_attempts",
+        "stations.bin_poses",
+        "stations.pose_source",
+    )
+    CONSULTS = (*AT_STATION, "identity.bin_type", "stations.T_map_base", "stations.T_map_bin")
     WRITES = (
         "identity.identify_attempts",
         "identity.observation_index",
@@ -43,6 +50,8 @@ class Identifying(Step):
         "identity.bin_type",
         "identity.T_base_bin",
         "stations.T_map_bin",
+        "stations.bin_poses",
+        "stations.pose_source",
     )
 
     def _view(self, run: StepRun, T_base_cam: np.ndarray) -> Identification:

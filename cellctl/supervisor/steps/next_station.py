@@ -9,17 +9,19 @@ viewpoint where it stopped (scanning goes on from ``next_viewpoint``).
 from __future__ import annotations
 
 from cellctl.supervisor.context import StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 
 
 class NextStation(Step):
     NAME = "next_station"
     OUTCOMES = ("next_surface", "next_station", "done")
     DESCRIPTION = "whole-bin cycle: scan the station's next surface, else park at the next station, else report"
-    READS = ("stations.station_index", "stations.surface_index")
+    READS = ("stations.station_index", "stations.surface_index", "stations.station_notes")
+    CONSULTS = AT_STATION
     WRITES = (
         "stations.station_index",
         "stations.surface_index",
+        "stations.station_notes",
         "scan.next_viewpoint",
         "identity.approach",
         "identity.identify_attempts",

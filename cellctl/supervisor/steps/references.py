@@ -40,7 +40,7 @@ from cellctl.recording.references import (
     reference_root,
 )
 from cellctl.supervisor.context import CycleContext, StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 
 __all__ = [
     "ENROLL_TIMEOUT_S",
@@ -245,7 +245,8 @@ class References(Step):
     NAME = "references"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "decision path per surface; mode commission: version the reference set, enroll, manifest, audit"
-    READS = ("scan.viewpoints",)
+    READS = ("scan.viewpoints", "stations.plans", "identity.bin_type")
+    CONSULTS = (*AT_STATION, "refs.writer", "stations.whole_plan_id")
     WRITES = ("refs.decision_path", "refs.reference_version", "refs.commission")
 
     def execute(self, run: StepRun) -> str:

@@ -13,7 +13,7 @@ from cellctl.bus import keys
 from cellctl.errors import PlanningError
 from cellctl.messages import CycleOutcome, PlanJobQuery, PlanJobReply, PlanJobRequest, PoseMsg
 from cellctl.supervisor.context import StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 
 
 class Replanning(Step):
@@ -21,7 +21,8 @@ class Replanning(Step):
     OUTCOMES = ("submitted", "plan_ready", "failed")
     DESCRIPTION = "submit an offline planning job; end with replan_required (or wait, by config)"
     READS = ("identity.bin_type", "identity.T_base_bin")
-    WRITES = ("scan.planner_job_id", "result.outcome", "result.reason")
+    CONSULTS = (*AT_STATION, "identity.approach")
+    WRITES = ("scan.planner_job_id", "result.outcome", "result.reason", "stations.planned")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx

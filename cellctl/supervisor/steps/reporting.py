@@ -27,7 +27,7 @@ from cellctl.bus import topics
 from cellctl.messages import CycleOutcome
 from cellctl.seen import gate_verdict
 from cellctl.supervisor.context import StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.classifying import view_key
 from cellctl.surface import FACE_TAG, SURFACES, Surface
 
@@ -149,15 +149,26 @@ class Reporting(Step):
     NAME = "reporting"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "per-face dirt map (heat maps fused over views) + coverage; verdict by the configured rule"
-    READS = ("scan.plan", "scan.viewpoints")
+    READS = (
+        "scan.plan",
+        "scan.viewpoints",
+        "identity.bin_type",
+        "identity.T_base_bin",
+        "stations.plans",
+        "stations.bin_poses",
+        "stations.station_coverage",
+        "result.verdict",
+    )
+    CONSULTS = (*AT_STATION, "result.coverage_by_surface")
     WRITES = (
         "result.dirt_map",
         "result.coverage",
         "result.coverage_by_surface",
         "result.outcome",
         "result.verdict",
-        "scan.viewpoints",
         "result.reason",
+        "scan.viewpoints",
+        "stations.station_coverage",
     )
 
     def execute(self, run: StepRun) -> str:

@@ -21,7 +21,7 @@ from cellctl.messages import (
 )
 from cellctl.recording import foxglove
 from cellctl.supervisor.context import StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.board_mask import mask_board
 from cellctl.supervisor.steps.identifying import captured_image
 from cellctl.supervisor.steps.references import reference_query, reference_state, store_reference
@@ -126,7 +126,15 @@ class Scanning(Step):
     NAME = "scanning"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "move → settle → capture per viewpoint; classification overlaps the next move"
-    READS = ("scan.plan", "scan.next_viewpoint", "scan.viewpoints", "scan.classifications")
+    READS = (
+        "scan.plan",
+        "scan.next_viewpoint",
+        "scan.viewpoints",
+        "scan.classifications",
+        "identity.bin_type",
+        "identity.T_base_bin",
+    )
+    CONSULTS = (*AT_STATION, "refs.writer")
     WRITES = ("scan.viewpoints", "scan.classifications", "scan.next_viewpoint", "refs.writer")
 
     def execute(self, run: StepRun) -> str:

@@ -50,7 +50,7 @@ from cellctl.messages import (
     WashRound,
 )
 from cellctl.supervisor.context import StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.washing import face_mask, face_state, picture_dir, views_at, wash_mesh, washed_faces
 
 __all__ = ["Verifying", "imaged_faces", "merge_dirt_maps"]
@@ -113,7 +113,23 @@ class Verifying(Step):
     NAME = "verifying"
     OUTCOMES = ("succeeded", "next", "failed")
     DESCRIPTION = "re-inspect the washed regions and their splash neighbours; merge into the dirt map; record the round"
-    READS = ("wash.plan", "scan.plan", "result.dirt_map", "wash.verify_queue")
+    READS = (
+        "wash.plan",
+        "wash.run",
+        "wash.rounds",
+        "wash.verify_queue",
+        "wash.next_view",
+        "wash.views",
+        "wash.scan_poses",
+        "scan.plan",
+        "result.dirt_map",
+        "stations.plans",
+        "stations.bin_poses",
+        "stations.station_order",
+        "identity.bin_type",
+        "identity.T_base_bin",
+    )
+    CONSULTS = AT_STATION
     WRITES = (
         "result.dirt_map",
         "wash.views",

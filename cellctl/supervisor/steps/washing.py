@@ -49,7 +49,7 @@ from cellctl.messages import (
 )
 from cellctl.seen import gate_verdict
 from cellctl.supervisor.context import CycleContext, StepRun
-from cellctl.supervisor.steps._base import Step
+from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.reporting import surface_fractions
 
 __all__ = [
@@ -230,19 +230,31 @@ class WashCheck(Step):
     NAME = "wash_check"
     OUTCOMES = ("done", "wash", "failed")
     DESCRIPTION = "wash_and_verify: clean, dirty (rounds spent / unwashable), or plan the next round's wash"
-    READS = ("result.dirt_map",)
+    READS = (
+        "result.dirt_map",
+        "wash.rounds",
+        "wash.scan_poses",
+        "stations.bin_poses",
+        "stations.station_order",
+        "identity.bin_type",
+        "identity.T_base_bin",
+    )
+    CONSULTS = ("wash.parked",)
     WRITES = (
         "wash.plan",
         "wash.result",
-        "result.verdict",
-        "result.reason",
-        "result.coverage_by_surface",
+        "wash.next_sweep",
+        "wash.next_view",
+        "wash.run",
         "wash.queue",
         "wash.verify_queue",
         "wash.phase",
         "wash.scan_poses",
         "wash.parked",
         "wash.station_sweeps",
+        "result.verdict",
+        "result.reason",
+        "result.coverage_by_surface",
     )
 
     def execute(self, run: StepRun) -> str:
@@ -390,17 +402,32 @@ class WashStation(Step):
     NAME = "wash_station"
     OUTCOMES = ("wash", "verify", "park")
     DESCRIPTION = "walk the round's stations: park at the next one to wash or re-inspect from, then wash or verify"
-    READS = ("wash.plan", "wash.queue", "wash.verify_queue", "wash.phase")
+    READS = (
+        "wash.phase",
+        "wash.queue",
+        "wash.verify_queue",
+        "wash.plan",
+        "wash.run",
+        "wash.rounds",
+        "wash.scan_poses",
+        "wash.station_sweeps",
+        "stations.station_order",
+        "stations.plans",
+        "identity.bin_type",
+        "identity.T_base_bin",
+    )
+    CONSULTS = (*AT_STATION, "wash.parked", "scan.plan")
     WRITES = (
         "wash.phase",
         "wash.verify_queue",
+        "wash.next_view",
         "wash.parked",
+        "wash.station_sweeps",
         "stations.station_index",
         "stations.surface_index",
         "identity.approach",
         "identity.observation_index",
         "identity.identify_attempts",
-        "wash.station_sweeps",
     )
 
     def execute(self, run: StepRun) -> str:
@@ -420,7 +447,17 @@ class Washing(Step):
     NAME = "washing"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "run the station's wash sweeps on the robot, one request per sweep (a Hold resumes at the next)"
-    READS = ("wash.plan", "wash.queue")
+    READS = (
+        "wash.plan",
+        "wash.queue",
+        "wash.rounds",
+        "wash.run",
+        "wash.station_sweeps",
+        "wash.next_sweep",
+        "stations.bin_poses",
+        "identity.bin_type",
+        "identity.T_base_bin",
+    )
     WRITES = ("wash.next_sweep", "wash.run", "wash.queue", "wash.station_sweeps")
 
     def execute(self, run: StepRun) -> str:
