@@ -37,12 +37,14 @@ from __future__ import annotations
 import os
 import sys
 import time
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from cellctl.bench.options import BenchOptions
 from cellctl.images import MAX_IMAGE_PIXELS
+from cellctl.surface import Surface
 
 __all__ = ["KINDS", "bench_inspect", "classifier_view", "collect_cycles", "score_cycles"]
 
@@ -142,11 +144,57 @@ def bench_inspect(opts: BenchOptions) -> dict[str, Any]:
     return score_cycles(run, cfg.classifier.verdict, figures_out=opts.out)
 
 
+@dataclass
+class _Scene:
+    """What every cycle of the bench shares: the detectors, the bin and its plans, the render camera."""
+
+    cfg: Any
+    dets: dict[str, Any]
+    bt: Any
+    mesh: Any
+    T_base_bin: np.ndarray
+    render_cam: Any
+    intr: Any
+    plans: dict[Surface, Any]
+    renderer: Any
+
+
+@dataclass
+class _Draw:
+    """One cycle's seeded draw: surface, contamination kind, powder field and its truth, lighting."""
+
+    rng: np.random.Generator
+    surface: Surface
+    kind: str
+    seen_plan: np.ndarray
+    pseed: int
+    powder: Any
+    gt: np.ndarray
+    gt10: np.ndarray
+    rp: Any
+    T_world_bin: np.ndarray
+
+
+@dataclass
+class _Shots:
+    """What the cycle's views leave behind: detector latencies (ms, all cycles), (hottest heat, image,
+    heat map) per view, and the classifier's PNGs when the caller keeps them."""
+
+    lat: list[float]
+    keep_images: bool
+    shots: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
+    pngs: list[bytes] = field(default_factory=list)
+
+
 def collect_cycles(opts: BenchOptions, cfg: Any = None, first: int = 0, keep_images: bool = False) -> dict[str, Any]:
     """The detector's side of the bench: every cycle's views (:class:`ViewEvidence`), labels,
     re-looks and ground truth, before any fusion. :func:`score_cycles` fuses and scores them, so
     that the fusion and the verdict rule can be compared on the same views (a validation bench
     with other seeds) without rendering or classifying again.
+
+    Stages: :func:`_scene` (detectors, bin, plans) once; per cycle :func:`_draw` (the seeded
+    contamination and lighting), :func:`_scan` (planned views, then re-looks at uncertain ones) and
+    :func:`_cycle_record`.
 
     Args:
         first: first cycle index (cycles ``first..n-1``): each cycle draws from its own
@@ -154,22 +202,43 @@ def collect_cycles(opts: BenchOptions, cfg: Any = None, first: int = 0, keep_ima
     """
     import torch
 
-    from cellctl.classify.fusion import load_detectors
-    from cellctl.classify.heatmap import ViewEvidence, relook_pose
-    from cellctl.geometry.camera import CameraModel
-    from cellctl.geometry.catalog import load_catalog
-    from cellctl.images import encode_image
-    from cellctl.planning.pipeline import PlanParams, make_plan
-    from cellctl.planning.robot import default_robot_model
-    from cellctl.sim.ground_truth import PowderField
-    from cellctl.sim.render import RenderParams, SimRenderer
-    from cellctl.sim.scene import nominal_T_bin_base
-    from cellctl.surface import SURFACES
-
     torch.set_num_threads(1)  # 2 shared cores: more threads only contend (measured 9 vs 500 ms)
     cfg = cfg if cfg is not None else opts.load_config()
     n = opts.n or 200
-    rc = cfg.classifier.relook
+    scene = _scene(opts, cfg)
+    lat: list[float] = []
+    cycles: list[dict[str, Any]] = []
+    t0 = time.perf_counter()
+    for i in range(first, n):
+        draw = _draw(scene, opts.seed, i)
+        shots = _Shots(lat, keep_images)
+        views, labels, uncertain, relooks = _scan(scene, draw, shots)
+        cycles.append(_cycle_record(draw, shots, views, labels, uncertain, relooks))
+        if (i + 1) % 10 == 0:
+            print(f"bench inspect: {i + 1}/{n} cycles, {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    return {
+        "cycles": cycles,
+        "mesh": scene.mesh,
+        "bin_type": scene.bt,
+        "intrinsics": scene.intr,
+        "latency_ms": lat,
+        "relook": cfg.classifier.relook.model_dump(),
+        "setup": _setup_record(scene, opts.seed, t0),
+    }
+
+
+def _scene(opts: BenchOptions, cfg: Any) -> _Scene:
+    """Load both detectors (refused without them), the bench bin at the sim's nominal parking pose,
+    the render camera, and plan each surface once (fast mode, p_SP 10 %)."""
+    from cellctl.classify.fusion import load_detectors
+    from cellctl.geometry.camera import CameraModel
+    from cellctl.geometry.catalog import load_catalog
+    from cellctl.planning.pipeline import PlanParams, make_plan
+    from cellctl.planning.robot import default_robot_model
+    from cellctl.sim.render import SimRenderer
+    from cellctl.sim.scene import nominal_T_bin_base
+    from cellctl.surface import SURFACES
+
     dets, problems = load_detectors(cfg.path(cfg.classifier.models_dir))
     if problems:
         from cellctl.errors import ClassifierError
@@ -179,10 +248,8 @@ def collect_cycles(opts: BenchOptions, cfg: Any = None, first: int = 0, keep_ima
     bt = catalog.get(BENCH_BIN)
     mesh = catalog.load_mesh(BENCH_BIN)
     T_bin_base = nominal_T_bin_base(bt, mesh)
-    T_base_bin = np.linalg.inv(T_bin_base)
     cam = CameraModel.from_config(cfg.camera)
     render_cam = cam.scaled(RENDER_WIDTH / cam.width)
-    intr = render_cam.intrinsics()
     robot = default_robot_model()
     plans = {}
     for s in SURFACES:
@@ -191,143 +258,155 @@ def collect_cycles(opts: BenchOptions, cfg: Any = None, first: int = 0, keep_ima
             mesh, T_bin_base, PlanParams(surface=s, seed_pct=10, mode="fast", seed=opts.seed), robot, bin_type=BENCH_BIN
         )
         plans[s] = plan
-    renderer = SimRenderer(catalog)
-    T_world_bin = None
-    lat: list[float] = []
-    cycles: list[dict[str, Any]] = []
-    t0 = time.perf_counter()
-    for i in range(first, n):
-        rng = np.random.default_rng([opts.seed, i, 4711])
-        surface = SURFACES[i % 2]
-        kind = KINDS[(i // 2) % 3]
-        plan = plans[surface]
-        det = dets[surface]
-        seen_plan = np.unique(np.concatenate([np.asarray(vp.faces, np.int64) for vp in plan.viewpoints]))
-        pseed = int(rng.integers(2**31))
-        if kind == "clean":
-            field = PowderField.sample(mesh, 0.0, pseed)
-        elif kind == "one_spot":
-            field = _one_spot(mesh, seen_plan, rng, pseed)
-        else:
-            field = PowderField.sample(mesh, float(rng.uniform(0.3, 1.0)), pseed)
-        gt = _dirty_faces(field, mesh) if len(field.radii) else np.zeros(mesh.n_faces, bool)
-        gt10 = _dirty_faces_10pt(field, mesh) if len(field.radii) else np.zeros(mesh.n_faces, bool)
-        rp = RenderParams(
-            exposure=float(rng.uniform(0.8, 1.2)),
-            light_scale=float(rng.uniform(0.8, 1.2)),
-            light_offset=tuple(float(v) for v in rng.uniform(-0.3, 0.3, 3)),
-            noise_sigma=float(rng.uniform(1.0, 3.0)),
-        )
-        from cellctl.sim.scene import Scenario
+    return _Scene(
+        cfg, dets, bt, mesh, np.linalg.inv(T_bin_base), render_cam, render_cam.intrinsics(), plans, SimRenderer(catalog)
+    )
 
-        T_world_bin = Scenario(bin_type=BENCH_BIN).T_world_bin(bt)
 
-        shots: list[tuple[float, np.ndarray, np.ndarray]] = []
-        pngs: list[bytes] = []
+def _draw(scene: _Scene, seed: int, i: int) -> _Draw:
+    """Cycle ``i``'s surface and kind (alternating, cycling), its powder field, truth and lighting, from
+    its own ``(seed, i)`` stream; the stream then jitters the cycle's viewpoints (:func:`_scan`)."""
+    from cellctl.sim.ground_truth import PowderField
+    from cellctl.sim.render import RenderParams
+    from cellctl.sim.scene import Scenario
+    from cellctl.surface import SURFACES
 
-        def look(  # the cycle's scene bound as defaults: each cycle's closure uses its own
-            T_bin_cam: np.ndarray,
-            k: int,
-            field: Any = field,
-            rp: Any = rp,
-            pseed: int = pseed,
-            det: Any = det,
-            shots: list = shots,
-            pngs: list = pngs,
-            T_world_bin: np.ndarray = T_world_bin,
-            surface: str = surface,
-        ) -> Any:
-            # the renderer's private entry point takes a PowderField directly: the one-spot
-            # field is not one of its seeded scenarios
-            out = renderer._render(
-                BENCH_BIN, T_world_bin, None, None, T_world_bin @ T_bin_cam, render_cam, rp, pseed + k, field, True
-            )
-            png = classifier_view(
-                encode_image(out.rgb, "png"),
-                surface in cfg.classifier.mask_cabin,
-                bt,
-                mesh,
-                T_base_bin,
-                T_base_bin @ T_bin_cam,
-                intr,
-                cfg.camera.max_image_pixels,
-            )
-            from cellctl.images import decode_image
+    mesh = scene.mesh
+    rng = np.random.default_rng([seed, i, 4711])
+    surface = SURFACES[i % 2]
+    kind = KINDS[(i // 2) % 3]
+    plan = scene.plans[surface]
+    seen_plan = np.unique(np.concatenate([np.asarray(vp.faces, np.int64) for vp in plan.viewpoints]))
+    pseed = int(rng.integers(2**31))
+    if kind == "clean":
+        powder = PowderField.sample(mesh, 0.0, pseed)
+    elif kind == "one_spot":
+        powder = _one_spot(mesh, seen_plan, rng, pseed)
+    else:
+        powder = PowderField.sample(mesh, float(rng.uniform(0.3, 1.0)), pseed)
+    gt = _dirty_faces(powder, mesh) if len(powder.radii) else np.zeros(mesh.n_faces, bool)
+    gt10 = _dirty_faces_10pt(powder, mesh) if len(powder.radii) else np.zeros(mesh.n_faces, bool)
+    rp = RenderParams(
+        exposure=float(rng.uniform(0.8, 1.2)),
+        light_scale=float(rng.uniform(0.8, 1.2)),
+        light_offset=tuple(float(v) for v in rng.uniform(-0.3, 0.3, 3)),
+        noise_sigma=float(rng.uniform(1.0, 3.0)),
+    )
+    T_world_bin = Scenario(bin_type=BENCH_BIN).T_world_bin(scene.bt)
+    return _Draw(rng, surface, kind, seen_plan, pseed, powder, gt, gt10, rp, T_world_bin)
 
-            img = decode_image(png, "bench view", max_pixels=cfg.camera.max_image_pixels)
-            t = time.perf_counter()
-            d = det.predict([img])[0]
-            lat.append((time.perf_counter() - t) * 1000)
-            shots.append((float(d.heat.max()), img, d.heat))
-            if keep_images:
-                pngs.append(png)
-            return d
 
-        views = []
-        labels = []
-        uncertain = 0
-        relooks = 0
-        pending = []
-        for vp in plan.viewpoints:
-            T = np.asarray(vp.T_bin_cam, np.float64).copy()
-            T[:3, 3] += rng.uniform(-0.01, 0.01, 3)
-            d = look(T, len(views))
-            views.append(ViewEvidence(np.asarray(vp.faces, np.int64), T, d.heat, d.p_dirty))
-            labels.append(d.label)
-            if d.uncertain:
-                uncertain += 1
-                pending.append((abs(float(np.log(d.p_dirty / (1 - d.p_dirty + 1e-9) + 1e-9))), T, vp))
-        pending.sort(key=lambda x: x[0])
-        k = 0
-        while pending and relooks < rc.max_views:
-            _, T, vp = pending.pop(0)
-            T2 = relook_pose(T, k, rc.offset_m, rc.glance_deg, rc.depth_m)
-            k += 1
-            relooks += 1
-            d = look(T2, len(views))
-            views.append(ViewEvidence(np.asarray(vp.faces, np.int64), T2, d.heat, d.p_dirty))
-            labels.append(d.label)
-            if d.uncertain:
-                pending.append((0.0, T2, vp))
-        hot = max(shots, key=lambda x: x[0])
-        cycles.append(
-            {
-                "surface": surface,
-                "kind": kind,
-                "gt": gt,
-                "gt10": gt10,
-                "seen_plan": seen_plan,
-                "views": views,
-                "labels": labels,
-                "uncertain": uncertain,
-                "relooks": relooks,
-                # the figures need only the hottest view of a many-spot cycle
-                "hottest": (hot[1], hot[2]) if kind == "many_spots" else None,
-                **({"images": pngs} if keep_images else {}),
-            }
-        )
-        if (i + 1) % 10 == 0:
-            print(f"bench inspect: {i + 1}/{n} cycles, {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+def _look(scene: _Scene, draw: _Draw, shots: _Shots, T_bin_cam: np.ndarray, k: int) -> Any:
+    """Render view ``k`` of the cycle from ``T_bin_cam``, mask it as the scanning step does, and let the
+    surface's detector decide (timed)."""
+    from cellctl.images import decode_image, encode_image
+
+    cfg = scene.cfg
+    # the renderer's private entry point takes a PowderField directly: the one-spot
+    # field is not one of its seeded scenarios
+    out = scene.renderer._render(
+        BENCH_BIN,
+        draw.T_world_bin,
+        None,
+        None,
+        draw.T_world_bin @ T_bin_cam,
+        scene.render_cam,
+        draw.rp,
+        draw.pseed + k,
+        draw.powder,
+        True,
+    )
+    png = classifier_view(
+        encode_image(out.rgb, "png"),
+        draw.surface in cfg.classifier.mask_cabin,
+        scene.bt,
+        scene.mesh,
+        scene.T_base_bin,
+        scene.T_base_bin @ T_bin_cam,
+        scene.intr,
+        cfg.camera.max_image_pixels,
+    )
+    img = decode_image(png, "bench view", max_pixels=cfg.camera.max_image_pixels)
+    t = time.perf_counter()
+    d = scene.dets[draw.surface].predict([img])[0]
+    shots.lat.append((time.perf_counter() - t) * 1000)
+    shots.shots.append((float(d.heat.max()), img, d.heat))
+    if shots.keep_images:
+        shots.pngs.append(png)
+    return d
+
+
+def _scan(scene: _Scene, draw: _Draw, shots: _Shots) -> tuple[list[Any], list[str], int, int]:
+    """Every planned view (jittered ±1 cm as a re-parked robot reaches it), then re-looks at the uncertain
+    ones, least certain first, up to ``classifier.relook.max_views``: (views, labels, uncertain, relooks)."""
+    from cellctl.classify.heatmap import ViewEvidence, relook_pose
+
+    rc = scene.cfg.classifier.relook
+    views: list[Any] = []
+    labels: list[str] = []
+    uncertain = 0
+    relooks = 0
+    pending = []
+    for vp in scene.plans[draw.surface].viewpoints:
+        T = np.asarray(vp.T_bin_cam, np.float64).copy()
+        T[:3, 3] += draw.rng.uniform(-0.01, 0.01, 3)
+        d = _look(scene, draw, shots, T, len(views))
+        views.append(ViewEvidence(np.asarray(vp.faces, np.int64), T, d.heat, d.p_dirty))
+        labels.append(d.label)
+        if d.uncertain:
+            uncertain += 1
+            pending.append((abs(float(np.log(d.p_dirty / (1 - d.p_dirty + 1e-9) + 1e-9))), T, vp))
+    pending.sort(key=lambda x: x[0])
+    k = 0
+    while pending and relooks < rc.max_views:
+        _, T, vp = pending.pop(0)
+        T2 = relook_pose(T, k, rc.offset_m, rc.glance_deg, rc.depth_m)
+        k += 1
+        relooks += 1
+        d = _look(scene, draw, shots, T2, len(views))
+        views.append(ViewEvidence(np.asarray(vp.faces, np.int64), T2, d.heat, d.p_dirty))
+        labels.append(d.label)
+        if d.uncertain:
+            pending.append((0.0, T2, vp))
+    return views, labels, uncertain, relooks
+
+
+def _cycle_record(
+    draw: _Draw, shots: _Shots, views: list[Any], labels: list[str], uncertain: int, relooks: int
+) -> dict[str, Any]:
+    """One cycle of :func:`collect_cycles`'s ``cycles`` (what :func:`score_cycles` reads)."""
+    hot = max(shots.shots, key=lambda x: x[0])
     return {
-        "cycles": cycles,
-        "mesh": mesh,
-        "bin_type": bt,
-        "intrinsics": intr,
-        "latency_ms": lat,
-        "relook": rc.model_dump(),
-        "setup": {
-            "bin": BENCH_BIN,
-            "seed": opts.seed,
-            "render_px": [intr.width, intr.height],
-            "mask_cabin": list(cfg.classifier.mask_cabin),
-            "plans": {
-                s: {"viewpoints": len(p.viewpoints), "coverage": round(float(p.coverage), 4)} for s, p in plans.items()
-            },
-            "models": {s: d.model_id for s, d in dets.items()},
-            "seconds": round(time.perf_counter() - t0, 1),
-            "loadavg_1m": round(os.getloadavg()[0], 2),
-            "torch_threads": 1,
+        "surface": draw.surface,
+        "kind": draw.kind,
+        "gt": draw.gt,
+        "gt10": draw.gt10,
+        "seen_plan": draw.seen_plan,
+        "views": views,
+        "labels": labels,
+        "uncertain": uncertain,
+        "relooks": relooks,
+        # the figures need only the hottest view of a many-spot cycle
+        "hottest": (hot[1], hot[2]) if draw.kind == "many_spots" else None,
+        **({"images": shots.pngs} if shots.keep_images else {}),
+    }
+
+
+def _setup_record(scene: _Scene, seed: int, t0: float) -> dict[str, Any]:
+    """The run's ``setup``: bin, seed, render size, masks, plans, models, wall time, load."""
+    return {
+        "bin": BENCH_BIN,
+        "seed": seed,
+        "render_px": [scene.intr.width, scene.intr.height],
+        "mask_cabin": list(scene.cfg.classifier.mask_cabin),
+        "plans": {
+            s: {"viewpoints": len(p.viewpoints), "coverage": round(float(p.coverage), 4)}
+            for s, p in scene.plans.items()
         },
+        "models": {s: d.model_id for s, d in scene.dets.items()},
+        "seconds": round(time.perf_counter() - t0, 1),
+        "loadavg_1m": round(os.getloadavg()[0], 2),
+        "torch_threads": 1,
     }
 
 
