@@ -63,6 +63,7 @@ __all__ = [
     "latest_set",
     "lookup_reference",
     "read_manifest",
+    "reference_in",
     "reference_root",
     "set_files",
     "set_versions",
@@ -227,7 +228,12 @@ def lookup_reference(root: Path | str, bin_type: str, plan_id: str, viewpoint: i
         None when no set holds the plan (not commissioned, or a replan since) or the set has no
         reference for that viewpoint (it was refused during commissioning).
     """
-    found = latest_set(root, bin_type, plan_id)
+    return reference_in(latest_set(root, bin_type, plan_id), plan_id, viewpoint)
+
+
+def reference_in(found: tuple[ReferenceManifest, Path] | None, plan_id: str, viewpoint: int) -> Reference | None:
+    """The reference of one planned viewpoint in a set :func:`latest_set` found (a cycle resolves the set
+    once per plan and looks its views up here); None when there is no set or it has no such view."""
     if found is None:
         return None
     man, folder = found

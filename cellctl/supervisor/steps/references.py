@@ -25,7 +25,7 @@ Every cycle passes here after its last classification, before reporting.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -33,14 +33,16 @@ from cellctl.bus import topics
 from cellctl.errors import RecordingError, WorkerError
 from cellctl.messages import ClassifyReference, CommissionResult, EnrollReply, EnrollRequest, Intrinsics, PoseMsg
 from cellctl.recording.references import (
+    ReferenceManifest,
     ReferenceSetWriter,
     enrolled_file,
     latest_set,
-    lookup_reference,
+    reference_in,
     reference_root,
 )
 from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import AT_STATION, Step
+from cellctl.surface import Surface
 
 __all__ = [
     "ENROLL_TIMEOUT_S",
@@ -48,6 +50,7 @@ __all__ = [
     "decision_counts",
     "decision_paths",
     "reference_query",
+    "reference_set",
     "reference_state",
     "store_reference",
 ]
@@ -85,8 +88,13 @@ def store_reference(
     )
 
 
-_CASTERS: dict[str, Any] = {}
-"""bin type -> ray caster of its mesh (the viewed plane of each reference; built once per process)."""
+def reference_set(ctx: CycleContext, plan_id: str) -> tuple[ReferenceManifest, Path] | None:
+    """The newest complete set of the cycle's bin type holding ``plan_id``, resolved once per plan and cycle
+    (``ctx.refs.sets``: the manifests are read and parsed at the plan's first view, not at every view)."""
+    assert ctx.identity.bin_type is not None
+    if plan_id not in ctx.refs.sets:
+        ctx.refs.sets[plan_id] = latest_set(reference_root(ctx.cfg), ctx.identity.bin_type, plan_id)
+    return ctx.refs.sets[plan_id]
 
 
 def reference_query(ctx: CycleContext, viewpoint: int, T_base_cam: np.ndarray) -> ClassifyReference | None:
@@ -102,20 +110,21 @@ def reference_query(ctx: CycleContext, viewpoint: int, T_base_cam: np.ndarray) -
         return None
     if not ctx.cfg.classifier.references:  # switched off: the detector alone, as before commissioning
         return None
-    ref = lookup_reference(reference_root(ctx.cfg), ctx.identity.bin_type, plan.plan_id or "unnamed", viewpoint)
+    plan_id = plan.plan_id or "unnamed"
+    ref = reference_in(reference_set(ctx, plan_id), plan_id, viewpoint)
     if ref is None or ref.T_bin_cam is None or ref.intrinsics is None:
         return None
     from cellctl.classify.reference import plane_from_mesh
     from cellctl.errors import ClassifierError
 
     mesh = ctx.catalog.load_mesh(ctx.identity.bin_type)
-    if ctx.identity.bin_type not in _CASTERS:
+    if ctx.refs.caster is None:  # one bin type per cycle (identifying refuses another)
         from cellctl.classify.heatmap import MeshCaster
 
-        _CASTERS[ctx.identity.bin_type] = MeshCaster(mesh)
+        ctx.refs.caster = MeshCaster(mesh)
     intr = ref.intrinsics
     try:
-        plane = plane_from_mesh(_CASTERS[ctx.identity.bin_type], mesh, ref.T_bin_cam, intr.K(), intr.width, intr.height)
+        plane = plane_from_mesh(ctx.refs.caster, mesh, ref.T_bin_cam, intr.K(), intr.width, intr.height)
     except ClassifierError:
         return None
     T_bin_cam = np.linalg.inv(ctx.identity.T_base_bin) @ np.asarray(T_base_cam, np.float64)
@@ -136,7 +145,7 @@ def reference_state(ctx: CycleContext) -> str | None:
     (the viewpoint has none in it), None when it has none (the plan was never commissioned)."""
     if ctx.scan.plan is None or ctx.identity.bin_type is None or not ctx.cfg.classifier.references:
         return None
-    found = latest_set(reference_root(ctx.cfg), ctx.identity.bin_type, ctx.scan.plan.plan_id or "unnamed")
+    found = reference_set(ctx, ctx.scan.plan.plan_id or "unnamed")
     return "no_reference" if found is not None else None
 
 
@@ -173,14 +182,13 @@ def decision_paths(ctx: CycleContext) -> tuple[dict[str, str] | None, int | None
     """
     if ctx.identity.bin_type is None or not ctx.stations.plans:
         return None, None
-    root = reference_root(ctx.cfg)
     paths: dict[str, str] = {}
     version = None
     for surface, plan_ids in _scanned_plans(ctx).items():
         mine = [v for v in ctx.scan.viewpoints if (v.surface or ctx.surface) == surface]
         if any(v.decided_by == "reference" for v in mine):
             paths[surface] = "references"
-            found = [latest_set(root, ctx.identity.bin_type, pid) for pid in plan_ids]
+            found = [reference_set(ctx, pid) for pid in plan_ids]
             version = max([version or 0, *(f[0].version for f in found if f is not None)]) or None
             continue
         enrolled = any("-enrolled-" in (v.model_id or "") for v in mine)
@@ -188,7 +196,7 @@ def decision_paths(ctx: CycleContext) -> tuple[dict[str, str] | None, int | None
     return paths, version
 
 
-def _enroll(run: StepRun, folder: Path, surface: str) -> tuple[EnrollReply | None, str | None]:
+def _enroll(run: StepRun, folder: Path, surface: Surface) -> tuple[EnrollReply | None, str | None]:
     """Ask the classifier worker to enroll ``surface`` from the set's views of it: (reply, None) or (None, why)."""
     req = EnrollRequest(surface=surface, images=str(folder / surface), out=str(folder / f"{surface}.enrolled.pt"))
     try:
@@ -212,7 +220,7 @@ def commission(run: StepRun, record: dict[str, Any]) -> CommissionResult:
     folder = refs.claim()
     enrolled, problems = {}, {}
     for surface in refs.surfaces():
-        reply, why = _enroll(run, folder, surface)
+        reply, why = _enroll(run, folder, cast(Surface, surface))  # stored under the scan's surfaces
         entry = enrolled_file(folder, surface, reply.model_id) if reply is not None else None
         if reply is not None and entry is None:
             why = f"the classifier worker reported {reply.path} written, but {folder}/{surface}.enrolled.pt is missing"
@@ -245,9 +253,9 @@ class References(Step):
     NAME = "references"
     OUTCOMES = ("succeeded", "failed")
     DESCRIPTION = "decision path per surface; mode commission: version the reference set, enroll, manifest, audit"
-    READS = ("scan.viewpoints", "stations.plans", "identity.bin_type")
+    READS = ("scan.viewpoints", "stations.plans", "identity.bin_type", "refs.sets")
     CONSULTS = (*AT_STATION, "refs.writer", "stations.whole_plan_id")
-    WRITES = ("refs.decision_path", "refs.reference_version", "refs.commission")
+    WRITES = ("refs.decision_path", "refs.reference_version", "refs.commission", "refs.sets")
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx

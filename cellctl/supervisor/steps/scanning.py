@@ -3,17 +3,20 @@ the image to the classifier in the background while the robot moves on (pipelini
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from cellctl.bus import topics
 from cellctl.errors import WorkerFailed
-from cellctl.images import MAX_IMAGE_PIXELS
+from cellctl.images import MAX_IMAGE_PIXELS, ImageFormat
 from cellctl.messages import (
     CaptureReply,
     CaptureRequest,
     ClassifyReference,
     ClassifyReply,
     ClassifyRequest,
+    Intrinsics,
     MoveReply,
     MoveRequest,
     PoseMsg,
@@ -25,6 +28,7 @@ from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.board_mask import mask_board
 from cellctl.supervisor.steps.identifying import captured_image
 from cellctl.supervisor.steps.references import reference_query, reference_state, store_reference
+from cellctl.surface import Surface
 
 NEAR_M = 0.02
 """Faces are clipped at this distance in front of the camera before they are drawn."""
@@ -41,7 +45,9 @@ def _clip_near(P: np.ndarray) -> np.ndarray:
     return np.array(out).reshape(-1, 3)
 
 
-def cabin_pixels(mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, scale: float = 0.25) -> np.ndarray:
+def cabin_pixels(
+    mesh: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr: Intrinsics, scale: float = 0.25
+) -> np.ndarray:
     """(H, W) bool at ``scale``: the pixels no face of the bin covers (the cabin past it)."""
     import cv2
 
@@ -55,7 +61,8 @@ def cabin_pixels(mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, sca
     near = tri[:, :, 2] >= NEAR_M
 
     def pixels(P: np.ndarray) -> np.ndarray:
-        return np.round(P[:, :2] / P[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]).astype(np.int32)
+        px: np.ndarray = np.round(P[:, :2] / P[:, 2:3] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]).astype(np.int32)
+        return px
 
     on = np.zeros((h, w), np.uint8)
     front = np.flatnonzero(near.all(axis=1))
@@ -68,11 +75,17 @@ def cabin_pixels(mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, sca
         P = _clip_near(tri[f])
         if len(P) >= 3:
             cv2.fillConvexPoly(on, np.clip(pixels(P), -(1 << 20), 1 << 20), 1)
-    return on == 0
+    off: np.ndarray = on == 0
+    return off
 
 
 def mask_cabin(
-    png: bytes, mesh, T_base_bin: np.ndarray, T_base_cam: np.ndarray, intr, max_pixels: int = MAX_IMAGE_PIXELS
+    png: bytes,
+    mesh: Any,
+    T_base_bin: np.ndarray,
+    T_base_cam: np.ndarray,
+    intr: Intrinsics,
+    max_pixels: int = MAX_IMAGE_PIXELS,
 ) -> bytes:
     """The image with the pixels off the bin filled with the median colour of the bin's, or the same
     bytes when the view is all bin or all cabin. Like the board mask: the recorded image stays
@@ -96,8 +109,13 @@ def mask_cabin(
 
 
 def classifier_input(
-    run: StepRun, data: bytes, fmt: str, T_base_cam: np.ndarray, intr, surface: str | None = None
-) -> tuple[bytes, str]:
+    run: StepRun,
+    data: bytes,
+    fmt: ImageFormat,
+    T_base_cam: np.ndarray,
+    intr: Intrinsics,
+    surface: Surface | None = None,
+) -> tuple[bytes, ImageFormat]:
     """What the classifier gets for a captured view of ``surface`` (default: the cycle's current one): the board
     filled in, and for the surfaces of ``classifier.mask_cabin`` the cabin past the bin too (the recorded image
     stays as captured)."""
@@ -115,7 +133,12 @@ def classifier_input(
 
 
 def classify_image(
-    run: StepRun, index: int, image: bytes, fmt: str, surface: str, reference: ClassifyReference | None = None
+    run: StepRun,
+    index: int,
+    image: bytes,
+    fmt: ImageFormat,
+    surface: Surface,
+    reference: ClassifyReference | None = None,
 ) -> ClassifyReply:
     req = ClassifyRequest(surface=surface, format=fmt, reference=reference)
     reply, _ = run.call("classifier", "classify", req, ClassifyReply, payload=image)
@@ -133,9 +156,17 @@ class Scanning(Step):
         "scan.classifications",
         "identity.bin_type",
         "identity.T_base_bin",
+        "refs.sets",
     )
-    CONSULTS = (*AT_STATION, "refs.writer")
-    WRITES = ("scan.viewpoints", "scan.classifications", "scan.next_viewpoint", "refs.writer")
+    CONSULTS = (*AT_STATION, "refs.writer", "refs.caster")
+    WRITES = (
+        "scan.viewpoints",
+        "scan.classifications",
+        "scan.next_viewpoint",
+        "refs.writer",
+        "refs.sets",
+        "refs.caster",
+    )
 
     def execute(self, run: StepRun) -> str:
         ctx = run.ctx
@@ -150,7 +181,7 @@ class Scanning(Step):
         background = run.detached("classify_background")
         st = ctx.stations.current_station()
         # whole-bin cycle: each view says where it was taken (viewpoint indices repeat across plans)
-        where = {"station": st.station, "surface": surface} if st is not None else {}
+        where: dict[str, Any] = {"station": st.station, "surface": surface} if st is not None else {}
         for k in range(ctx.scan.next_viewpoint, len(plan.viewpoints)):
             vp = plan.viewpoints[k]
             if perturb > 0:
