@@ -28,7 +28,7 @@ from cellctl.supervisor.context.scan import Scan
 from cellctl.supervisor.context.stations import Stations
 from cellctl.supervisor.context.wash import Wash
 from cellctl.supervisor.recorder import Recorder
-from cellctl.surface import SURFACES
+from cellctl.surface import SURFACES, Surface
 
 if TYPE_CHECKING:  # the daemon imports neither at start: vision pulls OpenCV in
     from cellctl.geometry.catalog import Catalog
@@ -124,7 +124,7 @@ class CycleContext:
         return self.cfg.planner.whole.enabled
 
     @property
-    def surface(self) -> str:
+    def surface(self) -> Surface:
         """The surface inspected now: the current station's, in a whole-bin cycle (external before its
         stations are known); else the Start param, else the config's default."""
         if self.whole:

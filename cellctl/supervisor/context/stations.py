@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cellctl.messages import PlanLookupReply, StationInfo
-from cellctl.surface import SURFACES
+from cellctl.surface import SURFACES, Surface
 
 __all__ = ["PlanKey", "Stations"]
 
@@ -48,7 +48,7 @@ class Stations:
         rank = self.station_order[self.station_index]
         return next(s for s in self.planned if s.station == rank)
 
-    def station_surfaces(self, st: StationInfo | None = None) -> list[str]:
+    def station_surfaces(self, st: StationInfo | None = None) -> list[Surface]:
         """The surfaces a station has viewpoints for, in :data:`~cellctl.surface.SURFACES` order."""
         st = st if st is not None else self.current_station()
         return [s for s in SURFACES if st is not None and s in st.plans]

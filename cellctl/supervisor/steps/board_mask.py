@@ -41,7 +41,7 @@ def board_polygon(bin_type: Any, T_base_bin: np.ndarray, T_base_cam: np.ndarray,
     p = T_cam_bin[:3, :3] @ board_quad(bin_type, MARGIN_M).T + T_cam_bin[:3, 3:]
     if np.any(p[2] <= 0.01):
         return None
-    uv = intr.K() @ (p / p[2])
+    uv: np.ndarray = intr.K() @ (p / p[2])
     return uv[:2].T
 
 

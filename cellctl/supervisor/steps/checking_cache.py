@@ -81,6 +81,7 @@ class CheckingCache(Step):
                 0,
                 0,
             )
+            assert ctx.identity.T_base_bin is not None  # the lookup above sent it
             ctx.stations.bin_poses[reply.station] = ctx.identity.T_base_bin
             ctx.stations.pose_source[reply.station] = "measured"
             run.event(

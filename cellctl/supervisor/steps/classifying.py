@@ -25,11 +25,20 @@ from __future__ import annotations
 
 import concurrent.futures
 import math
+from typing import cast
 
 from cellctl.bus import topics
 from cellctl.errors import ClassifierError, WorkerError, WorkerFailed
-from cellctl.messages import CaptureReply, CaptureRequest, MoveReply, MoveRequest, PoseMsg, ViewpointResult
-from cellctl.supervisor.context import StepRun
+from cellctl.messages import (
+    CaptureReply,
+    CaptureRequest,
+    ClassifyReply,
+    MoveReply,
+    MoveRequest,
+    PoseMsg,
+    ViewpointResult,
+)
+from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import AT_STATION, Step
 
 RELOOK_POSES = 4
@@ -63,7 +72,7 @@ def view_key(v: ViewpointResult) -> tuple[int | None, str | None, int]:
     return (v.station, v.surface, v.index)
 
 
-def with_reply(v: ViewpointResult, reply) -> ViewpointResult:
+def with_reply(v: ViewpointResult, reply: ClassifyReply) -> ViewpointResult:
     """The viewpoint result updated with a ClassifyReply's decision and scores."""
     return v.model_copy(
         update={
@@ -82,7 +91,7 @@ def with_reply(v: ViewpointResult, reply) -> ViewpointResult:
     )
 
 
-def record_heat(run: StepRun, reply) -> None:
+def record_heat(run: StepRun, reply: ClassifyReply) -> None:
     """The reply's heat map as a colour image on :data:`~cellctl.bus.topics.HEATMAP`."""
     if not reply.heatmap or not reply.heat_grid:
         return
@@ -152,7 +161,7 @@ class Classifying(Step):
         )
 
     @staticmethod
-    def _confirming(ctx) -> bool:
+    def _confirming(ctx: CycleContext) -> bool:
         mode = ctx.cfg.classifier.relook.confirm_dirty
         return mode == "on" or (mode == "whole_bin" and ctx.whole)
 
@@ -171,10 +180,10 @@ class Classifying(Step):
         for v in viewpoints:
             if v.label is not None and v.p_dirty is not None:
                 groups.setdefault(view_key(v), []).append(v)
-        out = {}
+        out: dict[tuple[int | None, str | None, int], str] = {}
         for idx, vs in groups.items():
             if len(vs) == 1:
-                out[idx] = vs[0].label
+                out[idx] = cast(str, vs[0].label)  # grouped only when labelled
                 continue
             first = vs[0]
             if confirm and first.relook_of is None and first.label == "dirty" and not first.uncertain:
@@ -184,8 +193,8 @@ class Classifying(Step):
             if confirm:
                 out[idx] = _mean_label(vs)
                 continue
-            mean = sum(_logit(v.p_dirty) for v in vs) / len(vs)  # type: ignore[arg-type]
-            out[idx] = min(vs, key=lambda v: abs(_logit(v.p_dirty) - mean)).label  # type: ignore[arg-type]
+            mean = sum(_logit(cast(float, v.p_dirty)) for v in vs) / len(vs)
+            out[idx] = cast(str, min(vs, key=lambda v: abs(_logit(cast(float, v.p_dirty)) - mean)).label)
         return out
 
     def _relook(self, run: StepRun) -> int:

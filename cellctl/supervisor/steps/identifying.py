@@ -9,7 +9,7 @@ import numpy as np
 from cellctl.bus import topics
 from cellctl.errors import CameraError, IdentificationError, WorkerFailed
 from cellctl.images import IMAGE_MAGIC, decode_image
-from cellctl.messages import ApproachReply, CaptureReply, CaptureRequest, EventLevel
+from cellctl.messages import ApproachReply, CaptureReply, CaptureRequest, EventLevel, StationInfo
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.approaching import approach_request
@@ -136,7 +136,7 @@ class Identifying(Step):
         return "succeeded"
 
     @staticmethod
-    def _carry_over(run: StepRun, st) -> str:  # StationInfo
+    def _carry_over(run: StepRun, st: StationInfo) -> str:
         """A station that cannot see the board: the bin pose measured at an earlier station, carried
         through the base's reported motion since (``base_odometry``); the planned station pose when the
         base reports no pose (``carried_over``). See decisions.md."""

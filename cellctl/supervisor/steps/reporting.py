@@ -19,28 +19,40 @@ inspect is what makes it partial), and a ``clean`` verdict below
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from typing import Any, cast
 
 import numpy as np
 
 from cellctl.bus import topics
-from cellctl.messages import CycleOutcome
+from cellctl.messages import CycleOutcome, PlanLookupReply, PoseMsg, ViewpointResult
 from cellctl.seen import gate_verdict
-from cellctl.supervisor.context import StepRun
+from cellctl.supervisor.context import CycleContext, StepRun
+from cellctl.supervisor.context.stations import PlanKey
 from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.classifying import view_key
 from cellctl.surface import FACE_TAG, SURFACES, Surface
 
-PlanKey = tuple[int | None, str | None]
+ViewKey = tuple[int | None, str | None, int]
 
 
-def _faces_by_view(plan, plans: Mapping[PlanKey, object] | None) -> dict:
+def _faces_by_view(
+    plan: PlanLookupReply | None, plans: Mapping[PlanKey, PlanLookupReply] | None
+) -> dict[ViewKey, list[int]]:
     """(station, surface, index) → face ids; a single-station cycle's plan is keyed (None, None)."""
-    plans = plans if plans else {(None, None): plan}
-    return {(st, surf, vp.index): vp.faces for (st, surf), p in plans.items() for vp in p.viewpoints}  # type: ignore[attr-defined]
+    by: Mapping[PlanKey, PlanLookupReply | None] = plans if plans else {(None, None): plan}
+    return {
+        (st, surf, vp.index): vp.faces for (st, surf), p in by.items() for vp in cast(PlanLookupReply, p).viewpoints
+    }
 
 
-def view_evidence(plan, viewpoints, T_base_bin, plans=None, bin_poses=None) -> list:
+def view_evidence(
+    plan: PlanLookupReply | None,
+    viewpoints: Sequence[ViewpointResult],
+    T_base_bin: np.ndarray | None,
+    plans: Mapping[PlanKey, PlanLookupReply] | None = None,
+    bin_poses: Mapping[int, np.ndarray] | None = None,
+) -> list[Any]:
     """One :class:`~cellctl.classify.heatmap.ViewEvidence` per classified view (re-looks included).
 
     ``plans`` ((station, surface) → plan) and ``bin_poses`` (station → T_base_bin) serve a whole-bin
@@ -59,14 +71,21 @@ def view_evidence(plan, viewpoints, T_base_bin, plans=None, bin_poses=None) -> l
         heat = decode_heat(v.heatmap, v.heat_grid) if v.heatmap and v.heat_grid else None
         if heat is not None and (v.camera_pose is None or T_bin_base is None):
             heat = None  # no pose to project with: fall back to the view's own probability
-        T_bin_cam = T_bin_base @ v.camera_pose.matrix() if heat is not None else np.eye(4)
+        # heat is kept only with a pose and a bin pose to project it with (above)
+        T_bin_cam = (
+            cast(np.ndarray, T_bin_base) @ cast(PoseMsg, v.camera_pose).matrix() if heat is not None else np.eye(4)
+        )
         out.append(ViewEvidence(faces, T_bin_cam, heat, float(v.p_dirty)))
     return out
 
 
 def dirt_map(
-    plan, viewpoints, mesh=None, surface: Surface | None = "external", plans=None
-) -> tuple[dict, float | None]:
+    plan: Any,
+    viewpoints: Sequence[ViewpointResult],
+    mesh: Any = None,
+    surface: Surface | None = "external",
+    plans: Mapping[PlanKey, PlanLookupReply] | None = None,
+) -> tuple[dict[str, Any], float | None]:
     """The coarse map (no mesh, or no heat maps): each viewpoint's label on the faces it sees.
 
     A face seen dirty from any viewpoint is dirty; a face seen only clean is clean; a face no
@@ -97,7 +116,7 @@ def dirt_map(
     }, coverage
 
 
-def _bin_type(ctx):
+def _bin_type(ctx: CycleContext) -> Any:
     """The cycle's bin type (its ID board is an occluder for the heat projection), or None."""
     from cellctl.errors import ConfigError
 
@@ -112,7 +131,7 @@ def _ids(faces: set[int], total: int) -> np.ndarray:
     return idx[(idx >= 0) & (idx < total)]
 
 
-def _coverage(mesh, seen_ids: np.ndarray, surface: Surface | None) -> float | None:
+def _coverage(mesh: Any, seen_ids: np.ndarray, surface: Surface | None) -> float | None:
     """Area fraction of ``surface``'s faces (None: every surface's) among ``seen_ids``."""
     tags = [FACE_TAG[surface]] if surface is not None else [FACE_TAG[s] for s in SURFACES]
     on_surface = np.isin(mesh.surface, tags)
@@ -120,7 +139,7 @@ def _coverage(mesh, seen_ids: np.ndarray, surface: Surface | None) -> float | No
     return float(areas[seen_ids][on_surface[seen_ids]].sum() / areas[on_surface].sum()) if on_surface.any() else None
 
 
-def surface_fractions(mesh, seen_ids: np.ndarray) -> dict[str, float | None]:
+def surface_fractions(mesh: Any, seen_ids: np.ndarray) -> dict[str, float | None]:
     """Area fraction of each surface among the faces ``seen_ids`` (what min_seen_fraction is checked on)."""
     return {s: _coverage(mesh, seen_ids, s) for s in SURFACES}
 
@@ -128,13 +147,14 @@ def surface_fractions(mesh, seen_ids: np.ndarray) -> dict[str, float | None]:
 def gate(run: StepRun, seen: dict[str, float | None] | None) -> None:
     """A ``clean`` verdict below ``classifier.verdict.min_seen_fraction`` on any surface becomes ``incomplete``."""
     ctx = run.ctx
-    ctx.result.verdict, why = gate_verdict(ctx.result.verdict, seen, ctx.cfg.classifier.verdict.min_seen_fraction)
+    minimum = cast(Mapping[str, float], ctx.cfg.classifier.verdict.min_seen_fraction)
+    ctx.result.verdict, why = gate_verdict(ctx.result.verdict, seen, minimum)
     if why is not None:
         ctx.result.reason = why
         run.event("warning", f"verdict incomplete: {why}")
 
 
-def _whole_coverage(ctx, mesh, seen: np.ndarray) -> None:
+def _whole_coverage(ctx: CycleContext, mesh: Any, seen: np.ndarray) -> None:
     """Each (station, surface)'s own share of a whole-bin cycle's coverage (``seen``: face ids)."""
     faces_by = {k: set(f) for k, f in _faces_by_view(ctx.scan.plan, ctx.stations.plans).items()}
     for st, surf in ctx.stations.plans:
@@ -142,7 +162,9 @@ def _whole_coverage(ctx, mesh, seen: np.ndarray) -> None:
         for v in ctx.scan.viewpoints:
             if (v.station, v.surface) == (st, surf) and v.error is None and v.label is not None:
                 mine |= faces_by.get(view_key(v), set())
-        ctx.stations.station_coverage[(st, surf)] = _coverage(mesh, _ids(mine, mesh.n_faces), surf)
+        ctx.stations.station_coverage[(st, surf)] = _coverage(
+            mesh, _ids(mine, mesh.n_faces), cast(Surface | None, surf)
+        )
 
 
 class Reporting(Step):
@@ -195,9 +217,9 @@ class Reporting(Step):
                 _bin_type(ctx),
             )
             ctx.result.dirt_map = fm.as_json()
-            seen_ids = np.flatnonzero(fm.seen)
+            seen_ids: np.ndarray | None = np.flatnonzero(fm.seen)
             ctx.result.coverage = _coverage(mesh, seen_ids, cover_surface)  # type: ignore[arg-type]
-            labels = [v.label for v in ctx.scan.viewpoints if v.label is not None]
+            labels: list[str] = [v.label for v in ctx.scan.viewpoints if v.label is not None]
             if vc.rule == "faces":
                 before = ctx.result.verdict
                 ctx.result.verdict = verdict(fm, labels, vc.rule, vc.min_dirty_area_cm2)  # type: ignore[assignment]
@@ -212,7 +234,7 @@ class Reporting(Step):
         else:
             ctx.result.dirt_map, ctx.result.coverage = dirt_map(
                 ctx.scan.plan, ctx.scan.viewpoints, mesh, cover_surface, plans
-            )  # type: ignore[arg-type]
+            )
             seen_ids = (
                 _ids(set(ctx.result.dirt_map["seen_dirty"]) | set(ctx.result.dirt_map["seen_clean"]), mesh.n_faces)
                 if mesh is not None
@@ -223,12 +245,11 @@ class Reporting(Step):
         if whole and mesh is not None and seen_ids is not None:
             _whole_coverage(ctx, mesh, seen_ids)
             ctx.result.dirt_map = {**ctx.result.dirt_map, "coverage_by_surface": ctx.result.coverage_by_surface}
+            by_surface = ctx.result.coverage_by_surface or {}  # set just above
             run.event(
                 "info",
                 "whole bin: "
-                + ", ".join(
-                    f"{s} {c:.0%}" if c is not None else f"{s} -" for s, c in ctx.result.coverage_by_surface.items()
-                )
+                + ", ".join(f"{s} {c:.0%}" if c is not None else f"{s} -" for s, c in by_surface.items())
                 + f" seen from {len(ctx.stations.station_order)} stations",
             )
         if mesh is not None:
@@ -239,7 +260,7 @@ class Reporting(Step):
         return "succeeded"
 
     @staticmethod
-    def _scene(ctx, mesh) -> None:
+    def _scene(ctx: CycleContext, mesh: Any) -> None:
         """The scan in 3D for Foxglove: bin coloured by the dirt map, one arrow per viewpoint.
 
         A whole-bin cycle's views of other stations are drawn in the last station's base frame.
@@ -247,7 +268,7 @@ class Reporting(Step):
         from cellctl.recording import foxglove
         from cellctl.recording.dirt_map import COLOURS, face_colours
 
-        rgba = face_colours(mesh.n_faces, ctx.result.dirt_map)
+        rgba = face_colours(mesh.n_faces, ctx.result.dirt_map or {})  # written by this step before
         cams = []
         for v in ctx.scan.viewpoints:
             if v.camera_pose is None:

@@ -52,6 +52,7 @@ from cellctl.messages import (
 from cellctl.supervisor.context import StepRun
 from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.washing import face_mask, face_state, picture_dir, views_at, wash_mesh, washed_faces
+from cellctl.surface import Surface
 
 __all__ = ["Verifying", "imaged_faces", "merge_dirt_maps"]
 
@@ -211,7 +212,7 @@ class Verifying(Step):
         return "succeeded"
 
     @staticmethod
-    def _look(run: StepRun, vp: Any, r: int, surface: str, rank: int | None) -> None:
+    def _look(run: StepRun, vp: Any, r: int, surface: Surface, rank: int | None) -> None:
         from cellctl.geometry.transforms import invert
 
         ctx = run.ctx
@@ -238,7 +239,7 @@ class Verifying(Step):
         index: int,
         move: MoveRequest,
         pose: PoseMsg,
-        surface: str,
+        surface: Surface,
         where: dict[str, Any],
         record_refusal: bool = True,
     ) -> bool:

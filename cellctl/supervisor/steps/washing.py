@@ -28,9 +28,10 @@ before, wash path on the mesh, dirt map after) beside the cycle's MCAP, in ``<cy
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -51,6 +52,7 @@ from cellctl.seen import gate_verdict
 from cellctl.supervisor.context import CycleContext, StepRun
 from cellctl.supervisor.steps._base import AT_STATION, Step
 from cellctl.supervisor.steps.reporting import surface_fractions
+from cellctl.surface import Surface
 
 __all__ = [
     "WashCheck",
@@ -113,7 +115,7 @@ def wash_ranks(ctx: CycleContext) -> list[int | None]:
     if not ctx.whole or not ctx.wash.scan_poses:
         return [None]
     here = ctx.wash.parked
-    rest = [r for r in reversed(ctx.stations.station_order) if r in ctx.wash.scan_poses and r != here]
+    rest: list[int | None] = [r for r in reversed(ctx.stations.station_order) if r in ctx.wash.scan_poses and r != here]
     return ([here] if here in ctx.wash.scan_poses else []) + rest
 
 
@@ -154,15 +156,20 @@ def look_faces(ctx: CycleContext, mesh: Any) -> np.ndarray:
     return dilate(mesh, sprayed, ctx.cfg.wash.splash_m)
 
 
-def views_at(ctx: CycleContext, mesh: Any, rank: int | None) -> list[tuple[str, Any]]:
+def views_at(ctx: CycleContext, mesh: Any, rank: int | None) -> list[tuple[Surface, Any]]:
     """(surface, PlannedViewpoint) of station ``rank``'s plans that see a face to look at, in plan order."""
     look = look_faces(ctx, mesh)
     n = mesh.n_faces
     if rank is None:
         assert ctx.scan.plan is not None
         pairs = [(ctx.surface, vp) for vp in ctx.scan.plan.viewpoints]
-    else:
-        pairs = [(surf, vp) for (st, surf), p in ctx.stations.plans.items() if st == rank for vp in p.viewpoints]
+    else:  # a whole-bin cycle's plans are keyed by their surface
+        pairs = [
+            (cast(Surface, surf), vp)
+            for (st, surf), p in ctx.stations.plans.items()
+            if st == rank
+            for vp in p.viewpoints
+        ]
     return [(s, vp) for s, vp in pairs if any(0 <= f < n and look[f] for f in vp.faces)]
 
 
@@ -183,7 +190,7 @@ def round_poses(ctx: CycleContext) -> list[np.ndarray]:
     here = ctx.wash.parked
     return [
         ctx.stations.bin_poses[r] if r == here and r in ctx.stations.bin_poses else ctx.wash.scan_poses[r]
-        for r in wash_ranks(ctx)
+        for r in cast(list[int], wash_ranks(ctx))  # whole-bin: every rank is a station
     ]
 
 
@@ -285,10 +292,12 @@ class WashCheck(Step):
             ctx.result.coverage_by_surface = surface_fractions(
                 mesh, np.flatnonzero(face_state(ctx.result.dirt_map, mesh.n_faces)[1])
             )
-            verdict, why = gate_verdict(
-                "clean", ctx.result.coverage_by_surface, ctx.cfg.classifier.verdict.min_seen_fraction
+            verdict, gated = gate_verdict(
+                "clean",
+                ctx.result.coverage_by_surface,
+                cast(Mapping[str, float], ctx.cfg.classifier.verdict.min_seen_fraction),
             )
-            return self._end(run, verdict, why, dirty, mesh)  # WashResult.seen_fraction: what clean covers
+            return self._end(run, verdict, gated, dirty, mesh)  # WashResult.seen_fraction: what clean covers
         area = float(mesh.areas[dirty].sum())
         if done >= wc.max_rounds:
             why = f"dirt left after {done} wash round(s) (wash.max_rounds): {int(dirty.sum())} faces"
