@@ -10,6 +10,7 @@ every move straight or via home along the chains, re-checked at the sim arm's st
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,6 +30,35 @@ __all__ = [
 ]
 END_PENALTY_S = 100.0  # makes the tour's home node its last (an interior visit pays it twice)
 NO_MOVE_S = 1.0e4  # a move the sim arm could not make: straight collides and no way via home
+
+
+@dataclass
+class _TourGraph:
+    """The motion-time graph of one tour: ``[start, *viewpoints]`` plus node ``n``, home at the tour's end.
+
+    Filled by :func:`_tour_graph`; the fine-step checks then update it in place (a move found to
+    collide goes via home, a node without a free way home is no end and no via-home end).
+    """
+
+    nodes: NDArray[np.float64]
+    """(n, 6): the start, then the viewpoints' configurations."""
+    hubs: list[NDArray[np.float64]]
+    """Each node's known way home (straight motions, ``[q, …, home]``)."""
+    home_t: NDArray[np.float64]
+    direct: NDArray[np.bool_]
+    """One straight motion home, free at the sim arm's step (optimistic until :attr:`known`)."""
+    known: NDArray[np.bool_]
+    Tm: NDArray[np.float64]
+    """(n + 1, n + 1) motion seconds; :data:`NO_MOVE_S` where the sim arm cannot move."""
+    straight: NDArray[np.bool_]
+    n_straight: int
+    """Straight pairs of the matrix (checked at ``max_step``)."""
+    checked: set[tuple[int, int]] = field(default_factory=set)
+    """Straight moves checked at ``fine_step``."""
+
+    @property
+    def n(self) -> int:
+        return len(self.nodes)
 
 
 def _timed_tour(
@@ -69,6 +99,41 @@ def _timed_tour(
     """
     from cellctl.planning.tour import ant_colony, two_opt
 
+    g = _tour_graph(q_start, start_hub, sel, con, q_home, world, timing, max_step, q_sel)
+    n = g.n
+    first = ant_colony(g.Tm, rng) if init is None else np.r_[np.asarray(init, dtype=np.int64), n]
+    full = np.asarray(two_opt(g.Tm, first), dtype=np.int64)
+    order, ends_home = _fine_checked_order(g, full[full != n], int(full[-1]) == n, q_home, world, fine_step)
+    paths, secs, Dr = _tour_paths(g, order, timing)
+    detoured = _take_detours(order, g.nodes, paths, secs, Dr, g.direct, q_home, world, timing, fine_step)
+    direct = g.direct
+    # moves the sim arm could not make: via home from/to a node that is not direct, and the end
+    bad = [
+        (a, b)
+        for p, a, b, dt in zip(paths, order[:-1], order[1:], detoured, strict=True)
+        if len(p) > 2 and not dt and not (direct[a] and direct[b])
+    ]
+    unverified = len(bad)
+    last = int(order[-1])
+    unverified += 0 if (ends_home and direct[last]) or not tuck else 1
+    # the viewpoints whose missing way home makes those moves: their chains are what a retry adds
+    stuck = {x for e in bad for x in e if not direct[x]} | ({last} if tuck and not direct[last] else set())
+    stuck_ids = np.array(sorted(int(sel[x - 1]) for x in stuck if x > 0), dtype=np.int64)
+    return order, Dr, paths, secs, g.n_straight, int(unverified), stuck_ids
+
+
+def _tour_graph(
+    q_start: NDArray[np.float64],
+    start_hub: list[NDArray[np.float64]],
+    sel: NDArray[np.int64],
+    con: Connected,
+    q_home: NDArray[np.float64],
+    world: PlanningWorld,
+    timing: TimingModel,
+    max_step: float,
+    q_sel: NDArray[np.float64] | None,
+) -> _TourGraph:
+    """The motion-time matrix of ``[start, *viewpoints]`` and home, pairs checked at ``max_step``."""
     Qall = con.reached.q
     Qs = Qall[sel] if q_sel is None else q_sel
     nodes = np.vstack([q_start[None], Qs])
@@ -101,36 +166,49 @@ def _timed_tour(
             straight[i, j] = straight[j, i] = True
         else:
             Tm[i, j] = Tm[j, i] = float(home_t[i] + home_t[j]) if direct[i] and direct[j] else NO_MOVE_S
-    first = ant_colony(Tm, rng) if init is None else np.r_[np.asarray(init, dtype=np.int64), n]
-    full = np.asarray(two_opt(Tm, first), dtype=np.int64)
-    ends_home = int(full[-1]) == n
-    order = full[full != n]
-    checked: set[tuple[int, int]] = set()
+    return _TourGraph(nodes, hubs, home_t, direct, known, Tm, straight, int(free.sum()))
 
-    def check_direct(order: NDArray[np.int64]) -> bool:
-        """Check the tour's end and its moves' via-home ends; True when one is not direct."""
-        need = {int(order[-1])} | {
-            int(x) for a, b in zip(order[:-1], order[1:], strict=True) if not straight[a, b] for x in (a, b)
-        }
-        todo = [k for k in sorted(need) if not known[k]]
-        if not todo:
-            return False
-        ok = world.motion_free(nodes[todo], np.repeat(q_home[None], len(todo), axis=0), fine_step)
-        for k, good in zip(todo, ok, strict=True):
-            known[k], direct[k] = True, bool(good)
-            if not good:  # no way home at the sim arm's step: no move via home, not the end
-                Tm[k, n] = Tm[n, k] = NO_MOVE_S
-                other = ~straight[k, :n]
-                other[k] = False
-                Tm[k, :n][other] = NO_MOVE_S
-                Tm[:n, k][other] = NO_MOVE_S
-        return not ok.all()
 
+def _check_direct(
+    g: _TourGraph, order: NDArray[np.int64], q_home: NDArray[np.float64], world: PlanningWorld, fine_step: float
+) -> bool:
+    """Check the tour's end and its moves' via-home ends; True when one is not direct."""
+    n, straight, Tm = g.n, g.straight, g.Tm
+    need = {int(order[-1])} | {
+        int(x) for a, b in zip(order[:-1], order[1:], strict=True) if not straight[a, b] for x in (a, b)
+    }
+    todo = [k for k in sorted(need) if not g.known[k]]
+    if not todo:
+        return False
+    ok = world.motion_free(g.nodes[todo], np.repeat(q_home[None], len(todo), axis=0), fine_step)
+    for k, good in zip(todo, ok, strict=True):
+        g.known[k], g.direct[k] = True, bool(good)
+        if not good:  # no way home at the sim arm's step: no move via home, not the end
+            Tm[k, n] = Tm[n, k] = NO_MOVE_S
+            other = ~straight[k, :n]
+            other[k] = False
+            Tm[k, :n][other] = NO_MOVE_S
+            Tm[:n, k][other] = NO_MOVE_S
+    return not ok.all()
+
+
+def _fine_checked_order(
+    g: _TourGraph,
+    order: NDArray[np.int64],
+    ends_home: bool,
+    q_home: NDArray[np.float64],
+    world: PlanningWorld,
+    fine_step: float,
+) -> tuple[NDArray[np.int64], bool]:
+    """Check the order's moves at ``fine_step``; 2-opt repairs it after a failure (≤ 6 rounds)."""
+    from cellctl.planning.tour import two_opt
+
+    n, straight, Tm, direct, home_t, nodes = g.n, g.straight, g.Tm, g.direct, g.home_t, g.nodes
     for _round in range(6):
         edges = [
             (int(a), int(b))
             for a, b in zip(order[:-1], order[1:], strict=True)
-            if straight[a, b] and (min(a, b), max(a, b)) not in checked
+            if straight[a, b] and (min(a, b), max(a, b)) not in g.checked
         ]
         changed = False
         if edges:
@@ -138,41 +216,37 @@ def _timed_tour(
                 np.array([nodes[a] for a, _ in edges]), np.array([nodes[b] for _, b in edges]), fine_step
             )
             for (a, b), good in zip(edges, ok, strict=True):
-                checked.add((min(a, b), max(a, b)))
+                g.checked.add((min(a, b), max(a, b)))
                 if not good:
                     straight[a, b] = straight[b, a] = False
                     Tm[a, b] = Tm[b, a] = float(home_t[a] + home_t[b]) if direct[a] and direct[b] else NO_MOVE_S
             changed = not ok.all()
-        changed = check_direct(order) or changed
+        changed = _check_direct(g, order, q_home, world, fine_step) or changed
         if not changed:
             break
         full = np.asarray(two_opt(Tm, np.r_[order, n]), dtype=np.int64)
         ends_home = int(full[-1]) == n
         order = full[full != n]
-    check_direct(order)  # the figures below only from checked nodes (the last round may have moved)
+    # the figures only from checked nodes (the last round may have moved)
+    _check_direct(g, order, q_home, world, fine_step)
+    return order, ends_home
+
+
+def _tour_paths(
+    g: _TourGraph, order: NDArray[np.int64], timing: TimingModel
+) -> tuple[list[NDArray[np.float64]], list[float], NDArray[np.float64]]:
+    """Each move of ``order`` (straight where checked fine, else via home), its seconds, the radian matrix."""
+    n = g.n
     paths: list[NDArray[np.float64]] = []
     secs: list[float] = []
     Dr = np.zeros((n, n))
     for a, b in zip(order[:-1].tolist(), order[1:].tolist(), strict=True):
-        fine = straight[a, b] and (min(a, b), max(a, b)) in checked
-        path = np.array([nodes[a], nodes[b]]) if fine else np.vstack([hubs[a], hubs[b][::-1][1:]])
+        fine = g.straight[a, b] and (min(a, b), max(a, b)) in g.checked
+        path = np.array([g.nodes[a], g.nodes[b]]) if fine else np.vstack([g.hubs[a], g.hubs[b][::-1][1:]])
         paths.append(path)
         secs.append(timing.motion_s(path))
         Dr[a, b] = Dr[b, a] = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
-    detoured = _take_detours(order, nodes, paths, secs, Dr, direct, q_home, world, timing, fine_step)
-    # moves the sim arm could not make: via home from/to a node that is not direct, and the end
-    bad = [
-        (a, b)
-        for p, a, b, dt in zip(paths, order[:-1], order[1:], detoured, strict=True)
-        if len(p) > 2 and not dt and not (direct[a] and direct[b])
-    ]
-    unverified = len(bad)
-    last = int(order[-1])
-    unverified += 0 if (ends_home and direct[last]) or not tuck else 1
-    # the viewpoints whose missing way home makes those moves: their chains are what a retry adds
-    stuck = {x for e in bad for x in e if not direct[x]} | ({last} if tuck and not direct[last] else set())
-    stuck_ids = np.array(sorted(int(sel[x - 1]) for x in stuck if x > 0), dtype=np.int64)
-    return order, Dr, paths, secs, int(free.sum()), int(unverified), stuck_ids
+    return paths, secs, Dr
 
 
 def _take_detours(
