@@ -129,5 +129,8 @@ def test_a_malformed_story_file_is_refused_naming_the_key_and_the_file(tmp_path:
     bad.write_text(good.replace("[scenario, cycle, check", "[scenario, cycle, chek"), encoding="utf-8")
     with pytest.raises(ConfigError, match=r"key 'stories.0.steps.2'.*'chek'"):
         load_story_file(bad)
+    bad.write_text(good.replace("[scenario, cycle, check", "[scenario, check, cycle"), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"stories.0.*\['check'\] read the cycle's result, so they come after"):
+        load_story_file(bad)
     with pytest.raises(ConfigError, match="--stories 'nope': neither a story file nor one of the shipped stories"):
         story_path("nope")

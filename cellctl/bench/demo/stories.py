@@ -20,7 +20,7 @@ import math
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import Field, ValidationError
+from pydantic import Field, ValidationError, model_validator
 
 from cellctl.errors import ConfigError
 from cellctl.strict_model import ConfigModel
@@ -109,6 +109,16 @@ class Story(ConfigModel):
     wash: bool | None = Field(
         default=None, description="play only with --wash (true) or only with --no-wash (false); absent: always"
     )
+
+    @model_validator(mode="after")
+    def _one_cycle_before_its_result(self) -> Story:
+        """Every step but ``scenario`` reads the cycle's result: the story plays ``cycle`` once, before them."""
+        if self.steps.count("cycle") != 1:
+            raise ValueError(f"steps {self.steps}: a story plays exactly one 'cycle' step")
+        early = [s for s in self.steps[: self.steps.index("cycle")] if s != "scenario"]
+        if early:
+            raise ValueError(f"steps {self.steps}: {early} read the cycle's result, so they come after 'cycle'")
+        return self
 
     def title(self, bin_type: str) -> str:
         return self.story.replace("{bin_type}", bin_type)
