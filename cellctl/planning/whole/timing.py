@@ -391,6 +391,48 @@ def _alternatives(
     return A[:ALTERNATIVES]
 
 
+@dataclass
+class _Choices:
+    """Per tour position the candidate configurations (index 0: the picked one) and the moves' seconds.
+
+    A move between candidates that is not the original one is barred once it fails the fine-step
+    check and known good once it passes; its seconds are computed once.
+    """
+
+    alts: list[NDArray[np.float64]]
+    secs: list[float]
+    timing: TimingModel
+    q_home: NDArray[np.float64]
+    t_cache: dict[tuple[int, int, int], float] = field(default_factory=dict)
+    barred: set[tuple[int, int, int]] = field(default_factory=set)
+    good: set[tuple[int, int, int]] = field(default_factory=set)
+
+    @property
+    def m(self) -> int:
+        return len(self.alts)
+
+    def edge_s(self, pos: int, ia: int, ib: int) -> float:
+        """Seconds of the move into position ``pos`` from candidate ``ia`` to candidate ``ib``."""
+        if ia == 0 and ib == 0:
+            return float(self.secs[pos - 1])
+        key = (pos, ia, ib)
+        if key in self.barred:
+            return np.inf
+        if key not in self.t_cache:
+            self.t_cache[key] = self.timing.motion_s(np.array([self.alts[pos - 1][ia], self.alts[pos][ib]]))
+        return self.t_cache[key]
+
+    def home_s(self, ib: int) -> float:
+        """Seconds of the move home from the last position's candidate ``ib``."""
+        m = self.m
+        key = (m, ib, -1)
+        if key in self.barred:
+            return np.inf
+        if key not in self.t_cache:
+            self.t_cache[key] = self.timing.motion_s(np.array([self.alts[m - 1][ib], self.q_home]))
+        return self.t_cache[key]
+
+
 def _refine_configurations(
     nodes: NDArray[np.float64],
     order: NDArray[np.int64],
@@ -436,63 +478,56 @@ def _refine_configurations(
         near = np.array([nodes[seq[pos - 1]], nodes[seq[pos + 1]] if pos < m - 1 else q_home])
         extra = _alternatives(q, near, robot, world, accept, half_turn) if free_here else np.zeros((0, 6))
         alts.append(np.vstack([q[None], extra]))
-    t_cache: dict[tuple[int, int, int], float] = {}
-    barred: set[tuple[int, int, int]] = set()
-    good: set[tuple[int, int, int]] = set()
-
-    def edge_s(pos: int, ia: int, ib: int) -> float:
-        if ia == 0 and ib == 0:
-            return float(secs[pos - 1])
-        key = (pos, ia, ib)
-        if key in barred:
-            return np.inf
-        if key not in t_cache:
-            t_cache[key] = timing.motion_s(np.array([alts[pos - 1][ia], alts[pos][ib]]))
-        return t_cache[key]
-
-    def home_s(ib: int) -> float:
-        key = (m, ib, -1)
-        if key in barred:
-            return np.inf
-        if key not in t_cache:
-            t_cache[key] = timing.motion_s(np.array([alts[m - 1][ib], q_home]))
-        return t_cache[key]
-
-    pick = [0] * m
-    for _round in range(8):
-        cost = np.zeros(1)
-        back: list[NDArray[np.int64]] = []
-        for pos in range(1, m):
-            C = np.array(
-                [[cost[ia] + edge_s(pos, ia, ib) for ib in range(len(alts[pos]))] for ia in range(len(alts[pos - 1]))]
-            )
-            back.append(C.argmin(axis=0))
-            cost = C.min(axis=0)
-        cost = cost + np.array([home_s(ib) for ib in range(len(alts[m - 1]))])
-        pick = [0] * m
-        pick[m - 1] = int(np.argmin(cost))
-        for pos in range(m - 1, 0, -1):
-            pick[pos - 1] = int(back[pos - 1][pick[pos]])
-        todo = [(pos, pick[pos - 1], pick[pos]) for pos in range(1, m) if pick[pos - 1] or pick[pos]]
-        if pick[m - 1]:
-            todo.append((m, pick[m - 1], -1))
-        todo = [k for k in todo if k not in good]
-        if not todo:
-            break
-        A = np.array([alts[p - 1][a] if b >= 0 else alts[m - 1][a] for p, a, b in todo])
-        B = np.array([alts[p][b] if b >= 0 else q_home for p, a, b in todo])
-        for key, ok in zip(todo, world.motion_free(A, B, step), strict=True):
-            (good if ok else barred).add(key)
-    else:
-        pick = [0] * m
+    ch = _Choices(alts, secs, timing, q_home)
+    pick = _checked_picks(ch, world, step)
     out = nodes.copy()
     new_paths, new_secs = list(paths), list(secs)
     for pos in range(1, m):
         out[seq[pos]] = alts[pos][pick[pos]]
         if pick[pos - 1] or pick[pos]:
             new_paths[pos - 1] = np.array([alts[pos - 1][pick[pos - 1]], alts[pos][pick[pos]]])
-            new_secs[pos - 1] = edge_s(pos, pick[pos - 1], pick[pos])
+            new_secs[pos - 1] = ch.edge_s(pos, pick[pos - 1], pick[pos])
     return out, new_paths, new_secs, int(sum(1 for k in pick if k))
+
+
+def _checked_picks(ch: _Choices, world: PlanningWorld, step: float) -> list[int]:
+    """The fastest candidate per position whose new moves are free at ``step`` (≤ 8 rounds, else all originals)."""
+    m, alts, q_home = ch.m, ch.alts, ch.q_home
+    pick = [0] * m
+    for _round in range(8):
+        pick = _fastest_picks(ch)
+        todo = [(pos, pick[pos - 1], pick[pos]) for pos in range(1, m) if pick[pos - 1] or pick[pos]]
+        if pick[m - 1]:
+            todo.append((m, pick[m - 1], -1))
+        todo = [k for k in todo if k not in ch.good]
+        if not todo:
+            break
+        A = np.array([alts[p - 1][a] if b >= 0 else alts[m - 1][a] for p, a, b in todo])
+        B = np.array([alts[p][b] if b >= 0 else q_home for p, a, b in todo])
+        for key, ok in zip(todo, world.motion_free(A, B, step), strict=True):
+            (ch.good if ok else ch.barred).add(key)
+    else:
+        pick = [0] * m
+    return pick
+
+
+def _fastest_picks(ch: _Choices) -> list[int]:
+    """Dynamic programming over the candidates: the pick per position of the fastest tour and move home."""
+    m, alts = ch.m, ch.alts
+    cost = np.zeros(1)
+    back: list[NDArray[np.int64]] = []
+    for pos in range(1, m):
+        C = np.array(
+            [[cost[ia] + ch.edge_s(pos, ia, ib) for ib in range(len(alts[pos]))] for ia in range(len(alts[pos - 1]))]
+        )
+        back.append(C.argmin(axis=0))
+        cost = C.min(axis=0)
+    cost = cost + np.array([ch.home_s(ib) for ib in range(len(alts[m - 1]))])
+    pick = [0] * m
+    pick[m - 1] = int(np.argmin(cost))
+    for pos in range(m - 1, 0, -1):
+        pick[pos - 1] = int(back[pos - 1][pick[pos]])
+    return pick
 
 
 SHIFT_TRIES = 6  # whole-tour turns × directions, fastest first, whose new moves are checked
@@ -532,62 +567,12 @@ def _shift_tour(
     Returns:
         ``(nodes, order, paths, seconds)`` of the new tour, or None (no faster free one).
     """
-    from itertools import product
-
-    from cellctl.planning.reach import _WRAPPABLE
-
-    vps = np.array([nodes[int(k)] for k in order[1:]])
-    way = np.vstack([vps, *paths[1:]]) if len(paths) > 1 else vps
-
-    def out_s(q: NDArray[np.float64]) -> float:
-        if after is None or len(after) == 0:
-            return timing.motion_s(np.array([q, q_home]))
-        return _on_s(q, after, timing)
-
-    def near(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Home turned by 2π on the ±2π joints nearest to between ``a`` and ``b`` (the same arm:
-        a way round a turned tour's move in bends towards it, not back across a turn)."""
-        h = q_home.copy()
-        j = list(_WRAPPABLE)
-        h[j] += 2.0 * np.pi * np.round((0.5 * (a[j] + b[j]) - h[j]) / (2.0 * np.pi))
-        return np.where((h >= robot.q_min) & (h <= robot.q_max), h, q_home)
-
-    base = float(secs[0]) + float(end_s)
     ends = {False: (int(order[1]), int(order[-1])), True: (int(order[-1]), int(order[1]))}
-    cands: list[tuple[float, NDArray[np.float64], bool]] = []
-    for ks in product((-1, 0, 1), repeat=len(_WRAPPABLE)):
-        sh = np.zeros(6)
-        sh[list(_WRAPPABLE)] = 2.0 * np.pi * np.array(ks, dtype=np.float64)
-        if any(ks) and not np.all((way + sh >= robot.q_min - 1e-9) & (way + sh <= robot.q_max + 1e-9)):
-            continue
-        for back in (False, True) if len(order) > 2 else (False,):
-            if not any(ks) and not back:
-                continue  # the tour as planned
-            first, last = ends[back]
-            t = timing.motion_s(np.array([q_prev, nodes[first] + sh])) + out_s(nodes[last] + sh)
-            if t < base - 1e-3:  # a lower bound: a detour in only adds
-                cands.append((t, sh, back))
-    cands.sort(key=lambda c: c[0])
-    cands = cands[:SHIFT_TRIES]
+    ctx = _ShiftEnds(q_prev, nodes, ends, after, robot, timing, q_home, float(secs[0]) + float(end_s))
+    cands = _shift_candidates(ctx, order, paths)
     if not cands:
         return None
-    A = np.array([x for _, sh, bk in cands for x in (q_prev, nodes[ends[bk][1]] + sh)])
-    B = np.array([x for _, sh, bk in cands for x in (nodes[ends[bk][0]] + sh, q_home)])
-    ok = world.motion_free(A, B, step).reshape(-1, 2)
-    best: tuple[float, NDArray[np.float64], bool, NDArray[np.float64]] | None = None
-    for i, (t, sh, back) in enumerate(cands):
-        if best is not None and t >= best[0]:
-            break
-        if not ok[i, 1]:
-            continue
-        first, last = ends[back]
-        q_in = nodes[first] + sh
-        move_in = np.array([q_prev, q_in]) if ok[i, 0] else _detour(q_prev, q_in, near(q_prev, q_in), world, step)
-        if move_in is None:
-            continue
-        t_real = timing.motion_s(move_in) + out_s(nodes[last] + sh)
-        if t_real < base - 1e-3 and (best is None or t_real < best[0]):
-            best = (t_real, sh, back, move_in)
+    best = _best_shift(ctx, cands, world, step)
     if best is None:
         return None
     _t, sh, back, move_in = best
@@ -600,6 +585,90 @@ def _shift_tour(
         new_order = np.r_[order[:1], order[1:][::-1]]
         rest, rest_s = [p[::-1] for p in rest[::-1]], rest_s[::-1]
     return out, new_order, [move_in, *rest], [timing.motion_s(move_in), *rest_s]
+
+
+@dataclass(frozen=True)
+class _ShiftEnds:
+    """What scores a turned tour: its ends (first, last node; per direction), the moves in and out, the bar."""
+
+    q_prev: NDArray[np.float64]
+    nodes: NDArray[np.float64]
+    ends: dict[bool, tuple[int, int]]
+    after: NDArray[np.float64] | None
+    robot: RobotModel
+    timing: TimingModel
+    q_home: NDArray[np.float64]
+    base: float
+    """Seconds of the move in and the move out as planned."""
+
+    def out_s(self, q: NDArray[np.float64]) -> float:
+        """Seconds of the move out of ``q``: to the nearest of ``after``, or home."""
+        if self.after is None or len(self.after) == 0:
+            return self.timing.motion_s(np.array([q, self.q_home]))
+        return _on_s(q, self.after, self.timing)
+
+    def near(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Home turned by 2π on the ±2π joints nearest to between ``a`` and ``b`` (the same arm:
+        a way round a turned tour's move in bends towards it, not back across a turn)."""
+        from cellctl.planning.reach import _WRAPPABLE
+
+        h = self.q_home.copy()
+        j = list(_WRAPPABLE)
+        h[j] += 2.0 * np.pi * np.round((0.5 * (a[j] + b[j]) - h[j]) / (2.0 * np.pi))
+        return np.where((h >= self.robot.q_min) & (h <= self.robot.q_max), h, self.q_home)
+
+
+def _shift_candidates(
+    ctx: _ShiftEnds, order: NDArray[np.int64], paths: list[NDArray[np.float64]]
+) -> list[tuple[float, NDArray[np.float64], bool]]:
+    """Turns × directions within the joint limits whose straight ends beat the plan, fastest first (≤ SHIFT_TRIES)."""
+    from itertools import product
+
+    from cellctl.planning.reach import _WRAPPABLE
+
+    nodes, robot = ctx.nodes, ctx.robot
+    vps = np.array([nodes[int(k)] for k in order[1:]])
+    way = np.vstack([vps, *paths[1:]]) if len(paths) > 1 else vps
+    cands: list[tuple[float, NDArray[np.float64], bool]] = []
+    for ks in product((-1, 0, 1), repeat=len(_WRAPPABLE)):
+        sh = np.zeros(6)
+        sh[list(_WRAPPABLE)] = 2.0 * np.pi * np.array(ks, dtype=np.float64)
+        if any(ks) and not np.all((way + sh >= robot.q_min - 1e-9) & (way + sh <= robot.q_max + 1e-9)):
+            continue
+        for back in (False, True) if len(order) > 2 else (False,):
+            if not any(ks) and not back:
+                continue  # the tour as planned
+            first, last = ctx.ends[back]
+            t = ctx.timing.motion_s(np.array([ctx.q_prev, nodes[first] + sh])) + ctx.out_s(nodes[last] + sh)
+            if t < ctx.base - 1e-3:  # a lower bound: a detour in only adds
+                cands.append((t, sh, back))
+    cands.sort(key=lambda c: c[0])
+    return cands[:SHIFT_TRIES]
+
+
+def _best_shift(
+    ctx: _ShiftEnds, cands: list[tuple[float, NDArray[np.float64], bool]], world: PlanningWorld, step: float
+) -> tuple[float, NDArray[np.float64], bool, NDArray[np.float64]] | None:
+    """The fastest candidate whose move home is free at ``step`` and whose move in is (straight or round)."""
+    nodes, ends, q_prev, q_home = ctx.nodes, ctx.ends, ctx.q_prev, ctx.q_home
+    A = np.array([x for _, sh, bk in cands for x in (q_prev, nodes[ends[bk][1]] + sh)])
+    B = np.array([x for _, sh, bk in cands for x in (nodes[ends[bk][0]] + sh, q_home)])
+    ok = world.motion_free(A, B, step).reshape(-1, 2)
+    best: tuple[float, NDArray[np.float64], bool, NDArray[np.float64]] | None = None
+    for i, (t, sh, back) in enumerate(cands):
+        if best is not None and t >= best[0]:
+            break
+        if not ok[i, 1]:
+            continue
+        first, last = ends[back]
+        q_in = nodes[first] + sh
+        move_in = np.array([q_prev, q_in]) if ok[i, 0] else _detour(q_prev, q_in, ctx.near(q_prev, q_in), world, step)
+        if move_in is None:
+            continue
+        t_real = ctx.timing.motion_s(move_in) + ctx.out_s(nodes[last] + sh)
+        if t_real < ctx.base - 1e-3 and (best is None or t_real < best[0]):
+            best = (t_real, sh, back, move_in)
+    return best
 
 
 def _half_turned(robot: RobotModel, Q0: NDArray[np.float64], Q1: NDArray[np.float64]) -> NDArray[np.bool_]:
