@@ -79,6 +79,8 @@ def bench_bus(opts: BenchOptions) -> dict[str, Any]:
             ack_put: list[float] = []
             status_lat: list[float] = []
             seq: list[tuple[CommandName, str]] = [("reset", "Idle"), ("stop", "Stopped")]
+            # raw query and put on purpose, not PlcClient: this bench measures the transport's command→Ack time
+            # with one long-lived cmd/ack subscription; PlcClient's put subscribes per call (what a CLI needs)
             for i in range(n):
                 name, target = seq[i % 2]
                 msg = Command(command=name, request_id=f"b{i}")

@@ -100,6 +100,8 @@ class FuzzTarget:
         self.rng = random.Random(seed + 1)
         c = self.cfg.cell_id
         self.key = keys.cmd(c)
+        # a raw session on purpose, not PlcClient: the fuzzer sends malformed and hand-built payloads, and its
+        # driver's valid commands take the same path so every Ack is matched the same way
         self.session = open_session(self.cfg, "client")
         self._acks: queue.Queue[bytes] = queue.Queue()
         self._sub = self.session.declare_subscriber(keys.cmd_ack(c), lambda s: self._acks.put(s.payload.to_bytes()))
