@@ -22,10 +22,10 @@ from mypy import api
 
 ROOT = Path(__file__).resolve().parent.parent
 BASELINE = ROOT / ".ci" / "mypy_baseline.json"
-# Counted apart from their parent package: strict packages not yet strict-clean (their count may only shrink).
-OWN_KEYS = ("cellctl/supervisor/steps/", "cellctl/planning/whole/")
-# The packages pyproject.toml holds to --strict's checks (less OWN_KEYS): no error, whatever the baseline says.
-STRICT = ("cellctl/supervisor", "cellctl/bus", "cellctl/messages")
+# Counted apart from their parent package: a strict subpackage of a package that is not strict yet.
+OWN_KEYS = ("cellctl/planning/whole/",)
+# The packages pyproject.toml holds to --strict's checks: no error, whatever the baseline says.
+STRICT = ("cellctl/supervisor", "cellctl/bus", "cellctl/messages", "cellctl/planning/whole")
 ERROR = re.compile(r"^(?P<path>[^:\s]+\.py):\d+(?::\d+)?: error: ")
 
 
