@@ -10,7 +10,7 @@ space to the reference configuration wins, which keeps the later tour short.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -130,6 +130,27 @@ def branch_signature(Q: NDArray[np.float64], robot: RobotModel) -> NDArray[np.in
     return front.astype(np.int64) * 4 + elbow.astype(np.int64) * 2 + wrist.astype(np.int64)
 
 
+@dataclass
+class _Resolution:
+    """What :func:`reachability` has found so far: per seed direction its viewpoint, solution and roll."""
+
+    total: int
+    progress: Callable[[int, int], None] | None
+    resolved: dict[int, tuple[int, NDArray[np.float64], float]] = field(default_factory=dict)
+    tried: int = 0
+    done: int = 0
+    preferred: int | None = None
+    """The preferred arm shape (branch signature), once judged."""
+    centre: NDArray[np.float64] | None = None
+    """That shape's median configuration."""
+
+    def step(self) -> None:
+        """One more viewpoint decided (reported to ``progress``)."""
+        self.done += 1
+        if self.progress:
+            self.progress(self.done, self.total)
+
+
 def reachability(
     vp: Viewpoints,
     robot: RobotModel,
@@ -173,16 +194,11 @@ def reachability(
     """
     rolls = roll_sequence(n_roll)
     checks0 = world.checks
-    resolved: dict[int, tuple[int, NDArray[np.float64], float]] = {}
-    tried = 0
-    total = len(vp)
-    done = 0
-    preferred: int | None = None
-    centre: NDArray[np.float64] | None = None
+    st = _Resolution(len(vp), progress)
     for rank in np.unique(vp.rank):
-        idx = [int(i) for i in np.flatnonzero(vp.rank == rank) if int(vp.seed[i]) not in resolved]
-        done += int(np.sum(vp.rank == rank)) - len(idx)
-        tried += len(idx)
+        idx = [int(i) for i in np.flatnonzero(vp.rank == rank) if int(vp.seed[i]) not in st.resolved]
+        st.done += int(np.sum(vp.rank == rank)) - len(idx)
+        st.tried += len(idx)
         owners, Qs, rs = [], [], []
         for i in idx:
             Q, r = candidates(T_base_bin, vp.T[i], robot, rolls, q_ref)
@@ -193,65 +209,97 @@ def reachability(
             continue
         Qc, rc, own = np.concatenate(Qs), np.concatenate(rs), np.asarray(owners)
         br = branch_signature(Qc, robot)
-        if preferred is None:
+        if st.preferred is None:
             # the arm shape most viewpoints can use, judged on every k-th viewpoint (≤ SHAPE_SAMPLE):
             # then only that shape's solutions need the collision check (3/4 of them are not)
             ids = np.unique(own)
             m = np.isin(own, ids[:: max(1, len(ids) // SHAPE_SAMPLE)])
             fs = world.robot_free(Qc[m])
             if fs.any():
-                preferred, centre = _preferred_shape(own[m][fs], br[m][fs], Qc[m][fs], q_ref, joinable)
-        if preferred is not None and centre is not None:
-            # once the arm shape is fixed only its solutions can be kept (below): check only those
-            shape = (br >> 1) == (preferred >> 1)
-            Qc, rc, own, br = Qc[shape], rc[shape], own[shape], br[shape]
-            for i, k in _lazy_first(Qc, rc, own, br, idx, preferred, centre, world, accept).items():
-                Qi, ri = k
-                if verify is None or verify(i, Qi):
-                    resolved[int(vp.seed[i])] = (i, Qi, float(ri))
-            done += len(idx)
-            if progress:
-                progress(done, total)
-            continue
-        free = world.robot_free(Qc)
-        Qc, rc, own, br = Qc[free], rc[free], own[free], br[free]
-        if preferred is None and len(Qc):
-            preferred, centre = _preferred_shape(own, br, Qc, q_ref, joinable)
-        offers: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
-        for i in idx:
-            m = own == i
-            if not m.any():
-                done += 1
-                continue
-            Qi, ri, bi = Qc[m], rc[m], br[m]
-            # only the preferred arm shape (shoulder + elbow); a wrist flip is allowed at a
-            # penalty. Other shapes need the arm to swing through singular/crowded regions,
-            # which is rarely possible next to the bin (measured: most such motions fail).
-            same = (bi >> 1) == (preferred >> 1)
-            if not same.any():
-                done += 1
-                continue
-            Qi, ri, bi = Qi[same], ri[same], bi[same]
-            key = np.linalg.norm(Qi - centre, axis=1) + 100.0 * (bi != preferred)
-            s = np.argsort(key, kind="stable")[:MAX_ACCEPT_TRIES]
-            offers[i] = (Qi[s], ri[s])
-        first = _first_accepted(offers, accept)
-        for i, (Qi, ri) in offers.items():
-            k = first.get(i)
-            # paper mode: the planner's verdict on the first acceptable goal decides
-            if k is not None and (verify is None or verify(i, Qi[k])):
-                resolved[int(vp.seed[i])] = (i, Qi[k], float(ri[k]))
-            done += 1
-            if progress:
-                progress(done, total)
+                st.preferred, st.centre = _preferred_shape(own[m][fs], br[m][fs], Qc[m][fs], q_ref, joinable)
+        if st.preferred is not None and st.centre is not None:
+            _resolve_in_shape(st, vp, idx, Qc, rc, own, br, world, accept, verify)
+        else:
+            _resolve_any_shape(st, vp, idx, Qc, rc, own, br, world, q_ref, accept, verify, joinable)
     if progress:
-        progress(total, total)
-    items = sorted(resolved.values(), key=lambda x: x[0])
+        progress(st.total, st.total)
+    items = sorted(st.resolved.values(), key=lambda x: x[0])
     index = np.array([it[0] for it in items], dtype=np.int64)
     q = np.array([it[1] for it in items]).reshape(-1, 6)
     roll = np.array([it[2] for it in items])
     T = np.array([vp.T[i] @ _rz(a) for i, a in zip(index, roll, strict=True)]).reshape(-1, 4, 4)
-    return Reached(index=index, T=T, q=q, roll=roll, checks=world.checks - checks0, tried=tried)
+    return Reached(index=index, T=T, q=q, roll=roll, checks=world.checks - checks0, tried=st.tried)
+
+
+def _resolve_in_shape(
+    st: _Resolution,
+    vp: Viewpoints,
+    idx: list[int],
+    Qc: NDArray[np.float64],
+    rc: NDArray[np.float64],
+    own: NDArray[np.int64],
+    br: NDArray[np.int64],
+    world: PlanningWorld,
+    accept: Callable[[int, NDArray[np.float64]], bool] | None,
+    verify: Callable[[int, NDArray[np.float64]], bool] | None,
+) -> None:
+    """One rank once the arm shape is fixed: only its solutions can be kept, so only those are checked."""
+    assert st.preferred is not None and st.centre is not None
+    shape = (br >> 1) == (st.preferred >> 1)
+    Qc, rc, own, br = Qc[shape], rc[shape], own[shape], br[shape]
+    for i, k in _lazy_first(Qc, rc, own, br, idx, st.preferred, st.centre, world, accept).items():
+        Qi, ri = k
+        if verify is None or verify(i, Qi):
+            st.resolved[int(vp.seed[i])] = (i, Qi, float(ri))
+    st.done += len(idx)
+    if st.progress:
+        st.progress(st.done, st.total)
+
+
+def _resolve_any_shape(
+    st: _Resolution,
+    vp: Viewpoints,
+    idx: list[int],
+    Qc: NDArray[np.float64],
+    rc: NDArray[np.float64],
+    own: NDArray[np.int64],
+    br: NDArray[np.int64],
+    world: PlanningWorld,
+    q_ref: NDArray[np.float64],
+    accept: Callable[[int, NDArray[np.float64]], bool] | None,
+    verify: Callable[[int, NDArray[np.float64]], bool] | None,
+    joinable: Callable[[NDArray[np.float64]], NDArray[np.bool_]] | None,
+) -> None:
+    """One rank before the arm shape is fixed: every candidate checked, the shape judged on the free ones."""
+    free = world.robot_free(Qc)
+    Qc, rc, own, br = Qc[free], rc[free], own[free], br[free]
+    if st.preferred is None and len(Qc):
+        st.preferred, st.centre = _preferred_shape(own, br, Qc, q_ref, joinable)
+    offers: dict[int, tuple[NDArray[np.float64], NDArray[np.float64]]] = {}
+    for i in idx:
+        m = own == i
+        if not m.any():
+            st.done += 1
+            continue
+        Qi, ri, bi = Qc[m], rc[m], br[m]
+        # only the preferred arm shape (shoulder + elbow); a wrist flip is allowed at a
+        # penalty. Other shapes need the arm to swing through singular/crowded regions,
+        # which is rarely possible next to the bin (measured: most such motions fail).
+        same = (bi >> 1) == (st.preferred >> 1)
+        if not same.any():
+            st.done += 1
+            continue
+        Qi, ri, bi = Qi[same], ri[same], bi[same]
+        key = np.linalg.norm(Qi - st.centre, axis=1) + 100.0 * (bi != st.preferred)
+        s = np.argsort(key, kind="stable")[:MAX_ACCEPT_TRIES]
+        offers[i] = (Qi[s], ri[s])
+    first = _first_accepted(offers, accept)
+    for i, (Qi, ri) in offers.items():
+        k = first.get(i)
+        # paper mode: the planner's verdict on the first acceptable goal decides
+        if k is not None and (verify is None or verify(i, Qi[k])):
+            st.resolved[int(vp.seed[i])] = (i, Qi[k], float(ri[k]))
+        st.step()
 
 
 JOIN_TRIES = 4  # solutions nearest a shape's median that ``joinable`` is asked about
