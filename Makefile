@@ -22,7 +22,7 @@ test-all: $(STAMP) node-deps
 	$(PY) -m pytest -q -m "" $(PYTEST_ARGS)
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check cellctl tests
+	$(VENV)/bin/ruff check cellctl tests tools
 
 # mypy (settings in pyproject.toml, cache in .venv/): strict packages clean, the rest within .ci/mypy_baseline.json.
 typecheck: $(STAMP)

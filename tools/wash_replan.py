@@ -1,7 +1,7 @@
 """Replan a cycle's logged wash plans: each `wash_plan` request in a cycle MCAP, planned again by this
 checkout's `plan_wash`, with what the demo's story 3 needed checked (docs/figures/wash_story3_plans.json).
 
-    .venv/bin/python -m cellctl.bench.demo.wash_replan logs/<demo>/<day>/<cycle>.mcap [--seed 18]
+    .venv/bin/python tools/wash_replan.py logs/<demo>/<day>/<cycle>.mcap [--seed 18]
 
 Per request: sweeps, how many have an end a straight free motion from home reaches (0.02 rad checks),
 the shoulder's range, covered / target area, and — over the scenario's powder (`--seed`, amount 0.01, the

@@ -2,7 +2,7 @@
 near a clump, the dirt map's probability of those faces, and the powder left after each round when the
 logged `robot/wash` sweeps are sprayed at the bin pose measured before them (the twin's spray model).
 
-    .venv/bin/python -m cellctl.bench.demo.wash_powder logs/<demo>/<day>/<cycle>.mcap \
+    .venv/bin/python tools/wash_powder.py logs/<demo>/<day>/<cycle>.mcap \
         [--seed 18] [--amount 0.01] [--clump -0.43 0.335 -0.585] [--bin case_study]
 
 Demo story 3 (docs/figures/wash_story3_twin_powder.json): the clump lies on the -x side of a leg (faces
@@ -18,6 +18,7 @@ import json
 import numpy as np
 from mcap.reader import make_reader
 
+from cellctl.bus import keys, topics
 from cellctl.classify.heatmap import face_probabilities
 from cellctl.config import load_config
 from cellctl.geometry import robot_model as rm
@@ -68,17 +69,22 @@ def main() -> None:
     out["powder_before"] = powder()
     T_base_bin, rounds, maps = None, [], []
     with open(a.mcap, "rb") as fh:
-        topics = ["/bin/pose", "cell/cell1/robot/wash/request", "/wash/round", "cell/cell1/planner/wash_plan/request"]
-        for _s, ch, m in make_reader(fh).iter_messages(topics=topics):
+        wanted = [
+            topics.BIN_POSE,
+            topics.request(keys.worker_op(cfg.cell_id, "robot", "wash")),
+            topics.WASH_ROUND,
+            topics.request(keys.worker_op(cfg.cell_id, "planner", "wash_plan")),
+        ]
+        for _s, ch, m in make_reader(fh).iter_messages(topics=wanted):
             d = json.loads(m.data)
-            if ch.topic == "/bin/pose":
+            if ch.topic == topics.BIN_POSE:
                 T_base_bin = _pose(d["pose"])
             elif ch.topic.endswith("wash_plan/request"):
                 p = face_probabilities(d["dirt_map"] or {}, mesh.n_faces)
                 if p is not None:
                     fp = {int(f): None if np.isnan(p[f]) else round(float(p[f]), 3) for f in near}
                     maps.append({"round": d["round"], "face_p": fp})
-            elif ch.topic == "/wash/round":
+            elif ch.topic == topics.WASH_ROUND:
                 rounds.append({"round": d["round"], "passes": len(field.washes), "powder_after": powder()})
             elif T_base_bin is not None:
                 T_bin_base = invert(T_base_bin)
