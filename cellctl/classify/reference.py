@@ -42,7 +42,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 import cv2
 import numpy as np
@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 from cellctl.classify.contamination import MODEL_INPUT_PX
 from cellctl.classify.decision import is_uncertain
 from cellctl.errors import ClassifierError
+from cellctl.messages.classifier import ReferenceReason
 
 __all__ = [
     "FUSION_FORMAT",
@@ -112,15 +113,10 @@ UNCOVERED_FEATURES = (0.0, 0.0, 0.0)
 """Change features of a patch the warped reference does not cover: no evidence of change."""
 FUSION_FORMAT = "cellctl-reference-fusion/2"
 """2: the detector's evidence also enters gated by the change probability (``fuse`` has 6 weights)."""
-REJECT_REASONS = (
-    "no_reference",
-    "out_of_tolerance",
-    "degenerate_prior",
-    "ecc_not_converged",
-    "low_correlation",
-    "far_from_prior",
-    "small_overlap",
-)
+_NOT_ALIGNMENT = ("aligned", "no_fusion", "unreadable")
+"""Reasons the classifier worker gives, not the alignment: judged, no fitted fusion, stored image unreadable."""
+REJECT_REASONS: tuple[str, ...] = tuple(r for r in get_args(ReferenceReason) if r not in _NOT_ALIGNMENT)
+"""Why the alignment refused a view: the wire's reasons less the worker's own (one list, on the wire)."""
 
 
 @dataclass(frozen=True)
