@@ -298,8 +298,10 @@ class CellLink:
         s = self._session
         if s is None:
             raise self._unreachable()
-        acks: queue.Queue[Ack] = queue.Queue()
-        sub = s.declare_subscriber(keys.cmd_ack(cell), lambda smp: acks.put(decode_as(Ack, smp.payload.to_bytes())))
+        # the callback only hands the bytes over: decoding there would raise on a malformed Ack inside
+        # Zenoh's thread; here a malformed one is skipped like another command's Ack
+        acks: queue.Queue[bytes] = queue.Queue()
+        sub = s.declare_subscriber(keys.cmd_ack(cell), lambda smp: acks.put(smp.payload.to_bytes()))
         try:
             time.sleep(0.1)  # let the subscription reach the router before the put
             # BLOCK: the default (DROP) may drop a put at a full transmission queue, and nothing would answer
@@ -307,9 +309,13 @@ class CellLink:
             deadline = time.monotonic() + timeout
             while (left := deadline - time.monotonic()) > 0:
                 try:
-                    ack = acks.get(timeout=left)
+                    raw = acks.get(timeout=left)
                 except queue.Empty:
                     break
+                try:
+                    ack = decode_as(Ack, raw)
+                except ProtocolError:
+                    continue
                 if ack.request_id == cmd.request_id:
                     return ack
         finally:
